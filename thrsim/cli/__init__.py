@@ -1,0 +1,58 @@
+"""The ``thrsim`` command: one typer app, each subcommand in its own module of this package.
+
+Every subcommand module exposes a function that is registered here; errors of the user's
+making (:class:`ThrsimInputError`, pydantic validation) become one line on stderr and exit 2.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from pydantic import ValidationError
+
+from thrsim import __version__
+from thrsim.cli import mesh_cmd
+from thrsim.cli.output import format_validation_error
+from thrsim.errors import SimulationError, ThrsimInputError
+
+app = typer.Typer(
+    name="thrsim",
+    help="Physically-based and learned simulation of acetabular reaming (total hip replacement training).",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(False, "--version", help="print the thrsim version and exit", is_eager=True),
+) -> None:
+    """Physically-based and learned simulation of acetabular reaming (total hip replacement training)."""
+    if version:
+        typer.echo(__version__)
+        raise typer.Exit()
+
+
+app.command("mesh")(mesh_cmd.mesh)
+
+
+def main() -> None:
+    """Entry point of the ``thrsim`` console script."""
+    try:
+        app()
+    except ThrsimInputError as error:
+        typer.echo(f"thrsim: error: {error}", err=True)
+        sys.exit(2)
+    except ValidationError as error:
+        typer.echo(f"thrsim: error: {format_validation_error(error)}", err=True)
+        sys.exit(2)
+    except SimulationError as error:
+        typer.echo(f"thrsim: simulation stopped: {error}", err=True)
+        sys.exit(3)
+    except KeyboardInterrupt:
+        typer.echo("thrsim: interrupted", err=True)
+        sys.exit(130)

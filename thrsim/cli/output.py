@@ -1,0 +1,56 @@
+"""Shared output helpers for subcommands: one JSON object on stdout, rich tables otherwise."""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+from pydantic import ValidationError
+from rich.console import Console
+from rich.table import Table
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _json_default(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def print_json(payload: dict) -> None:
+    """Print exactly one JSON object on stdout (non-finite floats become null)."""
+
+    def clean(value: Any) -> Any:
+        if isinstance(value, float) and not math.isfinite(value):
+            return None
+        if isinstance(value, dict):
+            return {k: clean(v) for k, v in value.items()}
+        if isinstance(value, (list, tuple)):
+            return [clean(v) for v in value]
+        return value
+
+    print(json.dumps(clean(payload), default=_json_default, indent=2))
+
+
+def print_table(title: str, rows: dict[str, Any]) -> None:
+    """A two-column rich table of named figures."""
+    table = Table(title=title, show_header=False)
+    table.add_column("figure", style="bold")
+    table.add_column("value")
+    for key, value in rows.items():
+        table.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value))
+    console.print(table)
+
+
+def format_validation_error(error: ValidationError) -> str:
+    """pydantic's multi-line report folded into one line: 'field: problem; field: problem'."""
+    parts = []
+    for item in error.errors():
+        where = ".".join(str(p) for p in item.get("loc", ())) or error.title
+        parts.append(f"{where}: {item.get('msg', 'invalid')}")
+    return "invalid configuration: " + "; ".join(parts)

@@ -1,0 +1,1 @@
+"""Ground-truth case files (HDF5), sweeps and executors, α labels, splits."""

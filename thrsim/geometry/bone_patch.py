@@ -1,0 +1,100 @@
+"""The default acetabular bone: a spherical-shell patch around the cavity pole, meshed by gmsh.
+
+Bone frame (SPEC §3): origin at the centre of the acetabular sphere, +z out of the acetabulum
+toward the surgeon, the patch around −z. The patch is the shell between the inner (articular)
+sphere and the outer sphere, cut by a cone of the given half-angle about −z, so its side faces
+are conical and meet both spheres at right angles.
+
+Node sets: ``inner`` (the articular face that is reamed), ``outer`` (the bottom face, fixed by
+the encastre [5.3.3]) and ``side`` (cuts through bone that continues in reality; fixed too by
+default, see :class:`thrsim.config.BonePatchConfig`). The left hip is the mirror of the right
+across the bone frame's x = 0 plane, standing in for the sagittal plane.
+
+Determinism: one gmsh thread, the Delaunay 3-D algorithm and a fixed random seed give the same
+mesh for the same parameters and gmsh version.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from thrsim.config import BonePatchConfig
+from thrsim.geometry.mesh import INNER, OUTER, SIDE, TetMesh
+from thrsim.geometry.tet_metrics import signed_volumes
+
+_GMSH_TET = 4  # gmsh element type code of the 4-node tetrahedron
+_SEED = 20406
+
+
+def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
+    """Mesh the patch with gmsh (OpenCASCADE kernel) and return it in metres."""
+    import gmsh
+
+    config = config or BonePatchConfig()
+    r_in, r_out = config.inner_radius_mm, config.inner_radius_mm + config.thickness_mm
+    started_here = not gmsh.isInitialized()
+    if started_here:
+        gmsh.initialize(interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("General.Verbosity", 0)
+        gmsh.option.setNumber("General.NumThreads", 1)
+        gmsh.model.add("acetabular_patch")
+        occ = gmsh.model.occ
+        outer = occ.addSphere(0, 0, 0, r_out)
+        inner = occ.addSphere(0, 0, 0, r_in)
+        length = 1.5 * r_out
+        cone = occ.addCone(0, 0, 0, 0, 0, -length, 0, length * math.tan(config.half_angle))
+        shell, _ = occ.cut([(3, outer)], [(3, inner)])
+        patch, _ = occ.intersect(shell, [(3, cone)])
+        occ.synchronize()
+
+        faces = {OUTER: [], INNER: [], SIDE: []}
+        for dim, tag in gmsh.model.getBoundary(patch, oriented=False):
+            kind = gmsh.model.getType(dim, tag)
+            if kind == "Sphere":
+                centre = np.array(occ.getCenterOfMass(dim, tag))
+                faces[OUTER if np.linalg.norm(centre) > 0.5 * (r_in + r_out) else INNER].append(tag)
+            else:
+                faces[SIDE].append(tag)
+
+        gmsh.option.setNumber("Mesh.MeshSizeMax", config.element_size_mm)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", config.min_element_size_mm)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 1)
+        gmsh.option.setNumber("Mesh.Algorithm", 6)
+        gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+        gmsh.option.setNumber("Mesh.RandomSeed", _SEED)
+        gmsh.option.setNumber("Mesh.Optimize", 1)
+        gmsh.model.mesh.generate(3)
+
+        types, _, connectivity = gmsh.model.mesh.getElements(3)
+        tet_tags = np.asarray(connectivity[list(types).index(_GMSH_TET)], dtype=np.int64).reshape(-1, 4)
+        node_tags, coords, _ = gmsh.model.mesh.getNodes()
+        coords = np.asarray(coords).reshape(-1, 3)
+        used = np.unique(tet_tags)
+        index_of = np.full(int(max(node_tags.max(), used.max())) + 1, -1, dtype=np.int64)
+        index_of[used] = np.arange(len(used))
+        position = np.empty((int(node_tags.max()) + 1, 3))
+        position[np.asarray(node_tags, dtype=np.int64)] = coords
+        nodes_m = position[used] * 1e-3
+        tets = index_of[tet_tags]
+
+        node_sets = {}
+        for name, tags in faces.items():
+            ids = [np.asarray(gmsh.model.mesh.getNodes(2, t, includeBoundary=True)[0], dtype=np.int64) for t in tags]
+            ids = np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64)
+            node_sets[name] = index_of[ids[index_of[ids] >= 0]]
+    finally:
+        gmsh.model.remove()
+        if started_here:
+            gmsh.finalize()
+
+    inverted = signed_volumes(nodes_m, tets) < 0
+    tets = np.where(inverted[:, None], tets[:, [0, 2, 1, 3]], tets)
+    fixed = [node_sets[OUTER]] + ([node_sets[SIDE]] if config.support_side_faces else [])
+    mesh = TetMesh(nodes=nodes_m, tets=tets, node_sets=node_sets, fixed_nodes=np.concatenate(fixed))
+    return mesh.mirrored(axis=0) if config.side == "left" else mesh
+

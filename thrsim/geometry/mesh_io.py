@@ -1,0 +1,153 @@
+"""Reading and writing tet meshes: meshio for the exchange formats, h5py for thrsim's own layout.
+
+Exchange formats (.vtu, .msh, .inp and anything else meshio reads) carry coordinates in
+millimetres by default (``units``), as CAD and ABAQUS users expect; thrsim's HDF5 layout is SI
+(metres), the same ``/mesh`` group as a ground-truth case file (SPEC §4). Writes go to a
+temporary name first and are renamed only when complete.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Literal
+
+import h5py
+import numpy as np
+
+from thrsim.atomic import atomic_path
+from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import TetMesh
+from thrsim.provenance import package_versions
+
+Units = Literal["mm", "m"]
+UNIT_SCALE = {"mm": 1e-3, "m": 1.0}
+WRITABLE_SUFFIXES = (".vtu", ".msh", ".inp", ".h5")
+FIXED_SET = "fixed"
+
+
+def read_mesh(path: str | Path, units: Units = "mm") -> TetMesh:
+    """Read any tetrahedral mesh meshio reads (ABAQUS C3D4 .inp, Gmsh .msh, .vtu, ...) or a thrsim .h5.
+
+    Only linear tets are accepted (quadratic tets keep their corner nodes); lower-dimensional
+    cells (boundary triangles, lines) are ignored. Node sets come from ABAQUS NSETs or Gmsh
+    physical groups; a set named ``fixed`` becomes the fixed nodes. The mesh is validated.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise ThrsimInputError(f"{path}: no such file")
+    if not path.is_file():
+        raise ThrsimInputError(f"{path}: not a file")
+    mesh = _read_h5(path) if path.suffix.lower() in (".h5", ".hdf5") else _read_meshio(path, units)
+    mesh.validate(source=str(path))
+    return mesh
+
+
+def _read_meshio(path: Path, units: Units) -> TetMesh:
+    import meshio
+
+    try:
+        raw = meshio.read(path)
+    except Exception as error:  # meshio raises many types for garbled input; all mean "unreadable"
+        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise ThrsimInputError(f"{path}: cannot read mesh ({reason})") from None
+    blocks = [block for block in raw.cells if block.type in ("tetra", "tetra10")]
+    if not blocks:
+        kinds = sorted({block.type for block in raw.cells}) or ["none"]
+        raise ThrsimInputError(f"{path}: no tetrahedral elements (cell types: {', '.join(kinds)})")
+    tets = np.concatenate([np.asarray(block.data)[:, :4] for block in blocks]).astype(np.int64)
+    nodes = np.asarray(raw.points, dtype=np.float64)
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise ThrsimInputError(f"{path}: nodes are not three-dimensional")
+    node_sets = {name: np.asarray(ids, dtype=np.int64).ravel() for name, ids in (raw.point_sets or {}).items()}
+    node_sets.update(_gmsh_physical_node_sets(raw))
+    for name in list(raw.point_data):
+        if name.startswith("set_"):
+            node_sets[name[4:]] = np.flatnonzero(np.asarray(raw.point_data[name]) > 0)
+    fixed = node_sets.get(FIXED_SET, np.zeros(0, dtype=np.int64))
+    return TetMesh(nodes=nodes * UNIT_SCALE[units], tets=tets, node_sets=node_sets, fixed_nodes=fixed)
+
+
+def _gmsh_physical_node_sets(raw) -> dict[str, np.ndarray]:
+    """Nodes of lower-dimensional cells grouped by Gmsh physical name."""
+    names = {int(tag): name for name, (tag, _dim) in (raw.field_data or {}).items()}
+    physical = raw.cell_data.get("gmsh:physical")
+    if not names or physical is None:
+        return {}
+    sets: dict[str, list[np.ndarray]] = {}
+    for block, tags in zip(raw.cells, physical):
+        if block.type in ("tetra", "tetra10"):
+            continue
+        for tag in np.unique(tags):
+            if int(tag) in names:
+                sets.setdefault(names[int(tag)], []).append(np.asarray(block.data)[tags == tag].ravel())
+    return {name: np.unique(np.concatenate(parts)) for name, parts in sets.items()}
+
+
+def _read_h5(path: Path) -> TetMesh:
+    try:
+        with h5py.File(path, "r") as f:
+            if "mesh" not in f:
+                raise ThrsimInputError(f"{path}: HDF5 file has no /mesh group")
+            group = f["mesh"]
+            sets = {name: group["node_sets"][name][()] for name in group.get("node_sets", {})}
+            return TetMesh(
+                nodes=group["nodes"][()],
+                tets=group["tets"][()],
+                node_sets=sets,
+                fixed_nodes=group["fixed_nodes"][()] if "fixed_nodes" in group else np.zeros(0, dtype=np.int32),
+            )
+    except (OSError, KeyError) as error:
+        raise ThrsimInputError(f"{path}: cannot read HDF5 mesh ({error})") from None
+
+
+def write_mesh_group(group: h5py.Group, mesh: TetMesh) -> None:
+    """The SPEC §4 ``/mesh`` group (nodes m, tets int32, fixed_nodes int32) plus named node sets."""
+    group.create_dataset("nodes", data=mesh.nodes.astype(np.float64))
+    group.create_dataset("tets", data=mesh.tets.astype(np.int32))
+    group.create_dataset("fixed_nodes", data=mesh.fixed_nodes.astype(np.int32))
+    sets = group.create_group("node_sets")
+    for name, ids in mesh.node_sets.items():
+        sets.create_dataset(name, data=ids.astype(np.int32))
+
+
+def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: dict | None = None) -> Path:
+    """Write by suffix (.vtu, .msh, .inp, .h5), atomically."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in WRITABLE_SUFFIXES:
+        raise ThrsimInputError(f"{path}: unsupported output format {suffix or '(none)'}; use one of {', '.join(WRITABLE_SUFFIXES)}")
+    with atomic_path(path) as tmp:
+        if suffix == ".h5":
+            with h5py.File(tmp, "w") as f:
+                f.attrs["format"] = "thrsim-mesh"
+                f.attrs["units"] = "m"
+                f.attrs["versions"] = json.dumps(package_versions())
+                f.attrs["metadata"] = json.dumps(metadata or {})
+                write_mesh_group(f.create_group("mesh"), mesh)
+        else:
+            _write_meshio(mesh, tmp, suffix, units)
+    return path
+
+
+def _write_meshio(mesh: TetMesh, path: Path, suffix: str, units: Units) -> None:
+    import meshio
+
+    sets = {**mesh.node_sets, FIXED_SET: mesh.fixed_nodes}
+    points = mesh.nodes / UNIT_SCALE[units]
+    cells = [("tetra", mesh.tets.astype(np.int64))]
+    if suffix == ".inp":
+        out = meshio.Mesh(points, cells, point_sets={name: ids.astype(np.int64) for name, ids in sets.items()})
+        meshio.write(path, out, file_format="abaqus")
+    elif suffix == ".msh":
+        flags = {f"set_{name}": _flag(mesh.n_nodes, ids) for name, ids in sets.items()}
+        meshio.write(meshio.Mesh(points, cells, point_data=flags), path, file_format="gmsh22", binary=False)
+    else:
+        flags = {f"set_{name}": _flag(mesh.n_nodes, ids) for name, ids in sets.items()}
+        meshio.write(meshio.Mesh(points, cells, point_data=flags), path, file_format="vtu")
+
+
+def _flag(n: int, ids: np.ndarray) -> np.ndarray:
+    flag = np.zeros(n, dtype=np.int32)
+    flag[ids] = 1
+    return flag

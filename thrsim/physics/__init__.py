@@ -1,0 +1,1 @@
+"""Material law, tet kinematics, contact, the explicit solver and the reaming case."""

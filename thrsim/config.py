@@ -126,7 +126,6 @@ class ReamerConfig(_Frozen):
     tooth_first_polar_deg: float = Field(3.0, ge=0, lt=90)
     tooth_last_polar_deg: float = Field(86.0, gt=0, le=90)
     omega_rad_s: float = Field(136.0, description="spin about the axis D")
-    push_force_n: float = Field(230.0, ge=0, description="surgeon's mean axial push [5.3.2]")
     gravity_m_s2: float = Field(9.81, ge=0)
     density_kg_m3: float = Field(7800.0, gt=0, description="AISI 420 steel [Table 9]")
     youngs_modulus_pa: float = Field(200e9, gt=0)
@@ -274,3 +273,38 @@ class ThrsimConfig(_Frozen):
     safe_zone: SafeZone = SafeZone()
     tracking: TrackingVolumeConfig = TrackingVolumeConfig()
     igtl: IgtlConfig = IgtlConfig()
+
+
+class SolverConfig(_Frozen):
+    """Explicit central-difference settings of the ground-truth solver."""
+
+    target_dt_s: float = Field(4e-6, gt=0, description="time step reached by per-element mass scaling")
+    safety_factor: float = Field(0.9, gt=0, le=1, description="fraction of the Courant limit used")
+    max_kinetic_to_internal: float = Field(0.1, gt=0, description="reported target after first contact")
+    energy_blowup_factor: float = Field(1e3, gt=1, description="stop when energy exceeds this × work done")
+    threads: int | None = Field(None, ge=1, description="Numba threads; None = all cores")
+
+
+class ReamingCaseConfig(_Frozen):
+    """One ground-truth reaming case: an orientation, a push force, a number of frames, all settings."""
+
+    inclination_deg: float = Field(..., ge=0, le=90)
+    anteversion_deg: float = Field(..., ge=0, le=360)
+    force_n: float = Field(230.0, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
+    frames: int = Field(120, ge=1)
+    frame_rate_hz: float = Field(60.0, gt=0)
+    bone: BonePatchConfig = BonePatchConfig()
+    material: BoneMaterial = BoneMaterial()
+    hardening: JohnsonCookHardening = JohnsonCookHardening()
+    damage: JohnsonCookDamage = JohnsonCookDamage()
+    reamer: ReamerConfig = ReamerConfig()
+    contact: ContactConfig = ContactConfig()
+    solver: SolverConfig = SolverConfig()
+
+    @property
+    def orientation(self) -> Orientation:
+        return Orientation(inclination_deg=self.inclination_deg, anteversion_deg=self.anteversion_deg)
+
+    @property
+    def frame_dt_s(self) -> float:
+        return 1.0 / self.frame_rate_hz

@@ -1,0 +1,504 @@
+"""The ground-truth case file (SPEC §4): one HDF5 file per reaming case.
+
+Layout::
+
+    attrs   format="thrsim-case", version, inclination_deg, anteversion_deg, force_n,
+            omega_rad_s, frame_dt_s, config (JSON), config_hash, versions (JSON),
+            thrsim_version, frames, elements, plus any extra attrs (end_reason, ...)
+    /mesh/nodes (N,3) float64 m   /mesh/tets (E,4) int32   /mesh/fixed_nodes (K,) int32
+    /mesh/node_sets/<name>
+    /frames/time (T,) float64 s
+    /frames/status (T,E) uint8, 1 active 0 removed
+    /frames/peeq (T,E) float32
+    /frames/von_mises (T,E) float32 Pa
+    /frames/reamer_position (T,3) float64 m
+    /frames/reamer_axis (3,) float64
+    /frames/energy (T,k) float64 J, attr names = kinetic, internal, ...
+    /frames/contact_force (T,3) float64 N (optional)
+
+Per-element datasets are chunked one frame per chunk and gzip-compressed (level 1), so a
+reader streams frames without loading the whole case. Frame 0 is the intact bone before
+contact. Files are written to a temporary name in the target folder, fsynced and renamed:
+a reader never sees a half-written case.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from thrsim import __version__
+from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.mesh_io import write_mesh_group
+from thrsim.provenance import config_hash, package_versions
+
+CASE_FORMAT = "thrsim-case"
+CASE_VERSION = 1
+REQUIRED_ENERGIES = ("kinetic", "internal")
+PER_ELEMENT = ("status", "peeq", "von_mises")
+_COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+
+
+@dataclass
+class CaseFrames:
+    """Everything recorded per output frame."""
+
+    time: np.ndarray  # (T,) s
+    status: np.ndarray  # (T,E) uint8 1 active 0 removed
+    peeq: np.ndarray  # (T,E) float32
+    von_mises: np.ndarray  # (T,E) float32 Pa
+    reamer_position: np.ndarray  # (T,3) float64 m
+    energy: np.ndarray  # (T,k) float64 J
+    energy_names: tuple[str, ...]  # at least "kinetic" and "internal"
+    contact_force: np.ndarray | None = None  # (T,3) N
+
+    @property
+    def n_frames(self) -> int:
+        return int(len(self.time))
+
+    @property
+    def n_elements(self) -> int:
+        return int(np.shape(self.status)[1])
+
+
+@dataclass
+class Case:
+    """A case read back: the mesh, the frames and the file's attributes (JSON attrs decoded)."""
+
+    path: Path
+    mesh: TetMesh
+    frames: CaseFrames
+    reamer_axis: np.ndarray
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+
+def _jsonable(value: Any) -> Any:
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def _attr_value(value: Any) -> Any:
+    """HDF5 attrs take scalars and strings; anything else is stored as JSON text."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, float, str, np.integer, np.floating)):
+        return value
+    if value is None:
+        return "null"
+    return json.dumps(value, default=_jsonable)
+
+
+def _check_frames(frames: CaseFrames, mesh: TetMesh, where: str) -> None:
+    t = frames.n_frames
+    e = mesh.n_tets
+    expected = {
+        "time": (t,),
+        "status": (t, e),
+        "peeq": (t, e),
+        "von_mises": (t, e),
+        "reamer_position": (t, 3),
+    }
+    for name, shape in expected.items():
+        got = np.shape(getattr(frames, name))
+        if got != shape:
+            raise ThrsimInputError(f"{where}: frames.{name} has shape {got}, expected {shape}")
+    if t < 1:
+        raise ThrsimInputError(f"{where}: a case needs at least one frame")
+    energy_shape = np.shape(frames.energy)
+    if len(energy_shape) != 2 or energy_shape[0] != t or energy_shape[1] != len(frames.energy_names):
+        raise ThrsimInputError(
+            f"{where}: frames.energy has shape {energy_shape}, expected ({t}, {len(frames.energy_names)}) for names {frames.energy_names}"
+        )
+    missing = [n for n in REQUIRED_ENERGIES if n not in frames.energy_names]
+    if missing:
+        raise ThrsimInputError(f"{where}: energy names lack {', '.join(missing)}")
+    if frames.contact_force is not None and np.shape(frames.contact_force) != (t, 3):
+        raise ThrsimInputError(f"{where}: frames.contact_force has shape {np.shape(frames.contact_force)}, expected ({t}, 3)")
+
+
+def _per_frame_dataset(group: h5py.Group, name: str, data: np.ndarray, dtype) -> None:
+    data = np.ascontiguousarray(data, dtype=dtype)
+    chunks = (1,) + data.shape[1:] if data.ndim > 1 else (max(1, min(len(data), 4096)),)
+    group.create_dataset(name, data=data, chunks=chunks, **_COMPRESSION)
+
+
+def _fsync_dir(folder: Path) -> None:
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+def write_case(
+    path: str | os.PathLike,
+    mesh: TetMesh,
+    frames: CaseFrames,
+    reamer_axis,
+    *,
+    inclination_deg: float,
+    anteversion_deg: float,
+    force_n: float,
+    omega_rad_s: float,
+    frame_dt_s: float,
+    config: dict,
+    extra_attrs: dict | None = None,
+) -> Path:
+    """Write one case file atomically (temporary name beside ``path``, fsync, rename); return ``path``."""
+    path = Path(path)
+    where = str(path)
+    _check_frames(frames, mesh, where)
+    axis = np.asarray(reamer_axis, dtype=np.float64).reshape(-1)
+    if axis.shape != (3,):
+        raise ThrsimInputError(f"{where}: reamer_axis must have 3 components, got {axis.shape}")
+    folder = path.parent if str(path.parent) else Path(".")
+    if not folder.is_dir():
+        raise ThrsimInputError(f"{where}: output folder {folder} does not exist")
+    config_text = json.dumps(config, sort_keys=True, default=_jsonable)
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        with h5py.File(tmp, "w") as f:
+            attrs = {
+                "format": CASE_FORMAT,
+                "version": CASE_VERSION,
+                "inclination_deg": float(inclination_deg),
+                "anteversion_deg": float(anteversion_deg),
+                "force_n": float(force_n),
+                "omega_rad_s": float(omega_rad_s),
+                "frame_dt_s": float(frame_dt_s),
+                "config": config_text,
+                "config_hash": config_hash(json.loads(config_text)),
+                "versions": json.dumps(package_versions()),
+                "thrsim_version": __version__,
+                "frames": frames.n_frames,
+                "elements": mesh.n_tets,
+            }
+            for key, value in (extra_attrs or {}).items():
+                if key in attrs:
+                    raise ThrsimInputError(f"{where}: extra attribute {key!r} would overwrite a reserved attribute")
+                attrs[key] = _attr_value(value)
+            f.attrs.update(attrs)
+            write_mesh_group(f.create_group("mesh"), mesh)
+            g = f.create_group("frames")
+            g.create_dataset("time", data=np.asarray(frames.time, dtype=np.float64))
+            _per_frame_dataset(g, "status", frames.status, np.uint8)
+            _per_frame_dataset(g, "peeq", frames.peeq, np.float32)
+            _per_frame_dataset(g, "von_mises", frames.von_mises, np.float32)
+            g.create_dataset("reamer_position", data=np.asarray(frames.reamer_position, dtype=np.float64))
+            g.create_dataset("reamer_axis", data=axis)
+            energy = g.create_dataset("energy", data=np.asarray(frames.energy, dtype=np.float64))
+            energy.attrs["names"] = [str(n) for n in frames.energy_names]
+            if frames.contact_force is not None:
+                g.create_dataset("contact_force", data=np.asarray(frames.contact_force, dtype=np.float64))
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+        _fsync_dir(folder)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def _decode_attrs(raw: h5py.AttributeManager) -> dict[str, Any]:
+    attrs: dict[str, Any] = {}
+    for key, value in raw.items():
+        if isinstance(value, bytes):
+            value = value.decode()
+        if isinstance(value, np.generic):
+            value = value.item()
+        if key in ("config", "versions") and isinstance(value, str):
+            try:
+                value = json.loads(value)
+            except ValueError:
+                pass
+        attrs[key] = value
+    return attrs
+
+
+def _energy_names(dataset: h5py.Dataset) -> tuple[str, ...]:
+    names = dataset.attrs.get("names", ())
+    return tuple(n.decode() if isinstance(n, bytes) else str(n) for n in np.atleast_1d(names))
+
+
+def _open(path: Path) -> h5py.File:
+    if not path.exists():
+        raise ThrsimInputError(f"{path}: no such file")
+    try:
+        return h5py.File(path, "r")
+    except OSError as error:
+        raise ThrsimInputError(f"{path}: not a readable HDF5 file ({error})") from None
+
+
+def read_mesh_group(f: h5py.File) -> TetMesh:
+    g = f["mesh"]
+    sets = {name: g["node_sets"][name][()] for name in g.get("node_sets", {})}
+    return TetMesh(nodes=g["nodes"][()], tets=g["tets"][()], node_sets=sets, fixed_nodes=g["fixed_nodes"][()])
+
+
+def read_case(path: str | os.PathLike) -> Case:
+    """Read a whole case into memory (use :class:`CaseReader` to stream frames instead)."""
+    path = Path(path)
+    with _open(path) as f:
+        if f.attrs.get("format") not in (CASE_FORMAT, CASE_FORMAT.encode()):
+            raise ThrsimInputError(f"{path}: not a thrsim case file (format attribute {f.attrs.get('format')!r})")
+        try:
+            g = f["frames"]
+            frames = CaseFrames(
+                time=g["time"][()],
+                status=g["status"][()],
+                peeq=g["peeq"][()],
+                von_mises=g["von_mises"][()],
+                reamer_position=g["reamer_position"][()],
+                energy=g["energy"][()],
+                energy_names=_energy_names(g["energy"]),
+                contact_force=g["contact_force"][()] if "contact_force" in g else None,
+            )
+            return Case(path=path, mesh=read_mesh_group(f), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=_decode_attrs(f.attrs))
+        except KeyError as error:
+            raise ThrsimInputError(f"{path}: missing dataset ({error})") from None
+
+
+class CaseReader:
+    """Open a case file and read single frames on demand (one chunk per per-element dataset)."""
+
+    def __init__(self, path: str | os.PathLike):
+        self.path = Path(path)
+        self._file = _open(self.path)
+        self.attrs = _decode_attrs(self._file.attrs)
+        g = self._file["frames"]
+        self._frames = g
+        self.n_frames = int(g["status"].shape[0])
+        self.n_elements = int(g["status"].shape[1])
+        self.time = g["time"][()]
+        self.reamer_position = g["reamer_position"][()]
+        self.reamer_axis = g["reamer_axis"][()]
+        self.energy = g["energy"][()]
+        self.energy_names = _energy_names(g["energy"])
+        self.contact_force = g["contact_force"][()] if "contact_force" in g else None
+        self._mesh: TetMesh | None = None
+
+    @property
+    def mesh(self) -> TetMesh:
+        if self._mesh is None:
+            self._mesh = read_mesh_group(self._file)
+        return self._mesh
+
+    def frame(self, t: int) -> dict[str, np.ndarray]:
+        """status, peeq and von_mises of frame ``t``, plus its time and reamer position."""
+        if not -self.n_frames <= t < self.n_frames:
+            raise IndexError(f"{self.path}: frame {t} out of range (0..{self.n_frames - 1})")
+        g = self._frames
+        return {
+            "time": self.time[t],
+            "status": g["status"][t],
+            "peeq": g["peeq"][t],
+            "von_mises": g["von_mises"][t],
+            "reamer_position": self.reamer_position[t],
+        }
+
+    def close(self) -> None:
+        self._file.close()
+
+    def __enter__(self) -> "CaseReader":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def file_sha256(path: str | os.PathLike, block: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        while chunk := handle.read(block):
+            digest.update(chunk)
+    return digest.hexdigest()
+
+
+def data_digest(path: str | os.PathLike) -> str:
+    """SHA-256 over every dataset's dtype, shape and values (not attrs, not HDF5 layout bytes).
+
+    Two runs of the same case give the same digest whatever their wall times or versions
+    attributes: this is what "identical results" compares.
+    """
+    digest = hashlib.sha256()
+    with _open(Path(path)) as f:
+        names: list[str] = []
+        f.visititems(lambda name, obj: names.append(name) if isinstance(obj, h5py.Dataset) else None)
+        for name in sorted(names):
+            data = np.ascontiguousarray(f[name][()])
+            digest.update(f"{name}|{data.dtype.str}|{data.shape}|".encode())
+            digest.update(data.tobytes())
+    return digest.hexdigest()
+
+
+_REQUIRED = (
+    "mesh/nodes",
+    "mesh/tets",
+    "mesh/fixed_nodes",
+    "frames/time",
+    "frames/status",
+    "frames/peeq",
+    "frames/von_mises",
+    "frames/reamer_position",
+    "frames/reamer_axis",
+    "frames/energy",
+)
+_REQUIRED_ATTRS = ("version", "inclination_deg", "anteversion_deg", "force_n", "omega_rad_s", "frame_dt_s", "config")
+
+
+def validate_case(path: str | os.PathLike) -> dict[str, Any]:
+    """Check a case file against SPEC §4 and physical sense; return a summary or raise ThrsimInputError.
+
+    Refused: wrong format attribute, a missing dataset or attribute, inconsistent shapes, wrong
+    dtypes, non-finite values, time not increasing, status other than 0/1, a removed element
+    that reappears, PEEQ decreasing for an element still active, frame 0 not intact
+    (every element active, no plastic strain).
+    """
+    path = Path(path)
+    with _open(path) as f:
+        fmt = f.attrs.get("format")
+        if isinstance(fmt, bytes):
+            fmt = fmt.decode()
+        if fmt != CASE_FORMAT:
+            raise ThrsimInputError(f"{path}: not a thrsim case file (format attribute {fmt!r}, expected {CASE_FORMAT!r})")
+        missing = [name for name in _REQUIRED if name not in f or not isinstance(f[name], h5py.Dataset)]
+        if missing:
+            raise ThrsimInputError(f"{path}: missing dataset /{missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+        missing_attrs = [a for a in _REQUIRED_ATTRS if a not in f.attrs]
+        if missing_attrs:
+            raise ThrsimInputError(f"{path}: missing attribute {missing_attrs[0]!r}")
+        nodes, tets, fixed = f["mesh/nodes"], f["mesh/tets"], f["mesh/fixed_nodes"]
+        g = f["frames"]
+        if nodes.ndim != 2 or nodes.shape[1] != 3:
+            raise ThrsimInputError(f"{path}: /mesh/nodes has shape {nodes.shape}, expected (N, 3)")
+        if tets.ndim != 2 or tets.shape[1] != 4:
+            raise ThrsimInputError(f"{path}: /mesh/tets has shape {tets.shape}, expected (E, 4)")
+        n_nodes, n_el = nodes.shape[0], tets.shape[0]
+        n_frames = g["time"].shape[0] if g["time"].ndim == 1 else -1
+        if n_frames < 1:
+            raise ThrsimInputError(f"{path}: /frames/time must be a non-empty (T,) array, got shape {g['time'].shape}")
+        expected = {
+            "status": (n_frames, n_el),
+            "peeq": (n_frames, n_el),
+            "von_mises": (n_frames, n_el),
+            "reamer_position": (n_frames, 3),
+            "reamer_axis": (3,),
+        }
+        if "contact_force" in g:
+            expected["contact_force"] = (n_frames, 3)
+        for name, shape in expected.items():
+            if g[name].shape != shape:
+                raise ThrsimInputError(f"{path}: /frames/{name} has shape {g[name].shape}, expected {shape} (T={n_frames}, E={n_el})")
+        energy = g["energy"]
+        names = _energy_names(energy)
+        if energy.ndim != 2 or energy.shape != (n_frames, len(names)):
+            raise ThrsimInputError(f"{path}: /frames/energy has shape {energy.shape}, expected ({n_frames}, {len(names)}) for names {list(names)}")
+        lacking = [n for n in REQUIRED_ENERGIES if n not in names]
+        if lacking:
+            raise ThrsimInputError(f"{path}: /frames/energy lacks {', '.join(lacking)} (names {list(names)})")
+        for name, kind in (("mesh/tets", "i"), ("mesh/fixed_nodes", "i"), ("frames/status", "u")):
+            if f[name].dtype.kind not in (kind, "u" if kind == "i" else kind):
+                raise ThrsimInputError(f"{path}: /{name} has dtype {f[name].dtype}, expected integers")
+
+        tets_v = tets[()]
+        if n_el and (tets_v.min() < 0 or tets_v.max() >= n_nodes):
+            raise ThrsimInputError(f"{path}: /mesh/tets refers to nodes that do not exist")
+        fixed_v = fixed[()]
+        if len(fixed_v) and (fixed_v.min() < 0 or fixed_v.max() >= n_nodes):
+            raise ThrsimInputError(f"{path}: /mesh/fixed_nodes refers to nodes that do not exist")
+        for name in ("mesh/nodes", "frames/time", "frames/reamer_position", "frames/reamer_axis", "frames/energy") + (
+            ("frames/contact_force",) if "contact_force" in g else ()
+        ):
+            values = f[name][()]
+            if not np.isfinite(values).all():
+                raise ThrsimInputError(f"{path}: /{name} holds NaN or infinite values")
+        time = g["time"][()]
+        if n_frames > 1 and not np.all(np.diff(time) > 0):
+            raise ThrsimInputError(f"{path}: /frames/time is not strictly increasing")
+
+        status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
+        prev_status = prev_peeq = None
+        removed_per_frame: list[int] = []
+        peeq_max = 0.0
+        vm_min, vm_max = np.inf, -np.inf
+        for t in range(n_frames):
+            status = status_ds[t]
+            peeq = peeq_ds[t].astype(np.float64)
+            vm = vm_ds[t].astype(np.float64)
+            if not (np.isfinite(peeq).all() and np.isfinite(vm).all()):
+                raise ThrsimInputError(f"{path}: frame {t}: PEEQ or von Mises holds NaN or infinite values")
+            if np.any(status > 1):
+                raise ThrsimInputError(f"{path}: frame {t}: status values other than 0 and 1")
+            if peeq.min(initial=0.0) < 0 or vm.min(initial=0.0) < 0:
+                raise ThrsimInputError(f"{path}: frame {t}: negative PEEQ or von Mises stress")
+            if t == 0:
+                if not np.all(status == 1):
+                    raise ThrsimInputError(f"{path}: frame 0 is not intact ({int((status == 0).sum())} element(s) removed)")
+                if peeq.max(initial=0.0) > 0:
+                    raise ThrsimInputError(f"{path}: frame 0 is not intact (PEEQ up to {peeq.max():.3g})")
+            else:
+                back = (prev_status == 0) & (status == 1)
+                if back.any():
+                    raise ThrsimInputError(
+                        f"{path}: frame {t}: {int(back.sum())} removed element(s) reappear (first: element {int(np.flatnonzero(back)[0])})"
+                    )
+                live = status == 1
+                tol = 1e-6 * np.maximum(1.0, np.abs(prev_peeq))
+                dropped = live & (peeq < prev_peeq - tol)
+                if dropped.any():
+                    first = int(np.flatnonzero(dropped)[0])
+                    raise ThrsimInputError(
+                        f"{path}: frame {t}: PEEQ decreases for {int(dropped.sum())} element(s) (first: element {first}, "
+                        f"{prev_peeq[first]:.6g} -> {peeq[first]:.6g})"
+                    )
+            removed_per_frame.append(int(n_el - int(status.sum())))
+            peeq_max = max(peeq_max, float(peeq.max(initial=0.0)))
+            if n_el:
+                vm_min, vm_max = min(vm_min, float(vm.min())), max(vm_max, float(vm.max()))
+            prev_status, prev_peeq = status, peeq
+        attrs = _decode_attrs(f.attrs)
+        summary = {
+            "path": str(path),
+            "format": CASE_FORMAT,
+            "version": attrs.get("version"),
+            "frames": int(n_frames),
+            "elements": int(n_el),
+            "nodes": int(n_nodes),
+            "removed": removed_per_frame[-1],
+            "removed_fraction": removed_per_frame[-1] / n_el if n_el else 0.0,
+            "removed_per_frame": removed_per_frame,
+            "peeq_max": peeq_max,
+            "von_mises_min_pa": vm_min if n_el else 0.0,
+            "von_mises_max_pa": vm_max if n_el else 0.0,
+            "energy_names": list(names),
+            "inclination_deg": attrs.get("inclination_deg"),
+            "anteversion_deg": attrs.get("anteversion_deg"),
+            "force_n": attrs.get("force_n"),
+            "config_hash": attrs.get("config_hash"),
+            "thrsim_version": attrs.get("thrsim_version"),
+        }
+        for key in ("end_reason", "perforated_frame", "seconds_per_frame"):
+            if key in attrs:
+                summary[key] = attrs[key]
+        return summary

@@ -229,6 +229,7 @@ class SafeZone(_Frozen):
     inclination_tolerance_deg: float = Field(10.0, gt=0)
     anteversion_deg: float = Field(15.0, ge=-90, le=90)
     anteversion_tolerance_deg: float = Field(10.0, gt=0)
+    warning_margin_deg: float = Field(5.0, ge=0, description="outside the zone by at most this: amber, beyond: red")
 
 
 class TrackingVolumeConfig(_Frozen):
@@ -244,6 +245,9 @@ class TrackingVolumeConfig(_Frozen):
     noise_rms_mm: float = Field(0.25, ge=0)
     rate_hz: float = Field(60.0, gt=0)
     landmark_count: int = Field(27, ge=3)
+    landmark_tolerance_mm: float = Field(5.0, gt=0, description="probe tip to target distance that counts as on it")
+    dwell_s: float = Field(0.5, gt=0, description="how long the probe is held still on a target to acquire it")
+    still_tolerance_mm: float = Field(2.0, gt=0, description="tip wander during the dwell that still counts as still")
 
     @model_validator(mode="after")
     def _depths(self) -> "TrackingVolumeConfig":
@@ -253,9 +257,14 @@ class TrackingVolumeConfig(_Frozen):
 
 
 class IgtlConfig(_Frozen):
+    """OpenIGTLink listener: where it listens and how much it tolerates from a peer."""
+
     host: str = "127.0.0.1"
-    port: int = Field(18944, ge=1, le=65535)
+    port: int = Field(18944, ge=0, le=65535, description="0 = any free port (tests)")
     max_body_bytes: int = Field(1 << 20, gt=0)
+    max_clients: int = Field(32, ge=1)
+    io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
+    stale_pose_s: float = Field(0.5, gt=0, description="a pose older than this no longer counts as tracked")
 
 
 class ThrsimConfig(_Frozen):

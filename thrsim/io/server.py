@@ -1,0 +1,228 @@
+"""Asyncio OpenIGTLink server: tracker poses and force in, NavigationState out.
+
+Each connection has its own task, so a stalled or hostile peer only ever costs its own
+connection. Per message:
+
+* TRANSFORM (``ReamerToReference``, ``ReferenceToTracker``, ...; translation in mm) and SENSOR
+  (force in N) update the shared :class:`~thrsim.nav.session.NavigationSession`, and the sender
+  gets a STRING message named ``NavigationState`` with the state as JSON;
+* a bad CRC-64 or unusable content gets a STATUS reply (code 9 checksum error, 10
+  configuration error) and the connection goes on: its framing is intact;
+* a well-formed message of a type the trainer does not use is counted and ignored;
+* an unsupported header version, a non-ASCII type, a body above ``max_body_bytes`` or a message
+  that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
+  where possible, then that connection (only) is closed.
+
+Large bodies are checksummed in a worker thread and the simulator hook runs in a worker thread,
+so the event loop never waits on computation.
+
+Simulator hook: pass ``simulator=`` any callable matching :class:`ReamerSimulator`. Whenever a
+client's reamer pose updates, the hook is called (in a thread, at most one call in flight per
+connection, always with the newest pose — older ones are skipped) and a non-None result is sent
+back to that client as a TRANSFORM named ``SimulatedReamerToReference``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from typing import Callable, Protocol
+
+import numpy as np
+
+from thrsim.config import IgtlConfig
+from thrsim.errors import ThrsimInputError
+from thrsim.io import igtl
+from thrsim.nav.rigid import check_pose
+from thrsim.nav.session import REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE_TO_TRACKER, NavigationSession
+
+log = logging.getLogger(__name__)
+
+NAVIGATION_STATE = "NavigationState"
+SIMULATED_REAMER = "SimulatedReamerToReference"
+# Above this a pure-Python CRC takes milliseconds: hand it to a thread.
+_CRC_IN_THREAD_BYTES = 64 * 1024
+_REAMER_DEVICES = (REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE_TO_TRACKER)
+
+
+class ReamerSimulator(Protocol):
+    """Hook for a learned reaming simulator.
+
+    Called with the tracked reamer pose in the reference frame (4×4, metres) and the latest
+    force in newtons (None before any reading); returns the simulated reamer pose (4×4,
+    metres, same frame) to send back, or None for nothing. Runs in a worker thread: it may take
+    as long as a model step takes, but must be thread-safe with respect to its own state.
+    """
+
+    def __call__(self, reamer_to_reference: np.ndarray, force_n: float | None) -> np.ndarray | None: ...
+
+
+class _Connection:
+    """One peer: its writer, the header version to answer in, and its simulator feed."""
+
+    def __init__(self, server: "NavigationServer", writer: asyncio.StreamWriter):
+        self.server = server
+        self.writer = writer
+        self.version = 1
+        self.send_lock = asyncio.Lock()
+        self.pending: tuple[np.ndarray, float | None] | None = None
+        self.wake = asyncio.Event()
+        self.simulator_task: asyncio.Task | None = None
+
+    async def send(self, type_name: str, device: str, content: bytes) -> None:
+        data = igtl.encode_message(igtl.Message(type_name, device, content, version=self.version))
+        async with self.send_lock:
+            self.writer.write(data)
+            await asyncio.wait_for(self.writer.drain(), self.server.config.io_timeout_s)
+        self.server.stats["sent"] += 1
+
+    async def send_status(self, code: int, name: str, text: str, device: str = "") -> None:
+        await self.send("STATUS", device, igtl.pack_status(code, name, text[:200]))
+
+    def offer_to_simulator(self, pose: np.ndarray, force_n: float | None) -> None:
+        self.pending = (pose, force_n)
+        self.wake.set()
+        if self.simulator_task is None:
+            self.simulator_task = asyncio.create_task(self._run_simulator())
+
+    async def _run_simulator(self) -> None:
+        simulator = self.server.simulator
+        while True:
+            await self.wake.wait()
+            self.wake.clear()
+            pose, force_n = self.pending
+            try:
+                result = await asyncio.to_thread(simulator, pose, force_n)
+                if result is not None:
+                    await self.send("TRANSFORM", SIMULATED_REAMER, igtl.pack_transform(check_pose(result, "simulated reamer pose")))
+            except (ConnectionError, asyncio.TimeoutError):
+                return
+            except Exception as error:  # a faulty model must not take the server down
+                self.server.stats["simulator_errors"] += 1
+                log.warning("simulator hook failed: %s", error)
+                await self.send_status(igtl.STATUS_UNKNOWN_ERROR, "SimulatorError", str(error), SIMULATED_REAMER)
+
+
+class NavigationServer:
+    """Serve many OpenIGTLink clients at once; see the module docstring for the protocol."""
+
+    def __init__(
+        self,
+        config: IgtlConfig = IgtlConfig(),
+        session: NavigationSession | None = None,
+        simulator: ReamerSimulator | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ):
+        self.config = config
+        self.session = session if session is not None else NavigationSession(stale_after_s=config.stale_pose_s)
+        self.simulator = simulator
+        self.clock = clock
+        self.stats = dict.fromkeys(
+            ("connections", "rejected_connections", "messages", "transforms", "sensors", "replies", "sent", "bad_crc",
+             "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts", "simulator_errors"),
+            0,
+        )  # fmt: skip
+        self._connections: set[_Connection] = set()
+        self._server: asyncio.Server | None = None
+
+    @property
+    def clients(self) -> int:
+        return len(self._connections)
+
+    async def start(self) -> tuple[str, int]:
+        """Listen; returns the bound (host, port) — the port is chosen by the OS when 0."""
+        self._server = await asyncio.start_server(self._handle, self.config.host, self.config.port)
+        host, port = self._server.sockets[0].getsockname()[:2]
+        return host, port
+
+    async def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            for connection in list(self._connections):
+                connection.writer.close()
+            await self._server.wait_closed()
+
+    def snapshot(self) -> dict:
+        """Navigation state, client count and counters, for logs."""
+        return {"state": self.session.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        connection = _Connection(self, writer)
+        if len(self._connections) >= self.config.max_clients:
+            self.stats["rejected_connections"] += 1
+            writer.close()
+            return
+        self._connections.add(connection)
+        self.stats["connections"] += 1
+        try:
+            while await self._serve_one(reader, connection):
+                pass
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass  # peer went away, possibly mid-message
+        except asyncio.TimeoutError:
+            self.stats["timeouts"] += 1
+        finally:
+            self._connections.discard(connection)
+            if connection.simulator_task is not None:
+                connection.simulator_task.cancel()
+            writer.close()
+
+    async def _serve_one(self, reader: asyncio.StreamReader, connection: _Connection) -> bool:
+        """Read and act on one message; False when the connection must close."""
+        timeout = self.config.io_timeout_s
+        first = await reader.readexactly(1)  # an idle client may wait as long as it likes
+        raw = first + await asyncio.wait_for(reader.readexactly(igtl.HEADER_SIZE - 1), timeout)
+        try:
+            header = igtl.parse_header(raw)
+        except igtl.IgtlProtocolError as error:
+            self.stats["protocol_errors"] += 1
+            await connection.send_status(error.status_code, "ProtocolError", str(error))
+            return False
+        if header.body_size > self.config.max_body_bytes:
+            self.stats["oversize"] += 1
+            await connection.send_status(
+                igtl.STATUS_OVERFLOW, "BodyTooLarge", f"body of {header.body_size} bytes exceeds {self.config.max_body_bytes}", header.device_name
+            )
+            return False
+        body = await asyncio.wait_for(reader.readexactly(header.body_size), timeout)
+        self.stats["messages"] += 1
+        crc = await asyncio.to_thread(igtl.crc64, body) if len(body) > _CRC_IN_THREAD_BYTES else igtl.crc64(body)
+        try:
+            message = igtl.decode_body(header, body, crc)
+        except igtl.IgtlProtocolError as error:
+            self.stats["bad_crc" if error.status_code == igtl.STATUS_CHECKSUM_ERROR else "bad_content"] += 1
+            await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
+            return not error.fatal
+        connection.version = message.version
+        await self._dispatch(message, connection)
+        return True
+
+    async def _dispatch(self, message: igtl.Message, connection: _Connection) -> None:
+        now = self.clock()
+        try:
+            if message.type_name == "TRANSFORM":
+                self.session.update_pose(message.device_name, igtl.unpack_transform(message.content), now)
+                self.stats["transforms"] += 1
+            elif message.type_name == "SENSOR":
+                values, unit = igtl.unpack_sensor(message.content)
+                if unit not in (0, igtl.UNIT_NEWTON):
+                    raise igtl.IgtlProtocolError(f"SENSOR unit {unit:#x} is not newton", igtl.STATUS_CONFIGURATION_ERROR)
+                self.session.update_force(values, now)
+                self.stats["sensors"] += 1
+            else:
+                self.stats["unknown_type"] += 1
+                log.debug("ignoring %s message %r", message.type_name, message.device_name)
+                return
+        except (igtl.IgtlProtocolError, ThrsimInputError) as error:
+            self.stats["bad_content"] += 1
+            await connection.send_status(igtl.STATUS_CONFIGURATION_ERROR, "BadContent", str(error), message.device_name)
+            return
+        state = self.session.state(now)
+        await connection.send("STRING", NAVIGATION_STATE, igtl.pack_string(json.dumps(state, allow_nan=False)))
+        self.stats["replies"] += 1
+        if self.simulator is not None and message.device_name in _REAMER_DEVICES:
+            pose = self.session.reamer_to_reference(now)
+            if pose is not None:
+                connection.offer_to_simulator(pose, state["force_n"])

@@ -13,6 +13,7 @@ from pydantic import ValidationError
 
 from thrsim import __version__
 from thrsim.cli import mesh_cmd
+from thrsim.cli import dataset_cmd
 from thrsim.cli.output import format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
@@ -27,17 +28,24 @@ app = typer.Typer(
 
 
 
-@app.callback()
-def _root(
-    version: bool = typer.Option(False, "--version", help="print the thrsim version and exit", is_eager=True),
-) -> None:
-    """Physically-based and learned simulation of acetabular reaming (total hip replacement training)."""
-    if version:
+def _print_version(value: bool) -> None:
+    # runs while the options are parsed, so `thrsim --version` needs no subcommand
+    if value:
         typer.echo(__version__)
         raise typer.Exit()
 
 
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", help="print the thrsim version and exit", is_eager=True, callback=_print_version
+    ),
+) -> None:
+    """Physically-based and learned simulation of acetabular reaming (total hip replacement training)."""
+
+
 app.command("mesh")(mesh_cmd.mesh)
+app.add_typer(dataset_cmd.app, name="dataset")
 
 
 def main() -> None:

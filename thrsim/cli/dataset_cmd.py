@@ -1,0 +1,178 @@
+"""``thrsim dataset``: the resumable orientation sweep (``--out DIR ...``) and ``thrsim dataset info DIR``.
+
+Local runs use a process pool (``--workers N``); ``--scheduler tcp://HOST:PORT`` sends the
+same tasks to a Dask scheduler instead. Start one and its workers with::
+
+    dask scheduler --host 0.0.0.0 --port 8786
+    dask worker tcp://HEAD:8786 --nworkers 4 --nthreads 1    # on each machine
+
+(the output directory must be visible at the same path on every worker).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from thrsim.cli.output import console, err_console, print_json, print_table
+from thrsim.errors import SimulationError, ThrsimInputError
+
+app = typer.Typer(
+    name="dataset",
+    help="Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.",
+    no_args_is_help=False,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+_LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
+
+
+@app.callback(invoke_without_command=True)
+def dataset(
+    ctx: typer.Context,
+    out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
+    inclinations: str = typer.Option("0,15,30,45", "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
+    anteversions: str = typer.Option("0:180:15", "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
+    frames: int = typer.Option(120, "--frames", help="output frames per case (60 per simulated second)", metavar="N"),
+    forces: str = typer.Option("230", "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
+    extra_forces: str = typer.Option("150,310", "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
+    extra_force_anteversions: str = typer.Option("0,90,180", "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
+    element_sizes: Optional[str] = typer.Option(None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"),
+    workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
+    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
+    connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
+    solver: str = typer.Option("fem", "--solver", hidden=True, help="fem, synthetic (pipeline tests) or module:function"),
+    dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
+) -> None:
+    """Run the orientation sweep into --out DIR (skips complete cases, redoes the rest).
+
+    Default: γ 0, 15, 30, 45 × θ 0:180:15 at 230 N, plus 150 and 310 N at θ 0, 90, 180;
+    γ = 0 cases that differ only in θ are one physical case and run once. Split by orientation:
+    test θ ∈ {45, 135}, validation θ = 90 (γ > 0), the rest (and γ = 0) train.
+    """
+    if ctx.invoked_subcommand is not None:
+        return
+    from thrsim.data.generate import run_sweep
+    from thrsim.data.sweep import DEFAULT_SPLIT, parse_list, plan_sweep
+
+    if out is None:
+        raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
+    if connect_timeout <= 0:
+        raise ThrsimInputError(f"--connect-timeout must be positive, got {connect_timeout:g}")
+    if workers < 1:
+        raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
+    sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
+    plan = plan_sweep(
+        parse_list(inclinations, "--inclinations"),
+        parse_list(anteversions, "--anteversions"),
+        frames=frames,
+        force_n=parse_list(forces, "--forces"),
+        extra_forces_n=parse_list(extra_forces, "--extra-forces", allow_empty=True),
+        extra_force_anteversions=parse_list(extra_force_anteversions, "--extra-force-anteversions", allow_empty=True),
+        element_sizes_mm=sizes,
+    )
+    if dry_run:
+        rows = [
+            {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)}
+            for c in plan.cases
+        ]
+        payload = {"cases": len(plan.cases), "requested": plan.requested, "notes": plan.notes, "plan": rows}
+        if as_json:
+            print_json(payload)
+        else:
+            for note in plan.notes:
+                err_console.print(f"[yellow]{note}[/yellow]")
+            print_table("sweep plan", {"physical cases": len(plan.cases), "grid points asked": plan.requested})
+        return
+
+    progress: Progress | None = None
+    task = None
+    state = {"frames": 0, "t0": time.perf_counter()}
+
+    def on_start(done: int, total: int, description: str) -> None:
+        nonlocal progress, task
+        if not as_json:
+            for note in plan.notes:
+                err_console.print(f"[yellow]{note}[/yellow]")
+            err_console.print(f"{total} case(s), {done} already complete; {description}")
+            progress = Progress(
+                SpinnerColumn(),
+                TextColumn("[bold]cases"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[fps]}"),
+                TimeElapsedColumn(),
+                TextColumn("ETA"),
+                TimeRemainingColumn(),
+                console=err_console,
+                transient=False,
+            )
+            progress.start()
+            task = progress.add_task("cases", total=total, completed=done, fps="")
+        state["t0"] = time.perf_counter()
+
+    def on_event(event) -> None:
+        if event.status == "complete":
+            state["frames"] += event.frames
+        if progress is not None and task is not None and event.status in ("complete", "failed"):
+            elapsed = max(1e-9, time.perf_counter() - state["t0"])
+            progress.update(task, completed=event.done, fps=f"{state['frames'] / elapsed:.2f} frames/s")
+            if event.status == "failed":
+                progress.console.print(f"[red]{event.case_id} failed: {event.message}[/red]")
+        elif progress is not None and event.status == "retry":
+            progress.console.print(f"[yellow]{event.case_id}: worker lost, retrying[/yellow]")
+
+    try:
+        result = run_sweep(
+            out, plan, solver=solver, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout,
+            on_event=on_event, on_start=on_start,
+        )
+    finally:
+        if progress is not None:
+            progress.stop()
+    summary = result.summary()
+    if as_json:
+        print_json(summary)
+    else:
+        shown = {k: v for k, v in summary.items() if k not in ("failures", "notes")}
+        print_table("dataset", shown)
+    if result.failed:
+        first, why = next(iter(result.failed.items()))
+        raise SimulationError(f"{len(result.failed)} of {result.total} case(s) failed (first: {first}: {why}); rerun to retry them")
+
+
+@app.command("info")
+def info(
+    directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
+    plot: Optional[Path] = typer.Option(None, "--plot", help="write the α histograms of removed vs remaining elements (Figure 44) to this PNG", metavar="PNG"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
+) -> None:
+    """Summarise a dataset: cases, frames, splits, removed fraction per frame, PEEQ/von Mises ranges."""
+    from thrsim.data.info import dataset_info, plot_alpha_histograms
+
+    if plot is not None and plot.suffix.lower() != ".png":
+        raise ThrsimInputError(f"{plot}: --plot writes a PNG; give a .png name")
+    summary = dataset_info(directory, histograms=plot is not None)
+    if plot is not None:
+        plot_alpha_histograms(summary, plot)
+        summary["plot"] = str(plot)
+        summary.pop("alpha_histogram", None)
+    if as_json:
+        print_json(summary)
+        return
+    per_frame = summary.pop("removed_fraction_per_frame")
+    rows = {k: v for k, v in summary.items() if k not in ("split_rule",)}
+    if per_frame:
+        rows["removed fraction, last frame"] = per_frame[-1]
+        step = max(1, len(per_frame) // 8)
+        rows["removed fraction per frame (sampled)"] = ", ".join(f"{t}:{per_frame[t]:.3f}" for t in range(0, len(per_frame), step))
+    print_table(f"dataset {directory}", rows)
+    if plot is not None:
+        console.print(f"α histograms written to {plot}")

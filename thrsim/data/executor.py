@@ -1,0 +1,162 @@
+"""One executor interface for a laptop and a cluster: a local process pool or a Dask scheduler.
+
+Both run the same task function (:func:`thrsim.data.generate.run_one_case`) and hand back
+futures with ``.result()``; :meth:`Executor.as_completed` yields them as they finish.
+
+Local (default): ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn`` start method;
+each worker limits its numerical threads to cores ÷ workers and, on Linux, asks the kernel to
+kill it when the parent dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the parent leaves no
+orphan solver running. A worker killed mid-case breaks the pool; the caller restarts it
+(:meth:`LocalExecutor.restart`) and resubmits the cases that were in flight.
+
+Dask (``--scheduler tcp://HOST:PORT``): start a scheduler and workers, for example::
+
+    dask scheduler --host 0.0.0.0 --port 8786          # on the head node
+    dask worker tcp://HEAD:8786 --nworkers 4 --nthreads 1   # on every compute node
+
+Every worker needs the same thrsim installed, and the output directory must be on a file
+system every worker sees at the same path (workers write the case files; the client writes
+the manifest). The client connects with a short timeout and fails fast when the scheduler is
+unreachable. Dask reschedules a task whose worker died.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import ctypes
+import multiprocessing
+import os
+import signal
+import sys
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any, Protocol
+
+from thrsim.errors import ThrsimInputError
+
+_THREAD_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+class Executor(Protocol):
+    workers: int
+    description: str
+
+    def submit(self, fn: Callable, *args: Any, key: str | None = None) -> Any: ...
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]: ...
+
+    def close(self, cancel: bool = False) -> None: ...
+
+
+def is_worker_lost(error: BaseException) -> bool:
+    """True when the error means the process running the task died (not that the task failed)."""
+    if isinstance(error, cf.process.BrokenProcessPool):
+        return True
+    name = type(error).__name__
+    return name in ("KilledWorker", "CommClosedError")
+
+
+def _worker_init(threads: int) -> None:
+    for var in _THREAD_VARS:
+        os.environ[var] = str(threads)
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL("libc.so.6", use_errno=True)
+            libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG: die with the parent
+            if os.getppid() == 1:  # the parent already died before prctl took effect
+                os._exit(1)
+        except OSError:
+            pass
+
+
+class LocalExecutor:
+    """A process pool on this machine."""
+
+    def __init__(self, workers: int = 1):
+        if workers < 1:
+            raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
+        self.workers = workers
+        cores = os.cpu_count() or 1
+        self.threads_per_worker = max(1, cores // workers)
+        self.description = f"local process pool, {workers} worker(s) × {self.threads_per_worker} thread(s)"
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> cf.ProcessPoolExecutor:
+        return cf.ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=multiprocessing.get_context("spawn"),
+            initializer=_worker_init,
+            initargs=(self.threads_per_worker,),
+        )
+
+    def submit(self, fn: Callable, *args: Any, key: str | None = None) -> cf.Future:
+        return self._pool.submit(fn, *args)
+
+    def as_completed(self, futures: Iterable[cf.Future]) -> Iterator[cf.Future]:
+        return cf.as_completed(list(futures))
+
+    def restart(self) -> None:
+        """Replace a broken pool (a worker died) by a fresh one."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._pool = self._new_pool()
+
+    def close(self, cancel: bool = False) -> None:
+        self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class DaskExecutor:
+    """Tasks on a Dask distributed scheduler (one task per case)."""
+
+    def __init__(self, address: str, *, connect_timeout_s: float = 5.0, worker_wait_s: float = 60.0):
+        if "://" not in address:
+            address = f"tcp://{address}"
+        scheme, _, rest = address.partition("://")
+        if scheme not in ("tcp", "tls", "inproc", "ucx", "ws", "wss") or ":" not in rest:
+            raise ThrsimInputError(f"--scheduler must look like tcp://HOST:PORT, got {address!r}")
+        try:
+            from distributed import Client
+        except ImportError:  # pragma: no cover - dask[distributed] is a dependency
+            raise ThrsimInputError("--scheduler needs dask[distributed] installed") from None
+        import dask
+
+        try:
+            with dask.config.set({"distributed.comm.timeouts.connect": f"{connect_timeout_s}s"}):
+                self._client = Client(address, timeout=f"{connect_timeout_s}s", set_as_default=False)
+        except (OSError, TimeoutError) as error:
+            reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+            raise ThrsimInputError(f"cannot reach the Dask scheduler at {address} within {connect_timeout_s:g} s ({reason[:160]})") from None
+        try:
+            self._client.wait_for_workers(1, timeout=worker_wait_s)
+        except (TimeoutError, OSError):
+            self._client.close()
+            raise ThrsimInputError(f"the Dask scheduler at {address} has no workers (waited {worker_wait_s:g} s)") from None
+        self.address = address
+        self.workers = max(1, len(self._client.scheduler_info().get("workers", {})))
+        self.description = f"Dask scheduler {address}, {self.workers} worker(s)"
+
+    def submit(self, fn: Callable, *args: Any, key: str | None = None) -> Any:
+        kwargs = {"pure": False}
+        if key is not None:
+            import uuid
+
+            kwargs["key"] = f"{key}-{uuid.uuid4().hex[:8]}"
+        return self._client.submit(fn, *args, **kwargs)
+
+    def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
+        from distributed import as_completed
+
+        return iter(as_completed(list(futures)))
+
+    def restart(self) -> None:  # Dask reschedules lost tasks itself
+        pass
+
+    def close(self, cancel: bool = False) -> None:
+        try:
+            self._client.close(timeout=5)
+        except Exception:  # noqa: BLE001 - closing a client whose scheduler went away
+            pass
+
+
+def make_executor(workers: int = 1, scheduler: str | None = None, connect_timeout_s: float = 5.0) -> Executor:
+    if scheduler:
+        return DaskExecutor(scheduler, connect_timeout_s=connect_timeout_s)
+    return LocalExecutor(workers)

@@ -1,0 +1,474 @@
+"""Generate a sweep of ground-truth cases into a dataset directory, resumably.
+
+Directory layout::
+
+    DIR/manifest.json        written atomically by the coordinating process after every case
+    DIR/cases/<case_id>.h5   one SPEC §4 case file per physical case
+    DIR/.lock                held (flock) while a run is going on
+
+Safety: a worker runs the solver into ``cases/<case_id>.h5.<random>.part``, validates it
+(:func:`validate_case`) and checks its orientation and force, then renames it onto
+``cases/<case_id>.h5``: a file under its final name is always complete. The manifest records
+per case its parameters, split, solver and version, config hash, wall time, status, frame
+count, removed count, file SHA-256 and data digest. Rerunning the same command skips cases
+whose file matches the manifest's checksum, adopts complete files that the manifest missed
+(the coordinator was killed between the rename and the manifest write), and redoes the rest.
+Killing any process at any moment loses at most the cases in flight.
+
+A directory made by a different configuration (another solver, frame count or any physics
+setting outside the sweep axes) is refused rather than mixed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import fcntl
+import importlib
+import json
+import os
+import socket
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from thrsim import __version__
+from thrsim.atomic import atomic_path
+from thrsim.config import ReamingCaseConfig
+from thrsim.data.case_file import data_digest, file_sha256, validate_case
+from thrsim.data.executor import Executor, is_worker_lost, make_executor
+from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan
+from thrsim.errors import ThrsimInputError
+from thrsim.provenance import config_hash
+
+MANIFEST = "manifest.json"
+MANIFEST_FORMAT = "thrsim-dataset"
+MANIFEST_VERSION = 1
+CASES_DIR = "cases"
+LOCK = ".lock"
+MAX_ATTEMPTS = 3
+SOLVERS = {
+    "fem": "thrsim.physics.reaming:run_case",
+    "synthetic": "thrsim.data.synthetic:synthetic_run_case",
+}
+# the per-case axes; everything else of ReamingCaseConfig is the dataset's fixed template
+_AXES = ("inclination_deg", "anteversion_deg", "force_n")
+
+
+def resolve_solver(solver: str | Callable) -> Callable:
+    """'fem' (the explicit solver), 'synthetic' (the test stand-in), 'module:function' or a callable."""
+    if callable(solver):
+        return solver
+    ref = SOLVERS.get(solver, solver)
+    module_name, _, attr = ref.partition(":")
+    if not module_name or not attr:
+        raise ThrsimInputError(f"unknown solver {solver!r}: use fem, synthetic or module:function")
+    try:
+        module = importlib.import_module(module_name)
+        return getattr(module, attr)
+    except (ImportError, AttributeError) as error:
+        raise ThrsimInputError(f"solver {solver!r} is not available ({error})") from None
+
+
+def solver_name(solver: str | Callable) -> str:
+    if callable(solver):
+        return f"{solver.__module__}:{solver.__qualname__}"
+    return solver
+
+
+def template_of(frames: int, overrides: dict | None = None) -> dict:
+    """The dataset's fixed case configuration: a ReamingCaseConfig dump without the sweep axes."""
+    base = ReamingCaseConfig(inclination_deg=0.0, anteversion_deg=0.0, frames=frames, **(overrides or {}))
+    data = base.model_dump(mode="json")
+    for key in _AXES:
+        data.pop(key)
+    return data
+
+
+def dataset_identity(template: dict, solver: str, element_sizes: tuple) -> dict:
+    """What must match for two runs to share a directory."""
+    ident = {"template": template, "solver": solver, "thrsim_version": __version__}
+    if any(h is not None for h in element_sizes):
+        ident["template"] = {**template, "bone": {k: v for k, v in template["bone"].items() if k != "element_size_mm"}}
+    return ident
+
+
+# ---------------------------------------------------------------- the task run on a worker
+
+
+def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Callable) -> dict:
+    """Run one case on a worker, verify it, rename it into place; return what the manifest records."""
+    spec = CaseSpec(**{**params, "aliases": tuple(params.get("aliases", ()))})
+    config = spec.case_config(template)
+    folder = Path(cases_dir)
+    final = folder / f"{spec.case_id}.h5"
+    part = folder / f"{spec.case_id}.h5.{uuid.uuid4().hex[:12]}.part"
+    solve = resolve_solver(solver)
+    started = time.perf_counter()
+    try:
+        summary = solve(config, part) or {}
+        wall = time.perf_counter() - started
+        check = validate_case(part)
+        _check_matches(check, spec, part)
+        sha = file_sha256(part)
+        digest = data_digest(part)
+        os.replace(part, final)
+        _fsync_dir(folder)
+    finally:
+        if part.exists():
+            part.unlink()
+    return {
+        "case_id": spec.case_id,
+        "wall_s": wall,
+        "frames": check["frames"],
+        "elements": check["elements"],
+        "removed": check["removed"],
+        "removed_per_frame": check["removed_per_frame"],
+        "config_hash": check.get("config_hash"),
+        "sha256": sha,
+        "data_digest": digest,
+        "solver_summary": _json_safe(summary),
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+    }
+
+
+def _check_matches(check: dict, spec: CaseSpec, path: Path) -> None:
+    for key, want in (("inclination_deg", spec.inclination_deg), ("anteversion_deg", spec.anteversion_deg), ("force_n", spec.force_n)):
+        got = check.get(key)
+        if got is None or abs(float(got) - want) > 1e-6:
+            raise ThrsimInputError(f"{path}: {key} is {got}, expected {want:g} for case {spec.case_id}")
+    if check["frames"] > spec.frames:
+        raise ThrsimInputError(f"{path}: {check['frames']} frames, more than the {spec.frames} asked for")
+
+
+def _json_safe(value: Any) -> Any:
+    return json.loads(json.dumps(value, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
+
+
+def _fsync_dir(folder: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(folder, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+# ---------------------------------------------------------------- manifest
+
+
+def _now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def read_manifest(root: Path) -> dict | None:
+    path = root / MANIFEST
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise ThrsimInputError(f"{path}: unreadable dataset manifest ({error})") from None
+    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
+        raise ThrsimInputError(f"{path}: not a thrsim dataset manifest")
+    return data
+
+
+def write_manifest(root: Path, manifest: dict) -> None:
+    manifest["updated"] = _now()
+    with atomic_path(root / MANIFEST) as tmp:
+        with open(tmp, "w") as handle:
+            json.dump(manifest, handle, indent=1, sort_keys=False)
+            handle.flush()
+            os.fsync(handle.fileno())
+    _fsync_dir(root)
+
+
+def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out = []
+        for key in sorted(set(a) | set(b)):
+            out += _differences(a.get(key), b.get(key), f"{prefix}{key}.")
+        return out
+    return [] if a == b else [f"{prefix[:-1]} ({a!r} there, {b!r} now)"]
+
+
+def check_directory(root: Path, identity: dict) -> dict | None:
+    """Refuse a directory that is not ours or was made by another configuration; return its manifest."""
+    if root.exists() and not root.is_dir():
+        raise ThrsimInputError(f"{root}: exists and is not a directory")
+    manifest = read_manifest(root) if root.exists() else None
+    if manifest is None:
+        if root.exists() and any(p.name not in (LOCK, CASES_DIR) for p in root.iterdir()):
+            raise ThrsimInputError(f"{root}: not empty and not a thrsim dataset (no {MANIFEST}); refusing to write into it")
+        if (root / CASES_DIR).exists() and any((root / CASES_DIR).glob("*.h5")):
+            raise ThrsimInputError(f"{root}: holds case files but no {MANIFEST}; refusing to mix")
+        return None
+    if manifest.get("identity_hash") != config_hash(identity):
+        diffs = _differences(manifest.get("identity", {}), identity)
+        shown = "; ".join(diffs[:3]) + (f"; and {len(diffs) - 3} more" if len(diffs) > 3 else "")
+        raise ThrsimInputError(f"{root}: made by a different configuration ({shown or 'identity differs'}); use another --out")
+    return manifest
+
+
+@contextlib.contextmanager
+def _locked(root: Path) -> Iterator[None]:
+    handle = open(root / LOCK, "a+")
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            if error.errno in (errno.EAGAIN, errno.EACCES):
+                raise ThrsimInputError(f"{root}: another thrsim dataset run is writing here") from None
+            raise
+        yield
+    finally:
+        handle.close()
+
+
+# ---------------------------------------------------------------- the sweep
+
+
+@dataclass
+class SweepEvent:
+    """What a progress display needs after each finished case."""
+
+    case_id: str
+    status: str  # complete, skipped, adopted, failed, retry
+    done: int
+    total: int
+    frames: int = 0
+    wall_s: float = 0.0
+    message: str = ""
+
+
+@dataclass
+class SweepResult:
+    root: Path
+    total: int
+    complete: int
+    skipped: int
+    adopted: int
+    failed: dict[str, str] = field(default_factory=dict)
+    frames_generated: int = 0
+    wall_s: float = 0.0
+    executor: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        return {
+            "out": str(self.root),
+            "cases": self.total,
+            "generated": self.complete,
+            "skipped": self.skipped,
+            "adopted": self.adopted,
+            "failed": len(self.failed),
+            "failures": self.failed,
+            "frames_generated": self.frames_generated,
+            "wall_s": self.wall_s,
+            "frames_per_second": self.frames_generated / self.wall_s if self.wall_s > 0 else 0.0,
+            "executor": self.executor,
+            "notes": self.notes,
+        }
+
+
+def _clean_stale(cases: Path) -> None:
+    for path in list(cases.glob("*.part")) + list(cases.glob(".*.tmp")):
+        with contextlib.suppress(OSError):
+            path.unlink()
+
+
+def _entry(spec: CaseSpec, split: SplitRule, solver: str) -> dict:
+    return {
+        "params": spec.params(),
+        "split": split.split(spec.inclination_deg, spec.anteversion_deg),
+        "file": f"{CASES_DIR}/{spec.case_id}.h5",
+        "solver": solver,
+        "solver_version": __version__,
+        "status": "pending",
+        "attempts": 0,
+    }
+
+
+def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[str, dict] | None:
+    """('skipped', entry) when the manifest's checksum matches, ('adopted', fields) when a valid
+    file is there that the manifest missed, None when the case must run."""
+    path = root / CASES_DIR / f"{spec.case_id}.h5"
+    if not path.exists():
+        return None
+    sha = file_sha256(path)
+    if entry and entry.get("status") == "complete" and entry.get("sha256") == sha:
+        return "skipped", entry
+    try:
+        check = validate_case(path)
+        _check_matches(check, spec, path)
+    except ThrsimInputError:
+        return None
+    return "adopted", {
+        "frames": check["frames"],
+        "elements": check["elements"],
+        "removed": check["removed"],
+        "removed_per_frame": check["removed_per_frame"],
+        "config_hash": check.get("config_hash"),
+        "sha256": sha,
+        "data_digest": data_digest(path),
+        "wall_s": None,
+    }
+
+
+def run_sweep(
+    root: str | os.PathLike,
+    plan: SweepPlan,
+    *,
+    solver: str | Callable = "fem",
+    workers: int = 1,
+    scheduler: str | None = None,
+    executor: Executor | None = None,
+    template_overrides: dict | None = None,
+    split: SplitRule = DEFAULT_SPLIT,
+    connect_timeout_s: float = 5.0,
+    on_event: Callable[[SweepEvent], None] | None = None,
+    on_start: Callable[[int, int, str], None] | None = None,
+) -> SweepResult:
+    """Run every case of ``plan`` not already complete in ``root``; return the tally.
+
+    Input problems (a different configuration in ``root``, an unreachable scheduler) raise
+    :class:`ThrsimInputError` before anything in ``root`` is touched.
+    """
+    root = Path(root)
+    frames = {c.frames for c in plan.cases}
+    if len(frames) != 1:
+        raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
+    template = template_of(frames.pop(), template_overrides)
+    name = solver_name(solver)
+    identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
+    manifest = check_directory(root, identity)
+    if not callable(solver):
+        resolve_solver(solver)  # an unknown solver is an input error, found before any work
+
+    own_executor = executor is None
+    if executor is None:
+        executor = make_executor(workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s)
+    started = time.perf_counter()
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        cases_dir = root / CASES_DIR
+        with _locked(root):
+            manifest = read_manifest(root) or manifest
+            cases_dir.mkdir(exist_ok=True)
+            if manifest is None:
+                manifest = {
+                    "format": MANIFEST_FORMAT,
+                    "version": MANIFEST_VERSION,
+                    "created": _now(),
+                    "identity": identity,
+                    "identity_hash": config_hash(identity),
+                    "split_rule": split.as_dict(),
+                    "cases": {},
+                }
+            manifest["split_rule"] = split.as_dict()
+            manifest.setdefault("runs", []).append({"started": _now(), "executor": executor.description, "cases": len(plan.cases)})
+            _clean_stale(cases_dir)
+            result = SweepResult(root=root, total=len(plan.cases), complete=0, skipped=0, adopted=0, executor=executor.description, notes=list(plan.notes))
+            todo: list[CaseSpec] = []
+            done = 0
+            for spec in plan.cases:
+                old = manifest["cases"].get(spec.case_id)
+                entry = {**(old or {}), **_entry(spec, split, name)}
+                entry["attempts"] = (old or {}).get("attempts", 0)
+                found = _existing_complete(root, spec, old)
+                if found is None:
+                    entry["status"] = "pending"
+                    manifest["cases"][spec.case_id] = entry
+                    todo.append(spec)
+                    continue
+                kind, fields = found
+                if kind == "skipped":
+                    entry = {**old, **{k: v for k, v in entry.items() if k in ("params", "split", "file")}}
+                    result.skipped += 1
+                else:
+                    entry.update(fields, status="complete", adopted=True, finished=_now())
+                    result.adopted += 1
+                manifest["cases"][spec.case_id] = entry
+                done += 1
+                if on_event:
+                    on_event(SweepEvent(spec.case_id, kind, done, result.total, entry.get("frames", 0)))
+            write_manifest(root, manifest)
+            if on_start:
+                on_start(done, result.total, executor.description)
+
+            attempts: dict[str, int] = {}
+            queue = list(todo)
+            while queue:
+                futures = {}
+                for spec in queue:
+                    attempts[spec.case_id] = attempts.get(spec.case_id, 0) + 1
+                    manifest["cases"][spec.case_id]["attempts"] = manifest["cases"][spec.case_id].get("attempts", 0) + 1
+                    futures[executor.submit(run_one_case, spec.params(), template, str(cases_dir), solver, key=spec.case_id)] = spec
+                write_manifest(root, manifest)
+                retry: list[CaseSpec] = []
+                broken = False
+                for future in executor.as_completed(list(futures)):
+                    spec = futures[future]
+                    entry = manifest["cases"][spec.case_id]
+                    try:
+                        fields = future.result()
+                    except Exception as error:  # noqa: BLE001 - every failure is recorded per case
+                        if is_worker_lost(error):
+                            broken = True
+                            if attempts[spec.case_id] < MAX_ATTEMPTS:
+                                retry.append(spec)
+                                if on_event:
+                                    on_event(SweepEvent(spec.case_id, "retry", done, result.total, message="worker lost"))
+                                continue
+                            message = f"worker died {attempts[spec.case_id]} times running this case"
+                        else:
+                            message = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
+                        entry.update(status="failed", error=message, finished=_now())
+                        result.failed[spec.case_id] = message
+                        done += 1
+                        write_manifest(root, manifest)
+                        if on_event:
+                            on_event(SweepEvent(spec.case_id, "failed", done, result.total, message=message))
+                        continue
+                    fields.pop("case_id", None)
+                    entry.update(fields, status="complete", finished=_now())
+                    entry.pop("error", None)
+                    entry.pop("adopted", None)
+                    result.complete += 1
+                    result.frames_generated += int(fields["frames"])
+                    done += 1
+                    write_manifest(root, manifest)
+                    if on_event:
+                        on_event(SweepEvent(spec.case_id, "complete", done, result.total, int(fields["frames"]), float(fields["wall_s"])))
+                if broken:
+                    executor.restart()
+                queue = retry
+            result.wall_s = time.perf_counter() - started
+            manifest["runs"][-1].update(finished=_now(), wall_s=result.wall_s, generated=result.complete, failed=len(result.failed))
+            write_manifest(root, manifest)
+            _clean_stale(cases_dir)
+            return result
+    finally:
+        if own_executor:
+            executor.close(cancel=True)
+
+
+def load_dataset(root: str | os.PathLike, split: str | None = None, complete_only: bool = True) -> list[dict]:
+    """The manifest's case entries (with absolute ``path``), optionally one split only."""
+    root = Path(root)
+    manifest = read_manifest(root)
+    if manifest is None:
+        raise ThrsimInputError(f"{root}: not a thrsim dataset (no {MANIFEST})")
+    out = []
+    for case_id, entry in sorted(manifest["cases"].items()):
+        if complete_only and entry.get("status") != "complete":
+            continue
+        if split is not None and entry.get("split") != split:
+            continue
+        out.append({**entry, "case_id": case_id, "path": str(root / entry["file"])})
+    return out

@@ -1,0 +1,137 @@
+"""Summaries of a dataset directory and the α histograms of the thesis's Figure 44.
+
+Figure 44 [7.2.1] shows, at a frame, the distributions of von Mises stress, PEEQ and α for
+elements removed (STATUS = 0) and remaining (STATUS = 1); α here is eq. 47 *before* removed
+elements are set to 0, which is what shows that a threshold (0.3) separates the two classes.
+Files are read frame by frame; histograms are accumulated on fixed bins, never all values.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from thrsim.config import LabelConfig
+from thrsim.data.case_file import CaseReader
+from thrsim.data.generate import MANIFEST, read_manifest
+from thrsim.data.labels import alpha
+from thrsim.errors import ThrsimInputError
+
+ALPHA_BINS = np.linspace(0.0, 1.0, 51)
+
+
+def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, histograms: bool = False) -> dict:
+    """Cases, frames, splits, removed fraction per frame (mean over cases), PEEQ/von Mises ranges, α counts."""
+    root = Path(root)
+    labels = labels or LabelConfig()
+    if not root.is_dir():
+        raise ThrsimInputError(f"{root}: no such dataset directory")
+    manifest = read_manifest(root)
+    if manifest is None:
+        raise ThrsimInputError(f"{root}: not a thrsim dataset (no {MANIFEST})")
+    entries = manifest.get("cases", {})
+    statuses: dict[str, int] = {}
+    for entry in entries.values():
+        statuses[entry.get("status", "?")] = statuses.get(entry.get("status", "?"), 0) + 1
+    complete = {k: e for k, e in sorted(entries.items()) if e.get("status") == "complete"}
+    splits: dict[str, int] = {}
+    forces: dict[str, int] = {}
+    removed_sum: list[float] = []
+    removed_n: list[int] = []
+    peeq_range = [np.inf, -np.inf]
+    vm_range = [np.inf, -np.inf]
+    hist_removed = np.zeros(len(ALPHA_BINS) - 1, dtype=np.int64)
+    hist_remaining = np.zeros(len(ALPHA_BINS) - 1, dtype=np.int64)
+    below_threshold = {"removed": 0, "remaining": 0}
+    totals = {"removed": 0, "remaining": 0}
+    frames_total = 0
+    missing = []
+    for case_id, entry in complete.items():
+        path = root / entry["file"]
+        if not path.exists():
+            missing.append(case_id)
+            continue
+        splits[entry.get("split", "?")] = splits.get(entry.get("split", "?"), 0) + 1
+        force = f"{entry['params']['force_n']:g}"
+        forces[force] = forces.get(force, 0) + 1
+        with CaseReader(path) as reader:
+            frames_total += reader.n_frames
+            for t in range(reader.n_frames):
+                frame = reader.frame(t)
+                status = frame["status"]
+                n = status.size
+                if len(removed_sum) <= t:
+                    removed_sum.append(0.0)
+                    removed_n.append(0)
+                removed_sum[t] += float((status == 0).sum()) / n if n else 0.0
+                removed_n[t] += 1
+                peeq, vm = frame["peeq"], frame["von_mises"]
+                if n:
+                    peeq_range = [min(peeq_range[0], float(peeq.min())), max(peeq_range[1], float(peeq.max()))]
+                    vm_range = [min(vm_range[0], float(vm.min())), max(vm_range[1], float(vm.max()))]
+                raw = alpha(peeq, vm, None, labels)
+                gone = status == 0
+                hist_removed += np.histogram(raw[gone], bins=ALPHA_BINS)[0]
+                hist_remaining += np.histogram(raw[~gone], bins=ALPHA_BINS)[0]
+                below = raw < labels.removed_threshold
+                below_threshold["removed"] += int((below & gone).sum())
+                below_threshold["remaining"] += int((below & ~gone).sum())
+                totals["removed"] += int(gone.sum())
+                totals["remaining"] += int((~gone).sum())
+    identity = manifest.get("identity", {})
+    info = {
+        "out": str(root),
+        "cases": len(complete),
+        "cases_by_status": statuses,
+        "cases_by_split": splits,
+        "cases_by_force_n": forces,
+        "missing_files": missing,
+        "frames": frames_total,
+        "solver": identity.get("solver"),
+        "frames_per_case": identity.get("template", {}).get("frames"),
+        "removed_fraction_per_frame": [s / n for s, n in zip(removed_sum, removed_n)],
+        "peeq_range": peeq_range if frames_total else None,
+        "von_mises_range_pa": vm_range if frames_total else None,
+        "element_frames": totals,
+        "alpha_below_threshold_fraction": {
+            k: (below_threshold[k] / totals[k] if totals[k] else None) for k in totals
+        },
+        "split_rule": manifest.get("split_rule"),
+    }
+    if histograms:
+        info["alpha_histogram"] = {"bins": ALPHA_BINS.tolist(), "removed": hist_removed.tolist(), "remaining": hist_remaining.tolist()}
+    return info
+
+
+def plot_alpha_histograms(info: dict, out: str | os.PathLike, threshold: float = 0.3) -> Path:
+    """Figure 44-style PNG: α distribution of removed vs remaining elements (counts, log scale)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from thrsim.atomic import atomic_path
+
+    hist = info.get("alpha_histogram")
+    if hist is None:
+        raise ThrsimInputError("no α histogram in the summary (computed with histograms=True)")
+    out = Path(out)
+    bins = np.asarray(hist["bins"])
+    centres, width = 0.5 * (bins[1:] + bins[:-1]), np.diff(bins)
+    fig, ax = plt.subplots(figsize=(6.4, 4.0), dpi=120)
+    ax.bar(centres, hist["remaining"], width=width, alpha=0.6, label="remaining (STATUS = 1)", color="tab:blue")
+    ax.bar(centres, hist["removed"], width=width, alpha=0.6, label="removed (STATUS = 0)", color="tab:red")
+    ax.axvline(threshold, color="k", linestyle="--", linewidth=1, label=f"threshold α = {threshold:g}")
+    if max(max(hist["remaining"], default=0), max(hist["removed"], default=0)) > 0:
+        ax.set_yscale("log")
+    ax.set_xlabel("α (eq. 47, before removed elements are set to 0)")
+    ax.set_ylabel("element-frames")
+    ax.set_title(f"α of removed vs remaining elements — {info['cases']} case(s), {info['frames']} frame(s)")
+    ax.legend()
+    fig.tight_layout()
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return out

@@ -1,0 +1,237 @@
+"""Sweep planning: angle lists, the case grid, γ = 0 deduplication, the push-force axis, splits.
+
+Lists (``--inclinations``, ``--anteversions``, ``--forces``, ...) are comma-separated values
+and ``start:stop:step`` ranges with the stop included (``0:180:15`` is 0, 15, ..., 180), mixed
+freely (``0:30:15,45``). Duplicates are dropped.
+
+γ = 0: the reamer axis D = (sin γ cos θ, sin γ sin θ, −cos γ) is (0, 0, −1) whatever θ, so
+every γ = 0 case of one force and element size is one physical case: it is run once, recorded
+with θ = 0, and the anteversions it stands for are listed in the manifest (``aliases``).
+
+Default sweep (SPEC §2 plus issue 4): inclinations 0, 15, 30, 45 × anteversions 0:180:15 at
+230 N (40 physical cases), plus 150 N and 310 N on the anteversions 0, 90, 180 of every
+inclination (10 physical cases each): 60 cases.
+
+Default split, by orientation only (all forces and element sizes of one orientation share its
+split, so a test orientation is never seen in training):
+
+* test: θ ∈ {45°, 135°} for γ > 0 (6 orientations of the default grid),
+* validation: θ = 90° for γ > 0 (3 orientations),
+* train: everything else, including the single γ = 0 case (31 orientations).
+
+Orientations off the 15° grid follow the same rule (their θ is simply not in the test or
+validation sets, so they train); :class:`SplitRule` changes the sets.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from thrsim.config import ReamingCaseConfig, SweepConfig
+from thrsim.errors import ThrsimInputError
+
+DEFAULT_INCLINATIONS = SweepConfig().inclinations_deg
+DEFAULT_ANTEVERSIONS = SweepConfig().anteversions_deg
+DEFAULT_FORCE_N = 230.0
+DEFAULT_EXTRA_FORCES_N = (150.0, 310.0)
+DEFAULT_EXTRA_FORCE_ANTEVERSIONS = (0.0, 90.0, 180.0)
+SPLITS = ("train", "validation", "test")
+
+
+def _number(text: str, what: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise ThrsimInputError(f"{what}: {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ThrsimInputError(f"{what}: {text!r} is not a finite number")
+    return value
+
+
+def parse_list(text: str | None, what: str, *, allow_empty: bool = False) -> tuple[float, ...]:
+    """Parse '0,15,30', '0:180:15' (stop included) or a mix; sorted, duplicates dropped."""
+    if text is None:
+        return ()
+    text = text.strip()
+    if text.lower() in ("", "none", "-"):
+        if allow_empty:
+            return ()
+        raise ThrsimInputError(f"{what}: empty list")
+    values: list[float] = []
+    for part in text.split(","):
+        part = part.strip()
+        if not part:
+            raise ThrsimInputError(f"{what}: empty item in {text!r}")
+        if ":" in part:
+            bits = part.split(":")
+            if len(bits) != 3:
+                raise ThrsimInputError(f"{what}: range {part!r} must be start:stop:step")
+            start, stop, step = (_number(b, what) for b in bits)
+            if step <= 0:
+                raise ThrsimInputError(f"{what}: range {part!r} needs a positive step")
+            if stop < start:
+                raise ThrsimInputError(f"{what}: range {part!r} has stop below start")
+            count = int(math.floor((stop - start) / step + 1e-9)) + 1
+            if count > 100_000:
+                raise ThrsimInputError(f"{what}: range {part!r} has {count} values; too many")
+            values.extend(round(start + i * step, 9) for i in range(count))
+        else:
+            values.append(_number(part, what))
+    return tuple(sorted(set(values)))
+
+
+def _key(value: float) -> float:
+    return round(float(value), 6)
+
+
+@dataclass(frozen=True)
+class CaseSpec:
+    """One physical case of a sweep."""
+
+    inclination_deg: float
+    anteversion_deg: float
+    force_n: float
+    frames: int
+    element_size_mm: float | None = None  # None: the configuration's default
+    aliases: tuple[float, ...] = ()  # requested anteversions this case stands for (γ = 0)
+
+    @property
+    def case_id(self) -> str:
+        name = f"g{self.inclination_deg:05.1f}_t{self.anteversion_deg:05.1f}_f{self.force_n:g}N"
+        if self.element_size_mm is not None:
+            name += f"_h{self.element_size_mm:g}mm"
+        return name
+
+    @property
+    def orientation(self) -> tuple[float, float]:
+        return (_key(self.inclination_deg), _key(self.anteversion_deg))
+
+    def params(self) -> dict:
+        data = asdict(self)
+        data["aliases"] = list(self.aliases)
+        return data
+
+    def case_config(self, template: dict | None = None) -> ReamingCaseConfig:
+        """The full solver configuration of this case: the template with this case's axes set."""
+        data = dict(template or {})
+        data.update(
+            inclination_deg=self.inclination_deg,
+            anteversion_deg=self.anteversion_deg,
+            force_n=self.force_n,
+            frames=self.frames,
+        )
+        if self.element_size_mm is not None:
+            bone = dict(data.get("bone") or {})
+            bone["element_size_mm"] = self.element_size_mm
+            data["bone"] = bone
+        return ReamingCaseConfig.model_validate(data)
+
+
+@dataclass(frozen=True)
+class SplitRule:
+    """Train/validation/test by orientation; γ = 0 (one physical case) trains by default."""
+
+    test_anteversions_deg: tuple[float, ...] = (45.0, 135.0)
+    validation_anteversions_deg: tuple[float, ...] = (90.0,)
+    zero_inclination_split: str = "train"
+
+    def split(self, inclination_deg: float, anteversion_deg: float) -> str:
+        if _key(inclination_deg) == 0.0:
+            return self.zero_inclination_split
+        theta = _key(anteversion_deg)
+        if theta in {_key(a) for a in self.test_anteversions_deg}:
+            return "test"
+        if theta in {_key(a) for a in self.validation_anteversions_deg}:
+            return "validation"
+        return "train"
+
+    def as_dict(self) -> dict:
+        return {
+            "test_anteversions_deg": list(self.test_anteversions_deg),
+            "validation_anteversions_deg": list(self.validation_anteversions_deg),
+            "zero_inclination_split": self.zero_inclination_split,
+        }
+
+
+DEFAULT_SPLIT = SplitRule()
+
+
+@dataclass
+class SweepPlan:
+    cases: list[CaseSpec]
+    notes: list[str] = field(default_factory=list)
+    requested: int = 0  # grid points before γ = 0 merging
+
+    def by_id(self) -> dict[str, CaseSpec]:
+        return {c.case_id: c for c in self.cases}
+
+
+def plan_sweep(
+    inclinations: tuple[float, ...] = DEFAULT_INCLINATIONS,
+    anteversions: tuple[float, ...] = DEFAULT_ANTEVERSIONS,
+    *,
+    frames: int = 120,
+    force_n: float | tuple[float, ...] = DEFAULT_FORCE_N,
+    extra_forces_n: tuple[float, ...] = DEFAULT_EXTRA_FORCES_N,
+    extra_force_anteversions: tuple[float, ...] = DEFAULT_EXTRA_FORCE_ANTEVERSIONS,
+    element_sizes_mm: tuple[float | None, ...] = (None,),
+) -> SweepPlan:
+    """The physical cases of a sweep: the full grid at the main force(s), extra forces on a subset.
+
+    The subset for ``extra_forces_n`` is the grid's orientations whose anteversion is in
+    ``extra_force_anteversions`` (every inclination). γ = 0 orientations merge into one case.
+    """
+    if not inclinations:
+        raise ThrsimInputError("the sweep has no cases: no inclinations given")
+    if not anteversions:
+        raise ThrsimInputError("the sweep has no cases: no anteversions given")
+    bad = [v for v in inclinations if not 0 <= v <= 90]
+    if bad:
+        raise ThrsimInputError(f"inclinations must lie in [0, 90] degrees, got {bad[0]:g}")
+    bad = [v for v in anteversions if not 0 <= v <= 360]
+    if bad:
+        raise ThrsimInputError(f"anteversions must lie in [0, 360] degrees, got {bad[0]:g}")
+    main_forces = (force_n,) if isinstance(force_n, (int, float)) else tuple(force_n)
+    if not main_forces:
+        raise ThrsimInputError("the sweep has no cases: no push force given")
+    for f in main_forces + tuple(extra_forces_n):
+        if not (math.isfinite(f) and f > 0):
+            raise ThrsimInputError(f"push forces must be positive newtons, got {f:g}")
+    if frames < 1:
+        raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
+    sizes = tuple(element_sizes_mm) or (None,)
+    for h in sizes:
+        if h is not None and not (math.isfinite(h) and h > 0):
+            raise ThrsimInputError(f"element sizes must be positive millimetres, got {h:g}")
+
+    grid = [(float(g), float(t)) for g in sorted(set(inclinations)) for t in sorted(set(anteversions))]
+    subset_keys = {_key(a) for a in extra_force_anteversions}
+    wanted: list[tuple[float, float, float]] = [(g, t, f) for f in main_forces for g, t in grid]
+    wanted += [(g, t, f) for f in extra_forces_n if _key(f) not in {_key(m) for m in main_forces} for g, t in grid if _key(t) in subset_keys]
+
+    cases: dict[str, CaseSpec] = {}
+    aliases: dict[str, list[float]] = {}
+    for h in sizes:
+        for g, t, f in wanted:
+            theta = 0.0 if _key(g) == 0.0 else t
+            spec = CaseSpec(inclination_deg=g, anteversion_deg=theta, force_n=float(f), frames=int(frames), element_size_mm=h)
+            aliases.setdefault(spec.case_id, [])
+            if t not in aliases[spec.case_id]:
+                aliases[spec.case_id].append(t)
+            cases.setdefault(spec.case_id, spec)
+    planned = []
+    notes = []
+    for case_id, spec in cases.items():
+        merged = tuple(sorted(aliases[case_id]))
+        if _key(spec.inclination_deg) == 0.0:
+            spec = CaseSpec(**{**spec.__dict__, "aliases": merged})
+            if len(merged) > 1:
+                notes.append(
+                    f"γ = 0: anteversions {', '.join(f'{a:g}' for a in merged)} at {spec.force_n:g} N are one physical case "
+                    f"(the reamer axis does not depend on θ); run once as {spec.case_id}"
+                )
+        planned.append(spec)
+    if not planned:
+        raise ThrsimInputError("the sweep has no cases")
+    return SweepPlan(cases=planned, notes=notes, requested=len(wanted) * len(sizes))

@@ -38,9 +38,9 @@ DEFINITIONS: tuple[str, ...] = ("radiographic", "operative", "anatomic")
 SIDES: tuple[str, ...] = ("right", "left")
 APP_LANDMARKS: tuple[str, ...] = ("asis_right", "asis_left", "pubic_right", "pubic_left")
 
-# A float32 rotation column (OpenIGTLink) is unit to ~1e-7; anything further off is a caller's
+# Loose enough for axes typed with three decimals; anything further off is a caller's
 # mistake (an unnormalised direction, a position passed as an axis).
-_UNIT_TOLERANCE = 1e-4
+_UNIT_TOLERANCE = 1e-3
 # sin of the smallest angle between the ASIS line and the pubic direction still called a plane.
 _COLLINEAR_SINE = 1e-6
 

@@ -1,0 +1,124 @@
+"""Penalty contact between bone nodes and the rigid rotating reamer (head sphere + tooth capsules).
+
+Written here: no library offers contact of a mesh against an analytic, spinning, toothed body.
+Every node still attached to an active element is a candidate, interior ones included, so
+every element can be cut [5.3.1]. For a node at p, with the reamer centre c and the reamer
+basis (e1, e2, D) turned to the current spin angle:
+
+* head: penetration g = R − |p − c|, normal (p − c)/|p − c|;
+* tooth k: the edge axis is an arc of radius R_a in the meridian half-plane at azimuth ψ_k,
+  between polar angles φ_start and φ_end; the closest arc point is found by clamping the
+  node's polar angle in that half-plane, and g = r_edge − distance.
+
+The deepest of these contacts acts. Normal force f_n = k·g + 2ξ√(k·m)·(−v_rel·n), never
+pulling (f_n ≥ 0); Coulomb friction μ·f_n against the relative sliding velocity, regularised
+below ``SLIP_REGULARISATION_M_S`` so a sticking node feels a viscous rather than a chattering
+force. The relative velocity uses the reamer surface velocity ω D × (p − c) + ṡ D.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+SLIP_REGULARISATION_M_S = 1e-3
+
+
+@njit(parallel=True, cache=True)
+def reamer_contact(
+    positions, velocity, alive, nodal_mass, centre, e1, e2, axis, axial_speed, omega,
+    head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
+    stiffness, damping_ratio, friction, force,
+):  # fmt: skip
+    """Write each node's contact force into ``force`` (N, 3); return (Fx, Fy, Fz, contacts, power).
+
+    (Fx, Fy, Fz) is the total force on the bone (the reamer feels its opposite); ``power`` is
+    the rate of work done on the bone's nodes by the contact forces.
+    """
+    reach = edge_axis_radius + edge_radius
+    tooth_shell = edge_axis_radius - edge_radius
+    total_x = 0.0
+    total_y = 0.0
+    total_z = 0.0
+    contacts = 0
+    power = 0.0
+    for node in prange(len(alive)):
+        force[node, 0] = 0.0
+        force[node, 1] = 0.0
+        force[node, 2] = 0.0
+        if not alive[node]:
+            continue
+        qx = positions[node, 0] - centre[0]
+        qy = positions[node, 1] - centre[1]
+        qz = positions[node, 2] - centre[2]
+        r = math.sqrt(qx * qx + qy * qy + qz * qz)
+        if r >= reach or r == 0.0:
+            continue
+        depth = head_radius - r
+        nx, ny, nz = qx / r, qy / r, qz / r
+        if r > tooth_shell:
+            # node in the teeth's shell: express it in the spinning reamer frame
+            lx = qx * e1[0] + qy * e1[1] + qz * e1[2]
+            ly = qx * e2[0] + qy * e2[1] + qz * e2[2]
+            lz = qx * axis[0] + qy * axis[1] + qz * axis[2]
+            for k in range(len(tooth_cos)):
+                across = -lx * tooth_sin[k] + ly * tooth_cos[k]
+                if abs(across) >= edge_radius:
+                    continue
+                along = lx * tooth_cos[k] + ly * tooth_sin[k]
+                polar = math.atan2(along, lz)
+                polar = min(max(polar, tooth_start[k]), tooth_end[k])
+                a_along = edge_axis_radius * math.sin(polar)
+                a_z = edge_axis_radius * math.cos(polar)
+                d_along = along - a_along
+                d_z = lz - a_z
+                distance = math.sqrt(d_along * d_along + across * across + d_z * d_z)
+                tooth_depth = edge_radius - distance
+                if tooth_depth > depth and distance > 0.0:
+                    depth = tooth_depth
+                    # normal back in the bone frame: (d_along·e_ψ + across·e_⊥ + d_z·D)/distance
+                    ux = (d_along * tooth_cos[k] - across * tooth_sin[k]) / distance
+                    uy = (d_along * tooth_sin[k] + across * tooth_cos[k]) / distance
+                    uz = d_z / distance
+                    nx = ux * e1[0] + uy * e2[0] + uz * axis[0]
+                    ny = ux * e1[1] + uy * e2[1] + uz * axis[1]
+                    nz = ux * e1[2] + uy * e2[2] + uz * axis[2]
+        if depth <= 0.0:
+            continue
+        # reamer surface velocity at the node: ω D × (p − c) + ṡ D
+        wx = omega * (axis[1] * qz - axis[2] * qy) + axial_speed * axis[0]
+        wy = omega * (axis[2] * qx - axis[0] * qz) + axial_speed * axis[1]
+        wz = omega * (axis[0] * qy - axis[1] * qx) + axial_speed * axis[2]
+        rx = velocity[node, 0] - wx
+        ry = velocity[node, 1] - wy
+        rz = velocity[node, 2] - wz
+        normal_speed = rx * nx + ry * ny + rz * nz
+        fn = stiffness * depth - 2.0 * damping_ratio * math.sqrt(stiffness * nodal_mass[node]) * normal_speed
+        if fn <= 0.0:
+            continue
+        tx = rx - normal_speed * nx
+        ty = ry - normal_speed * ny
+        tz = rz - normal_speed * nz
+        slip = math.sqrt(tx * tx + ty * ty + tz * tz)
+        ft = friction * fn * min(1.0, slip / SLIP_REGULARISATION_M_S) / slip if slip > 0.0 else 0.0
+        fx = fn * nx - ft * tx
+        fy = fn * ny - ft * ty
+        fz = fn * nz - ft * tz
+        force[node, 0] = fx
+        force[node, 1] = fy
+        force[node, 2] = fz
+        total_x += fx
+        total_y += fy
+        total_z += fz
+        contacts += 1
+        power += fx * velocity[node, 0] + fy * velocity[node, 1] + fz * velocity[node, 2]
+    return total_x, total_y, total_z, contacts, power
+
+
+def spun_basis(rotation: np.ndarray, spin_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reamer's e1, e2 axes after turning by ``spin_angle`` about D (``rotation`` at angle 0)."""
+    c, s = math.cos(spin_angle), math.sin(spin_angle)
+    e1, e2 = rotation[:, 0], rotation[:, 1]
+    return np.ascontiguousarray(c * e1 + s * e2), np.ascontiguousarray(-s * e1 + c * e2)

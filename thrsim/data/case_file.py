@@ -193,9 +193,12 @@ def write_case(
                 "elements": mesh.n_tets,
             }
             for key, value in (extra_attrs or {}).items():
-                if key in attrs:
-                    raise ThrsimInputError(f"{where}: extra attribute {key!r} would overwrite a reserved attribute")
-                attrs[key] = _attr_value(value)
+                value = _attr_value(value)
+                if key in ("frames", "elements"):  # a solver summary repeats them: the data decide
+                    continue
+                if key in attrs and attrs[key] != value:
+                    raise ThrsimInputError(f"{where}: extra attribute {key!r}={value!r} contradicts the case's {attrs[key]!r}")
+                attrs[key] = value
             f.attrs.update(attrs)
             write_mesh_group(f.create_group("mesh"), mesh)
             g = f.create_group("frames")

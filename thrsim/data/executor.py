@@ -144,7 +144,15 @@ class DaskExecutor:
     def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
         from distributed import as_completed
 
-        return iter(as_completed(list(futures)))
+        with self._client.as_current():
+            completed = as_completed(list(futures))
+        while True:
+            with self._client.as_current():
+                try:
+                    future = next(completed)
+                except StopIteration:
+                    return
+            yield future
 
     def restart(self) -> None:  # Dask reschedules lost tasks itself
         pass

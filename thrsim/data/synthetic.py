@@ -10,6 +10,7 @@ carry ``attrs["solver"] = "synthetic"``.
 from __future__ import annotations
 
 import math
+import os
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -60,6 +61,8 @@ def synthetic_run_case(
 ) -> dict:
     """Write a deterministic synthetic case to ``out``; return a summary like the solver's."""
     started = time.perf_counter()
+    if not seconds_per_frame:  # lets subprocess tests slow the stand-in down
+        seconds_per_frame = float(os.environ.get("THRSIM_SYNTHETIC_SECONDS_PER_FRAME", "0") or 0)
     n = max(2, min(12, int(round(4.0 / max(case.bone.element_size_mm, 0.1)))))
     mesh = block_mesh(n=n)
     axis = np.array(case.orientation.reamer_axis)

@@ -1,0 +1,149 @@
+"""`thrsim dataset --out DIR ...` and `thrsim dataset info DIR`, in process and as a killed subprocess."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from thrsim.cli import main
+from thrsim.data.case_file import validate_case
+from thrsim.data.generate import read_manifest
+
+pytestmark = pytest.mark.timeout(120)
+
+SMALL = ["--inclinations", "0,30", "--anteversions", "0:90:90", "--frames", "3", "--extra-forces", "none", "--solver", "synthetic"]
+
+
+def run_cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["thrsim", *args])
+    code = 0
+    try:
+        main()
+    except SystemExit as exit_:
+        code = exit_.code or 0
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_dataset_then_info(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "ds"
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--workers", "2", "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["cases"] == 3 and summary["generated"] == 3 and summary["failed"] == 0
+    assert summary["frames_generated"] == 9 and summary["frames_per_second"] > 0
+    assert any("one physical case" in n for n in summary["notes"])
+
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")
+    assert code == 0 and json.loads(out)["skipped"] == 3
+
+    png = tmp_path / "alpha.png"
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(root), "--plot", str(png), "--json")
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["cases"] == 3 and info["frames"] == 9
+    assert info["cases_by_split"] == {"train": 2, "validation": 1}
+    assert len(info["removed_fraction_per_frame"]) == 3 and info["removed_fraction_per_frame"][0] == 0.0
+    assert info["peeq_range"][0] == 0.0 and info["von_mises_range_pa"][1] > 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(root))  # rich table
+    assert code == 0 and "removed fraction" in out
+
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "plan"), "--dry-run", "--json")
+    plan = json.loads(out)
+    assert plan["cases"] == 60 and not (tmp_path / "plan").exists()
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--inclinations", "95"], "inclinations must lie in [0, 90]"),
+        (["--anteversions", "0:90:-15"], "positive step"),
+        (["--inclinations", "none"], "empty list"),
+        (["--frames", "0"], "--frames"),
+        (["--scheduler", "tcp://127.0.0.1:9", "--connect-timeout", "1"], "cannot reach the Dask scheduler"),
+    ],
+)
+def test_dataset_bad_input(tmp_path, monkeypatch, capsys, args, message):
+    base = [a for a in SMALL]
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *base, *args)
+    assert code == 2 and out == ""
+    assert err.startswith("thrsim: error:") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "ds").exists()
+
+
+def test_dataset_refuses_other_configuration_and_missing_out(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "ds"
+    assert run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL[:-4], "--frames", "5", "--extra-forces", "none", "--solver", "synthetic")
+    assert code == 2 and "different configuration" in err and "frames" in err
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", *SMALL)
+    assert code == 2 and "--out" in err
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(tmp_path / "nothing"))
+    assert code == 2 and "no such dataset" in err
+
+
+def _children(pid: int) -> list[int]:
+    found = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid:
+            found.append(int(stat.parent.name))
+    return found
+
+
+def test_kill9_parent_then_resume(tmp_path):
+    root = tmp_path / "ds"
+    args = ["thrsim"]
+    cmd = args + ["dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
+                  "--extra-forces", "none", "--solver", "synthetic", "--workers", "2", "--json"]
+    env = {**os.environ, "THRSIM_SYNTHETIC_SECONDS_PER_FRAME": "0.4"}
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    deadline = time.time() + 60
+    workers: list[int] = []
+    while time.time() < deadline:
+        workers = sorted(set(workers) | set(_children(proc.pid)))
+        manifest = read_manifest(root) if (root / "manifest.json").exists() else None
+        if manifest and any(e["status"] == "complete" for e in manifest["cases"].values()):
+            break
+        time.sleep(0.05)
+    else:
+        proc.kill()
+        pytest.fail("no case completed in time")
+    done_before = sum(e["status"] == "complete" for e in read_manifest(root)["cases"].values())
+    assert done_before < 5
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    # the pool's workers die with their parent (PR_SET_PDEATHSIG)
+    for _ in range(100):
+        alive = [w for w in workers if Path(f"/proc/{w}").exists() and "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]
+        if not alive:
+            break
+        time.sleep(0.05)
+    assert not alive
+    assert len(workers) >= 2, "the pool's worker processes were not seen"
+
+    again = subprocess.run(cmd, env={**os.environ}, capture_output=True, text=True, timeout=90)
+    assert again.returncode == 0, again.stderr
+    summary = json.loads(again.stdout)
+    assert summary["cases"] == 5 and summary["failed"] == 0
+    assert summary["skipped"] + summary["adopted"] >= done_before
+    assert summary["skipped"] + summary["adopted"] + summary["generated"] == 5
+    manifest = read_manifest(root)
+    assert all(e["status"] == "complete" for e in manifest["cases"].values())
+    assert sorted(p.name for p in (root / "cases").iterdir()) == sorted(f"{c}.h5" for c in manifest["cases"])
+    for entry in manifest["cases"].values():
+        validate_case(root / entry["file"])

@@ -1,0 +1,166 @@
+"""Sweeps: local pool, Dask, manifest, resume, adoption, crash recovery, refusals."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import time
+
+import numpy as np
+import pytest
+
+from thrsim.data.case_file import data_digest, file_sha256, validate_case
+from thrsim.data.executor import LocalExecutor
+from thrsim.data.generate import load_dataset, read_manifest, run_sweep
+from thrsim.data.sweep import plan_sweep
+from thrsim.data.synthetic import synthetic_run_case
+from thrsim.errors import ThrsimInputError
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def small_plan(frames=3, anteversions=(0.0, 90.0)):
+    return plan_sweep((0.0, 30.0), anteversions, frames=frames, extra_forces_n=())
+
+
+def crash_once(case, out, progress=None):
+    """Kill the worker process (SIGKILL) the first time, for the case at θ = 90; then behave."""
+    marker = os.environ["THRSIM_TEST_CRASH_MARKER"]
+    if case.anteversion_deg == 90.0 and not os.path.exists(marker):
+        open(marker, "w").close()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return synthetic_run_case(case, out, progress)
+
+
+def always_fails(case, out, progress=None):
+    if case.inclination_deg > 0:
+        raise RuntimeError("solver blew up at frame 2")
+    return synthetic_run_case(case, out, progress)
+
+
+def test_local_sweep_manifest_and_resume(tmp_path):
+    root = tmp_path / "ds"
+    plan = small_plan()
+    events = []
+    result = run_sweep(root, plan, solver="synthetic", workers=2, on_event=events.append)
+    assert (result.total, result.complete, result.skipped, result.failed) == (3, 3, 0, {})
+    assert result.notes and "one physical case" in result.notes[0]
+    manifest = read_manifest(root)
+    assert manifest["format"] == "thrsim-dataset"
+    assert len(manifest["cases"]) == 3
+    for case_id, entry in manifest["cases"].items():
+        path = root / entry["file"]
+        assert entry["status"] == "complete" and entry["frames"] == 3
+        assert entry["sha256"] == file_sha256(path) and entry["data_digest"] == data_digest(path)
+        assert entry["solver"] == "synthetic" and entry["solver_version"] and entry["config_hash"]
+        assert entry["wall_s"] > 0 and entry["split"] in ("train", "validation", "test")
+        assert validate_case(path)["frames"] == 3
+    assert manifest["cases"]["g030.0_t090.0_f230N"]["split"] == "validation"
+    assert manifest["cases"]["g000.0_t000.0_f230N"]["params"]["aliases"] == [0.0, 90.0]
+    assert sorted(p.name for p in (root / "cases").iterdir()) == sorted(f"{c}.h5" for c in manifest["cases"])
+    mtimes = {p.name: p.stat().st_mtime_ns for p in (root / "cases").iterdir()}
+
+    # rerun: everything skipped, nothing rewritten
+    again = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (again.complete, again.skipped) == (0, 3)
+    assert {p.name: p.stat().st_mtime_ns for p in (root / "cases").iterdir()} == mtimes
+
+    # an incomplete leftover and a damaged file are redone; an orphan complete file is adopted
+    (root / "cases" / "g030.0_t000.0_f230N.h5.deadbeef.part").write_bytes(b"half")
+    damaged = root / "cases" / "g030.0_t090.0_f230N.h5"
+    damaged.write_bytes(damaged.read_bytes()[:1000])
+    manifest = read_manifest(root)
+    del manifest["cases"]["g030.0_t000.0_f230N"]  # as if killed between rename and manifest write
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    third = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (third.complete, third.skipped, third.adopted) == (1, 1, 1)
+    assert not list((root / "cases").glob("*.part"))
+    assert all(e["status"] == "complete" for e in read_manifest(root)["cases"].values())
+    validate_case(damaged)
+
+    # growth with the same configuration: only the new case runs
+    grown = run_sweep(root, small_plan(anteversions=(0.0, 90.0, 135.0)), solver="synthetic", workers=1)
+    assert (grown.complete, grown.skipped) == (1, 3)
+    assert [e["case_id"] for e in load_dataset(root, split="test")] == ["g030.0_t135.0_f230N"]
+
+
+def test_refusals_touch_nothing(tmp_path):
+    root = tmp_path / "ds"
+    run_sweep(root, small_plan(), solver="synthetic", workers=1)
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+    with pytest.raises(ThrsimInputError, match="different configuration.*frames"):
+        run_sweep(root, small_plan(frames=4), solver="synthetic", workers=1)
+    with pytest.raises(ThrsimInputError, match="different configuration.*solver"):
+        run_sweep(root, small_plan(), solver="thrsim.data.synthetic:block_mesh", workers=1)
+    with pytest.raises(ThrsimInputError, match="different configuration"):
+        run_sweep(root, small_plan(), solver="synthetic", workers=1, template_overrides={"frame_rate_hz": 30.0})
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "notes.txt").write_text("mine")
+    with pytest.raises(ThrsimInputError, match="not a thrsim dataset"):
+        run_sweep(other, small_plan(), solver="synthetic")
+    with pytest.raises(ThrsimInputError, match="unknown solver|not available"):
+        run_sweep(tmp_path / "new", small_plan(), solver="nope")
+    assert not (tmp_path / "new").exists()
+
+
+def test_unreachable_scheduler_fails_fast(tmp_path):
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    started = time.perf_counter()
+    with pytest.raises(ThrsimInputError, match="cannot reach the Dask scheduler"):
+        run_sweep(tmp_path / "ds", small_plan(), solver="synthetic", scheduler=f"tcp://127.0.0.1:{port}", connect_timeout_s=1.0)
+    assert time.perf_counter() - started < 15
+    assert not (tmp_path / "ds").exists()
+    with pytest.raises(ThrsimInputError, match="tcp://HOST:PORT"):
+        run_sweep(tmp_path / "ds", small_plan(), solver="synthetic", scheduler="tcp://nohostport")
+
+
+def test_worker_killed_mid_case_is_retried(tmp_path, monkeypatch):
+    monkeypatch.setenv("THRSIM_TEST_CRASH_MARKER", str(tmp_path / "crashed"))
+    events = []
+    result = run_sweep(tmp_path / "ds", small_plan(), solver=crash_once, workers=2, on_event=events.append)
+    assert (tmp_path / "crashed").exists()
+    assert any(e.status == "retry" for e in events)
+    assert result.complete == 3 and not result.failed
+    for entry in load_dataset(tmp_path / "ds"):
+        validate_case(entry["path"])
+    assert read_manifest(tmp_path / "ds")["cases"]["g030.0_t090.0_f230N"]["attempts"] >= 2
+
+
+def test_solver_failure_recorded_and_retried_on_rerun(tmp_path):
+    root = tmp_path / "ds"
+    result = run_sweep(root, small_plan(), solver=always_fails, workers=1)
+    assert result.complete == 1 and len(result.failed) == 2
+    assert "blew up" in next(iter(result.failed.values()))
+    manifest = read_manifest(root)
+    assert sorted(e["status"] for e in manifest["cases"].values()) == ["complete", "failed", "failed"]
+    assert not list((root / "cases").glob("*.part")) and not list((root / "cases").glob(".*"))
+    assert len(load_dataset(root)) == 1
+
+
+def test_dask_cluster_matches_local(tmp_path):
+    distributed = pytest.importorskip("distributed")
+    plan = small_plan()
+    local = run_sweep(tmp_path / "local", plan, solver="synthetic", workers=2)
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        remote = run_sweep(tmp_path / "dask", plan, solver="synthetic", scheduler=cluster.scheduler_address)
+    assert remote.complete == local.complete == 3
+    assert "Dask scheduler" in remote.executor
+    a, b = read_manifest(tmp_path / "local")["cases"], read_manifest(tmp_path / "dask")["cases"]
+    assert a.keys() == b.keys()
+    for case_id in a:
+        assert a[case_id]["data_digest"] == b[case_id]["data_digest"]
+        fa, fb = tmp_path / "local" / a[case_id]["file"], tmp_path / "dask" / b[case_id]["file"]
+        import h5py
+
+        with h5py.File(fa) as x, h5py.File(fb) as y:
+            for name in ("mesh/nodes", "mesh/tets", "frames/status", "frames/peeq", "frames/von_mises", "frames/reamer_position", "frames/energy"):
+                np.testing.assert_array_equal(x[name][()], y[name][()])

@@ -1,0 +1,99 @@
+"""α labels (eq. 47), angle lists, the sweep plan (γ = 0 merging, force axis) and the split."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from thrsim.config import LabelConfig
+from thrsim.data.labels import alpha, removed
+from thrsim.data.sweep import DEFAULT_SPLIT, SplitRule, parse_list, plan_sweep
+from thrsim.errors import ThrsimInputError
+
+
+def test_alpha_values():
+    # intact, unstressed: 1 − τ = 0.58; σ_M ≥ 1e7/μ: the stress term vanishes → 1 − PEEQ
+    a = alpha([0.0, 0.0, 0.1, 2.0, 0.0], [0.0, 1e8, 1e8, 0.0, 5e6], [1, 1, 1, 1, 0])
+    assert a.dtype == np.float32
+    np.testing.assert_allclose(a, [0.58, 1.0, 0.9, 0.0, 0.0], atol=1e-6)
+    mid = alpha([0.05], [1e7])[0]  # 1 − (0.05 + 0.42·(1 − 0.38))
+    assert mid == pytest.approx(1 - (0.05 + 0.42 * 0.62), abs=1e-6)
+    assert removed(a).tolist() == [False, False, False, True, True]
+    custom = LabelConfig(mu=0.0, tau=0.0)
+    assert alpha([0.2], [0.0], config=custom)[0] == pytest.approx(0.8)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(0, 10), st.floats(0, 1e9), st.integers(0, 1))
+def test_alpha_bounded_and_zero_when_removed(peeq, vm, status):
+    a = alpha([peeq], [vm], [status])[0]
+    assert 0.0 <= a <= 1.0
+    if status == 0:
+        assert a == 0.0
+
+
+def test_parse_list():
+    assert parse_list("0:180:15", "x") == tuple(float(v) for v in range(0, 181, 15))
+    assert parse_list("0:30:15,45, 15", "x") == (0.0, 15.0, 30.0, 45.0)
+    assert parse_list("0:1:0.1", "x")[-1] == 1.0 and len(parse_list("0:1:0.1", "x")) == 11
+    assert parse_list("none", "x", allow_empty=True) == ()
+    for bad in ("", "a,b", "0:10", "0:10:0", "10:0:5", "1,,2", "nan"):
+        with pytest.raises(ThrsimInputError):
+            parse_list(bad, "--inclinations")
+
+
+def test_default_plan():
+    plan = plan_sweep()
+    main = [c for c in plan.cases if c.force_n == 230.0]
+    assert len(main) == 1 + 3 * 13  # γ = 0 is one physical case
+    for force in (150.0, 310.0):
+        extra = [c for c in plan.cases if c.force_n == force]
+        assert len(extra) == 1 + 3 * 3
+        assert {c.anteversion_deg for c in extra} == {0.0, 90.0, 180.0}
+    assert len(plan.cases) == 60 == len({c.case_id for c in plan.cases})
+    zero = [c for c in plan.cases if c.inclination_deg == 0.0 and c.force_n == 230.0]
+    assert len(zero) == 1 and zero[0].anteversion_deg == 0.0 and len(zero[0].aliases) == 13
+    assert any("one physical case" in n for n in plan.notes)
+    assert all(c.frames == 120 for c in plan.cases)
+
+
+def test_plan_refuses_bad_input():
+    with pytest.raises(ThrsimInputError, match="no cases"):
+        plan_sweep((), (0.0,))
+    with pytest.raises(ThrsimInputError, match="inclinations must lie in"):
+        plan_sweep((95.0,), (0.0,))
+    with pytest.raises(ThrsimInputError, match="anteversions must lie in"):
+        plan_sweep((10.0,), (-15.0,))
+    with pytest.raises(ThrsimInputError, match="positive"):
+        plan_sweep((10.0,), (0.0,), force_n=-1.0)
+    with pytest.raises(ThrsimInputError, match="frames"):
+        plan_sweep((10.0,), (0.0,), frames=0)
+
+
+def test_extra_axes_and_case_config():
+    plan = plan_sweep((15.0,), (0.0, 90.0), frames=3, extra_forces_n=(), element_sizes_mm=(0.9, 1.2))
+    assert len(plan.cases) == 4
+    spec = [c for c in plan.cases if c.element_size_mm == 1.2][0]
+    config = spec.case_config({"frames": 99})
+    assert config.bone.element_size_mm == 1.2 and config.frames == 3 and config.inclination_deg == 15.0
+    assert "_h1.2mm" in spec.case_id
+
+
+def test_split_is_by_orientation_and_deterministic():
+    plan = plan_sweep()
+    splits = {}
+    for c in plan.cases:
+        s = DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)
+        assert splits.setdefault(c.orientation, s) == s  # every force of an orientation shares it
+    train = {o for o, s in splits.items() if s == "train"}
+    test = {o for o, s in splits.items() if s == "test"}
+    val = {o for o, s in splits.items() if s == "validation"}
+    assert not (train & test) and not (train & val)
+    assert {o[1] for o in test} == {45.0, 135.0} and {o[0] for o in test} == {15.0, 30.0, 45.0}
+    assert {o[1] for o in val} == {90.0}
+    assert (0.0, 0.0) in train
+    assert (len(train), len(val), len(test)) == (31, 3, 6)
+    rule = SplitRule(test_anteversions_deg=(0.0,), zero_inclination_split="test")
+    assert rule.split(0.0, 0.0) == "test" and rule.split(30.0, 45.0) == "train"

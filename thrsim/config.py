@@ -247,7 +247,7 @@ class TrackingVolumeConfig(_Frozen):
     landmark_count: int = Field(27, ge=3)
     landmark_tolerance_mm: float = Field(5.0, gt=0, description="probe tip to target distance that counts as on it")
     dwell_s: float = Field(0.5, gt=0, description="how long the probe is held still on a target to acquire it")
-    still_tolerance_mm: float = Field(2.0, gt=0, description="tip wander during the dwell that still counts as still")
+    still_tolerance_mm: float = Field(3.0, gt=0, description="tip wander during the dwell that still counts as still")
 
     @model_validator(mode="after")
     def _depths(self) -> "TrackingVolumeConfig":

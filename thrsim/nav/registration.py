@@ -2,7 +2,7 @@
 
 A target is acquired when the probe tip stays within ``landmark_tolerance_mm`` of it, with the
 probe and the pelvic reference frame both tracked, and the tip held still (within
-``still_tolerance_mm`` of where the dwell began) for ``dwell_s``; the acquired point is the mean
+``still_tolerance_mm`` of the mean tip position so far) for ``dwell_s``; the acquired point is the mean
 tip position over the dwell, which averages tracker noise. Each update returns events for the
 trainee's feedback (sound, colour). Once every target is acquired, the synthetic pelvis model's
 landmarks are fitted rigidly to the acquired points and the APP is computed from the acquired
@@ -107,7 +107,8 @@ class LandmarkRegistration:
         if np.linalg.norm(tip - target) > self.config.landmark_tolerance_mm * 1e-3:
             self._dwell = []
             return events
-        if not self._dwell or np.linalg.norm(tip - self._dwell[0]) > self.config.still_tolerance_mm * 1e-3:
+        # Against the running mean, not the first sample: one noisy sample must not restart the dwell.
+        if not self._dwell or np.linalg.norm(tip - np.mean(self._dwell, axis=0)) > self.config.still_tolerance_mm * 1e-3:
             self._dwell, self._dwell_start = [tip], time_s
             return events
         self._dwell.append(tip)

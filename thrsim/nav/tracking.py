@@ -91,9 +91,9 @@ def _planar_array(spread: float) -> np.ndarray:
     ]
 
 
-REFERENCE_FRAME = ToolGeometry("Reference", _planar_array(0.05))
-PROBE = ToolGeometry("Probe", _planar_array(0.04), tip=np.array([0.0, -0.15, 0.0]))
-REAMER = ToolGeometry("Reamer", _planar_array(0.05), tip=np.array([0.0, 0.0, -0.25]))
+REFERENCE_FRAME = ToolGeometry("Reference", _planar_array(0.06))
+PROBE = ToolGeometry("Probe", _planar_array(0.05), tip=np.array([0.0, -0.15, 0.0]))
+REAMER = ToolGeometry("Reamer", _planar_array(0.06), tip=np.array([0.0, 0.0, -0.25]))
 
 
 @dataclass(frozen=True)
@@ -153,10 +153,10 @@ class TrackingCamera:
         c = self.config
         local = transform_points(invert(self.pose), np.atleast_2d(points_world))
         depth = local[:, 2]
-        near, far = c.near_mm * 1e-3, c.far_mm * 1e-3
+        near, far = c.near_mm / 1e3, c.far_mm / 1e3  # division keeps 950 mm exactly 0.95 m
         fraction = (depth - near) / (far - near)
-        half_width = 1e-3 * (c.near_half_width_mm + fraction * (c.far_half_width_mm - c.near_half_width_mm))
-        half_height = 1e-3 * (c.near_half_height_mm + fraction * (c.far_half_height_mm - c.near_half_height_mm))
+        half_width = (c.near_half_width_mm + fraction * (c.far_half_width_mm - c.near_half_width_mm)) / 1e3
+        half_height = (c.near_half_height_mm + fraction * (c.far_half_height_mm - c.near_half_height_mm)) / 1e3
         return (depth >= near) & (depth <= far) & (np.abs(local[:, 0]) <= half_width) & (np.abs(local[:, 1]) <= half_height)
 
     def observe(self, tool: ToolGeometry, tool_pose: np.ndarray, occluders: Sequence[Occluder] = ()) -> Visibility:

@@ -8,6 +8,8 @@ temporary name first and are renamed only when complete.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 from pathlib import Path
 from typing import Literal
@@ -46,10 +48,16 @@ def read_mesh(path: str | Path, units: Units = "mm") -> TetMesh:
 def _read_meshio(path: Path, units: Units) -> TetMesh:
     import meshio
 
+    # meshio prints its reasons (stdout and stderr) and may call sys.exit(1) on a file it cannot
+    # parse: capture both streams and turn every failure into one ThrsimInputError line
+    chatter = io.StringIO()
     try:
-        raw = meshio.read(path)
-    except Exception as error:  # meshio raises many types for garbled input; all mean "unreadable"
-        reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        with contextlib.redirect_stdout(chatter), contextlib.redirect_stderr(chatter):
+            raw = meshio.read(path)
+    except (Exception, SystemExit) as error:  # many types for garbled input; all mean "unreadable"
+        said = [line.strip().removeprefix("Error: ") for line in chatter.getvalue().splitlines() if line.strip()]
+        text = str(error).strip() if not isinstance(error, SystemExit) else ""
+        reason = text.splitlines()[0] if text else (said[0] if said else type(error).__name__)
         raise ThrsimInputError(f"{path}: cannot read mesh ({reason})") from None
     blocks = [block for block in raw.cells if block.type in ("tetra", "tetra10")]
     if not blocks:
@@ -64,7 +72,10 @@ def _read_meshio(path: Path, units: Units) -> TetMesh:
     for name in list(raw.point_data):
         if name.startswith("set_"):
             node_sets[name[4:]] = np.flatnonzero(np.asarray(raw.point_data[name]) > 0)
-    fixed = node_sets.get(FIXED_SET, np.zeros(0, dtype=np.int64))
+    # the fixed set (any case: ABAQUS names are case-insensitive) becomes the fixed nodes
+    fixed_names = [name for name in node_sets if name.lower() == FIXED_SET]
+    fixed_parts = [node_sets.pop(name) for name in fixed_names]
+    fixed = np.unique(np.concatenate(fixed_parts)) if fixed_parts else np.zeros(0, dtype=np.int64)
     return TetMesh(nodes=nodes * UNIT_SCALE[units], tets=tets, node_sets=node_sets, fixed_nodes=fixed)
 
 
@@ -133,18 +144,22 @@ def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: d
 def _write_meshio(mesh: TetMesh, path: Path, suffix: str, units: Units) -> None:
     import meshio
 
-    sets = {**mesh.node_sets, FIXED_SET: mesh.fixed_nodes}
+    sets = {name: ids for name, ids in mesh.node_sets.items() if name.lower() != FIXED_SET}
+    sets[FIXED_SET] = mesh.fixed_nodes
     points = mesh.nodes / UNIT_SCALE[units]
     cells = [("tetra", mesh.tets.astype(np.int64))]
     if suffix == ".inp":
         out = meshio.Mesh(points, cells, point_sets={name: ids.astype(np.int64) for name, ids in sets.items()})
         meshio.write(path, out, file_format="abaqus")
     elif suffix == ".msh":
-        flags = {f"set_{name}": _flag(mesh.n_nodes, ids) for name, ids in sets.items()}
-        meshio.write(meshio.Mesh(points, cells, point_data=flags), path, file_format="gmsh22", binary=False)
+        # meshio's ASCII gmsh writer prints values with repr(): Python ints, not NumPy scalars
+        flags = {f"set_{name}": _flag(mesh.n_nodes, ids).astype(object) for name, ids in sets.items()}
+        tags = {key: [np.ones(mesh.n_tets, dtype=np.int32)] for key in ("gmsh:physical", "gmsh:geometrical")}
+        out = meshio.Mesh(points, cells, point_data=flags, cell_data=tags)
+        meshio.write(path, out, file_format="gmsh22", binary=False)
     else:
         flags = {f"set_{name}": _flag(mesh.n_nodes, ids) for name, ids in sets.items()}
-        meshio.write(meshio.Mesh(points, cells, point_data=flags), path, file_format="vtu")
+        meshio.write(path, meshio.Mesh(points, cells, point_data=flags), file_format="vtu")
 
 
 def _flag(n: int, ids: np.ndarray) -> np.ndarray:

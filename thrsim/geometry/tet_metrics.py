@@ -12,7 +12,7 @@ import numpy as np
 
 # Local faces of a tet, each listed so that its normal (right-hand rule) points outward
 # for a positively oriented tet; face i is opposite vertex i.
-TET_FACES = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]], dtype=np.int64)
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]], dtype=np.int64)
 TET_EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
 
 #: normalised volume quality q = 6√2·V / L_rms³ (1 for a regular tet) below which a tet is a sliver

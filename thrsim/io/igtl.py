@@ -180,10 +180,13 @@ def encode_message(message: Message) -> bytes:
         body = message.content
     else:
         raise ValueError(f"cannot encode header version {message.version}")
+    device = message.device_name.encode("utf-8")
+    if len(device) > 20 or len(message.type_name) > 12:
+        raise ValueError(f"type {message.type_name!r} or device {message.device_name!r} too long (12 / 20 bytes)")
     header = HEADER.pack(
         message.version,
         message.type_name.encode("ascii"),
-        message.device_name.encode("utf-8")[:20],
+        device,
         _timestamp_to_wire(message.timestamp),
         len(body),
         crc64(body),

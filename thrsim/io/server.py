@@ -19,7 +19,7 @@ so the event loop never waits on computation.
 Simulator hook: pass ``simulator=`` any callable matching :class:`ReamerSimulator`. Whenever a
 client's reamer pose updates, the hook is called (in a thread, at most one call in flight per
 connection, always with the newest pose — older ones are skipped) and a non-None result is sent
-back to that client as a TRANSFORM named ``SimulatedReamerToReference``.
+back to that client as a TRANSFORM named ``SimReamerToReference``.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ from thrsim.nav.session import REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE
 log = logging.getLogger(__name__)
 
 NAVIGATION_STATE = "NavigationState"
-SIMULATED_REAMER = "SimulatedReamerToReference"
+SIMULATED_REAMER = "SimReamerToReference"  # device names are at most 20 bytes
 # Above this a pure-Python CRC takes milliseconds: hand it to a thread.
 _CRC_IN_THREAD_BYTES = 64 * 1024
 _REAMER_DEVICES = (REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE_TO_TRACKER)
@@ -65,11 +65,22 @@ class _Connection:
     def __init__(self, server: "NavigationServer", writer: asyncio.StreamWriter):
         self.server = server
         self.writer = writer
+        self.handler_task = asyncio.current_task()
         self.version = 1
         self.send_lock = asyncio.Lock()
         self.pending: tuple[np.ndarray, float | None] | None = None
         self.wake = asyncio.Event()
         self.simulator_task: asyncio.Task | None = None
+        self.closed = False
+
+    def close(self) -> None:
+        # A flag as well as cancel(): Python 3.11's wait_for can swallow a cancellation that
+        # lands as the awaited drain completes, and the loop below must still end.
+        self.closed = True
+        self.wake.set()
+        if self.simulator_task is not None:
+            self.simulator_task.cancel()
+        self.writer.close()
 
     async def send(self, type_name: str, device: str, content: bytes) -> None:
         data = igtl.encode_message(igtl.Message(type_name, device, content, version=self.version))
@@ -91,6 +102,8 @@ class _Connection:
         simulator = self.server.simulator
         while True:
             await self.wake.wait()
+            if self.closed:
+                return
             self.wake.clear()
             pose, force_n = self.pending
             try:
@@ -138,11 +151,18 @@ class NavigationServer:
         return host, port
 
     async def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            for connection in list(self._connections):
-                connection.writer.close()
-            await self._server.wait_closed()
+        """Stop listening and end every connection, waiting for their tasks to finish."""
+        if self._server is None:
+            return
+        self._server.close()
+        tasks = [c.handler_task for c in self._connections] + [c.simulator_task for c in self._connections if c.simulator_task]
+        for connection in list(self._connections):
+            connection.close()  # the handler's next read sees end of stream and returns
+        if tasks:
+            _, stuck = await asyncio.wait(tasks, timeout=self.config.io_timeout_s)
+            for task in stuck:
+                task.cancel()
+        await self._server.wait_closed()
 
     def snapshot(self) -> dict:
         """Navigation state, client count and counters, for logs."""
@@ -165,9 +185,7 @@ class NavigationServer:
             self.stats["timeouts"] += 1
         finally:
             self._connections.discard(connection)
-            if connection.simulator_task is not None:
-                connection.simulator_task.cancel()
-            writer.close()
+            connection.close()
 
     async def _serve_one(self, reader: asyncio.StreamReader, connection: _Connection) -> bool:
         """Read and act on one message; False when the connection must close."""

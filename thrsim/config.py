@@ -36,7 +36,8 @@ class BonePatchConfig(_Frozen):
     side: Side = "right"
     support_side_faces: bool = Field(
         True,
-        description="fix the patch's side faces too: they are cuts through bone that continues in reality",
+        description="hold the side faces on an elastic foundation standing for the bone that continues "
+        "beyond the cut (a rigid support would make an uncuttable ring the reamer rests on)",
     )
 
     @model_validator(mode="after")

@@ -12,7 +12,7 @@ import typer
 from pydantic import ValidationError
 
 from thrsim import __version__
-from thrsim.cli import fem_cmd, mesh_cmd
+from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli.output import format_validation_error
@@ -47,6 +47,7 @@ def _root(
 
 app.command("mesh")(mesh_cmd.mesh)
 app.command("fem")(fem_cmd.fem)
+app.command("bench")(bench_cmd.bench)
 app.command("track")(track_cmd.track)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")

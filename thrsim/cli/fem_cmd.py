@@ -12,7 +12,6 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from thrsim.cli.output import err_console, print_json, print_table
 from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig, SolverConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.physics.reaming import run_case
 
 
 def fem(
@@ -40,6 +39,8 @@ def fem(
         inclination_deg=inclination, anteversion_deg=anteversion, force_n=force, frames=frames,
         bone=BonePatchConfig(element_size_mm=element_size, side=side), damage=damage, solver=solver,
     )  # fmt: skip
+    from thrsim.physics.reaming import run_case  # Numba: loaded only when a case runs
+
     columns = (TextColumn("reaming"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=as_json) as bar:
         task = bar.add_task("frames", total=frames)

@@ -6,8 +6,9 @@ sphere and the outer sphere, cut by a cone of the given half-angle about −z, s
 are conical and meet both spheres at right angles.
 
 Node sets: ``inner`` (the articular face that is reamed), ``outer`` (the bottom face, fixed by
-the encastre [5.3.3]) and ``side`` (cuts through bone that continues in reality; fixed too by
-default, see :class:`thrsim.config.BonePatchConfig`). The left hip is the mirror of the right
+the encastre [5.3.3]: the mesh's fixed nodes) and ``side`` (cuts through bone that continues in
+reality; the solver holds them on an elastic foundation by default, see
+:class:`thrsim.config.BonePatchConfig` and :mod:`thrsim.physics.support`). The left hip is the mirror of the right
 across the bone frame's x = 0 plane, standing in for the sagittal plane.
 
 Determinism: one gmsh thread, the Delaunay 3-D algorithm and a fixed random seed give the same
@@ -94,7 +95,6 @@ def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
 
     inverted = signed_volumes(nodes_m, tets) < 0
     tets = np.where(inverted[:, None], tets[:, [0, 2, 1, 3]], tets)
-    fixed = [node_sets[OUTER]] + ([node_sets[SIDE]] if config.support_side_faces else [])
-    mesh = TetMesh(nodes=nodes_m, tets=tets, node_sets=node_sets, fixed_nodes=np.concatenate(fixed))
+    mesh = TetMesh(nodes=nodes_m, tets=tets, node_sets=node_sets, fixed_nodes=node_sets[OUTER])
     return mesh.mirrored(axis=0) if config.side == "left" else mesh
 

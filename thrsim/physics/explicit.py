@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 from numba import njit, prange
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
 from thrsim.geometry.mesh import TetMesh
@@ -125,10 +126,11 @@ def element_update(
 
 
 @njit(parallel=True, cache=True)
-def node_update(offsets, entries, element_force, external_force, inverse_mass, held, velocity, displacement, du, dt):
-    """Central difference: v(n+½) = v(n−½) + Δt·M⁻¹(f_ext − f_int), u(n+1) = u(n) + Δt·v(n+½).
+def node_update(offsets, entries, element_force, external_force, support_stiffness, inverse_mass, held, velocity, displacement, du, dt):
+    """Central difference: v(n+½) = v(n−½) + Δt·M⁻¹(f_ext − f_int − k·u), u(n+1) = u(n) + Δt·v(n+½).
 
-    ``held`` nodes (the encastre) and orphaned nodes (inverse mass 0) do not move.
+    ``held`` nodes (the encastre) and orphaned nodes (inverse mass 0) do not move;
+    ``support_stiffness`` ties nodes elastically to their rest positions (0: no spring).
     """
     for node in prange(len(inverse_mass)):
         if held[node] or inverse_mass[node] == 0.0:
@@ -136,7 +138,10 @@ def node_update(offsets, entries, element_force, external_force, inverse_mass, h
                 velocity[node, i] = 0.0
                 du[node, i] = 0.0
             continue
-        fx, fy, fz = external_force[node, 0], external_force[node, 1], external_force[node, 2]
+        k = support_stiffness[node]
+        fx = external_force[node, 0] - k * displacement[node, 0]
+        fy = external_force[node, 1] - k * displacement[node, 1]
+        fz = external_force[node, 2] - k * displacement[node, 2]
         for entry in range(offsets[node], offsets[node + 1]):
             e, k = entries[entry] // 4, entries[entry] % 4
             fx += element_force[e, k, 0]
@@ -176,6 +181,7 @@ class ExplicitSolid:
         safety: float = 0.9,
         held_nodes: np.ndarray | None = None,
         bulk_viscosity: float = LINEAR_BULK_VISCOSITY,
+        support_stiffness: np.ndarray | None = None,
     ) -> None:
         self.mesh = mesh
         self.material, self.hardening, self.damage_law = material, hardening, damage
@@ -202,6 +208,7 @@ class ExplicitSolid:
         self.inverse_mass = np.where(self.nodal_mass > 0, 1.0 / np.maximum(self.nodal_mass, 1e-300), 0.0)
         self.elements_at_node = np.bincount(self.tets.ravel(), minlength=n_nodes)
         self.offsets, self.entries = node_element_csr(n_nodes, self.tets)
+        self.support_stiffness = np.zeros(n_nodes) if support_stiffness is None else np.asarray(support_stiffness, dtype=float)
         self.held = np.zeros(n_nodes, dtype=np.bool_)
         self.held[mesh.fixed_nodes if held_nodes is None else np.asarray(held_nodes, dtype=np.int64)] = True
 
@@ -223,6 +230,7 @@ class ExplicitSolid:
         self.deleted_momentum = np.zeros(3)
         self.deleted_kinetic_energy = 0.0
         self.deleted_count = 0
+        self.detached_count = 0
         self._accounted = np.zeros(n_el, dtype=np.bool_)
 
     @property
@@ -248,7 +256,7 @@ class ExplicitSolid:
             self._remove_deleted()
         node_update(
             self.offsets, self.entries, self.element_force,
-            self.external_force if external_force is None else external_force,
+            self.external_force if external_force is None else external_force, self.support_stiffness,
             self.inverse_mass, self.held, self.velocity, self.displacement, self.du, self.dt,
         )  # fmt: skip
         self.time += self.dt
@@ -277,6 +285,31 @@ class ExplicitSolid:
         self.velocity[orphan] = 0.0
         self.inverse_mass[touched] = np.where(self.nodal_mass[touched] > 0, 1.0 / np.maximum(self.nodal_mass[touched], 1e-300), 0.0)
 
+    def delete_detached(self) -> int:
+        """Delete active elements no longer face-connected, through active elements, to supported bone.
+
+        Such chips are debris: the thesis excludes removed material from the calculation [5.2.1],
+        and a free chip batted about by the teeth would only add noise. Returns how many went.
+        """
+        pairs = self.mesh.adjacency.pairs
+        both = (self.active[pairs[:, 0]] > 0) & (self.active[pairs[:, 1]] > 0)
+        live = pairs[both]
+        n = len(self.active)
+        graph = coo_matrix((np.ones(len(live)), (live[:, 0], live[:, 1])), shape=(n, n))
+        _, label = connected_components(graph, directed=False)
+        supported = self.held | (self.support_stiffness > 0)
+        anchored_elements = (self.active > 0) & supported[self.tets].any(axis=1)
+        anchored = np.zeros(label.max() + 1, dtype=bool)
+        anchored[label[anchored_elements]] = True
+        detached = (self.active > 0) & ~anchored[label]
+        count = int(detached.sum())
+        if count:
+            self.active[detached] = 0
+            self.damage[detached] = 1.0
+            self.detached_count += count
+            self._remove_deleted()
+        return count
+
     def von_mises(self) -> np.ndarray:
         """Von Mises stress of the (damaged) Cauchy stress, 0 for deleted elements, Pa."""
         return np.where(self.active > 0, (1.0 - self.damage) * von_mises(self.stress), 0.0)
@@ -288,13 +321,14 @@ class ExplicitSolid:
         return (self.nodal_mass[:, None] * self.velocity).sum(axis=0)
 
     def elastic_energy(self) -> float:
-        """Σ (1 − D)·½ σ̄:C⁻¹:σ̄·V over active elements."""
+        """Σ (1 − D)·½ σ̄:C⁻¹:σ̄·V over active elements, plus the support springs' ½ k u²."""
         e, nu = self.material.youngs_modulus_pa, self.material.poisson_ratio
         s = self.stress
         contracted = (s[:, :3] ** 2).sum(axis=1) + 2.0 * (s[:, 3:] ** 2).sum(axis=1)
         density = ((1 + nu) * contracted - nu * s[:, :3].sum(axis=1) ** 2) / (2.0 * e)
         keep = np.where(self.active > 0, 1.0 - self.damage, 0.0)
-        return float((keep * density * self.volume).sum())
+        springs = 0.5 * (self.support_stiffness * (self.displacement**2).sum(axis=1))[self.alive_nodes].sum()
+        return float((keep * density * self.volume).sum() + springs)
 
     def plastic_dissipation(self) -> float:
         return float(self.plastic_work.sum())

@@ -31,10 +31,11 @@ import numpy as np
 from thrsim.config import ReamingCaseConfig
 from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.mesh import SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
 from thrsim.physics.contact import reamer_contact, spun_basis
 from thrsim.physics.explicit import ExplicitSolid
+from thrsim.physics.support import foundation_stiffness
 
 INITIAL_GAP_M = 5e-5
 ENERGY_NAMES = (
@@ -71,8 +72,15 @@ class ReamingSimulation:
             numba.set_num_threads(min(case.solver.threads, numba.config.NUMBA_NUM_THREADS))
         self.case = case
         self.mesh = mesh if mesh is not None else generate_bone_patch(case.bone)
+        side = self.mesh.node_sets.get(SIDE)
+        springs = (
+            foundation_stiffness(self.mesh, side, case.material.youngs_modulus_pa, case.bone.element_size_mm * 1e-3)
+            if case.bone.support_side_faces and side is not None
+            else None
+        )
         self.solid = ExplicitSolid(
-            self.mesh, case.material, case.hardening, case.damage, case.solver.target_dt_s, case.solver.safety_factor
+            self.mesh, case.material, case.hardening, case.damage, case.solver.target_dt_s, case.solver.safety_factor,
+            support_stiffness=springs,
         )
         self.reamer = build_reamer(case.reamer)
         self.axis = np.array(case.orientation.reamer_axis)
@@ -81,7 +89,8 @@ class ReamingSimulation:
         self.tooth_cos = np.cos(self.reamer.tooth_azimuth)
         self.tooth_sin = np.sin(self.reamer.tooth_azimuth)
         self.mass = self.reamer.mass_kg
-        self.axial_load = case.force_n + self.mass * case.reamer.gravity_m_s2 * float(GRAVITY_DIRECTION @ self.axis)
+        self.force_n = case.force_n  # the surgeon's push; may change during a run
+        self.gravity_load = self.mass * case.reamer.gravity_m_s2 * float(GRAVITY_DIRECTION @ self.axis)
         self.position = self._initial_position()
         self.start_position = self.position
         self.speed = 0.0
@@ -130,12 +139,12 @@ class ReamingSimulation:
         solid.step(self.contact_force)
         on_bone = np.array([fx, fy, fz])
         # reamer: m·s̈ = push + gravity·D − (force on bone)·D
-        acceleration = (self.axial_load - float(on_bone @ self.axis)) / self.mass
+        acceleration = (self.force_n + self.gravity_load - float(on_bone @ self.axis)) / self.mass
         self.speed += solid.dt * acceleration
         advance = solid.dt * self.speed
         self.position += advance
         self.contact_work += power * solid.dt
-        self.push_work += self.case.force_n * advance
+        self.push_work += self.force_n * advance
         return on_bone, contacts
 
     def record(self, log: FrameLog, mean_force: np.ndarray) -> None:
@@ -180,6 +189,7 @@ class ReamingSimulation:
                 force_sum += on_bone
                 contact_steps += contacts > 0
             self._check(frame)
+            self.solid.delete_detached()
             if contact_steps and self.first_contact_frame is None:
                 self.first_contact_frame = frame
             self.record(log, force_sum / self.steps_per_frame)
@@ -208,6 +218,7 @@ class ReamingSimulation:
             "first_contact_frame": self.first_contact_frame,
             "elements": self.mesh.n_tets,
             "removed": removed,
+            "detached": self.solid.detached_count,
             "removed_volume_mm3": float(self.solid.volume[status[-1] == 0].sum() * 1e9),
             "mean_peeq_active": float(self.solid.peeq[status[-1] > 0].mean()),
             "reamer_advance_mm": float(axial[-1] * 1e3),

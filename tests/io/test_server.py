@@ -257,6 +257,25 @@ def test_simulator_hook_sends_back_the_simulated_reamer(make_server):
     assert calls == [230.0]
 
 
+def test_simulator_returning_none_or_a_bad_pose(make_server):
+    answers = [None, np.full((4, 4), np.nan)]
+    calls = []
+
+    def simulator(pose, force):
+        calls.append(force)
+        return answers[len(calls) - 1]
+
+    server = make_server(simulator=simulator)
+    with server.connect() as sock:
+        sock.sendall(transform_message(reamer_pose_mm()))
+        assert read_message(sock).type_name == "STRING"  # None: nothing sent back
+        assert wait_until(lambda: len(calls) == 1)
+        sock.sendall(transform_message(reamer_pose_mm()))
+        assert read_message(sock).type_name == "STRING"
+        assert "NaN" in igtl.unpack_status(read_message(sock).content)[2]
+    assert server.server.stats["simulator_errors"] == 1
+
+
 def test_slow_or_failing_simulator_never_blocks_replies(make_server):
     def slow_then_failing(reamer_to_reference, force_n):
         time.sleep(0.3)

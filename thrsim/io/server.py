@@ -108,14 +108,17 @@ class _Connection:
             pose, force_n = self.pending
             try:
                 result = await asyncio.to_thread(simulator, pose, force_n)
-                if result is not None:
-                    await self.send("TRANSFORM", SIMULATED_REAMER, igtl.pack_transform(check_pose(result, "simulated reamer pose")))
-            except (ConnectionError, asyncio.TimeoutError):
-                return
+                reply = None if result is None else ("TRANSFORM", igtl.pack_transform(check_pose(result, "simulated reamer pose")))
             except Exception as error:  # a faulty model must not take the server down
                 self.server.stats["simulator_errors"] += 1
                 log.warning("simulator hook failed: %s", error)
-                await self.send_status(igtl.STATUS_UNKNOWN_ERROR, "SimulatorError", str(error), SIMULATED_REAMER)
+                reply = ("STATUS", igtl.pack_status(igtl.STATUS_UNKNOWN_ERROR, "SimulatorError", str(error)[:200]))
+            if reply is None:
+                continue
+            try:
+                await self.send(reply[0], SIMULATED_REAMER, reply[1])
+            except (ConnectionError, asyncio.TimeoutError):
+                return
 
 
 class NavigationServer:

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from thrsim.errors import ThrsimInputError
-from thrsim.nav import app_frame, convert_angles, cup_angles, local_axis_from_angles, synthetic_pelvis_landmarks
+from thrsim.nav import angles_in_frame, app_frame, convert_angles, cup_angles, local_axis_from_angles, synthetic_pelvis_landmarks
 from thrsim.nav.anatomy import DEFINITIONS, angles_from_local
 
 pytestmark = pytest.mark.timeout(60)
@@ -90,8 +90,6 @@ def test_three_point_plane_equals_standard_for_symmetric_pelvis_and_shifts_for_a
     three = app_frame(landmarks, plane="three_point")
     assert three.axes == pytest.approx(standard.axes)
     asymmetric = dict(landmarks, pubic_right=landmarks["pubic_right"] + [0.0, 0.005, 0.0])  # 5 mm anterior
-    from thrsim.nav import angles_in_frame
-
     shift = angles_in_frame(axis, app_frame(asymmetric, plane="three_point"))[1] - angles_in_frame(axis, app_frame(asymmetric))[1]
     assert 0.5 < abs(shift) < 3.0
 

@@ -15,6 +15,7 @@ from thrsim import __version__
 from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
+from thrsim.cli import verify_cmd
 from thrsim.cli.output import format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
@@ -49,6 +50,7 @@ app.command("mesh")(mesh_cmd.mesh)
 app.command("fem")(fem_cmd.fem)
 app.command("bench")(bench_cmd.bench)
 app.command("track")(track_cmd.track)
+app.command("verify")(verify_cmd.verify)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
 

@@ -43,11 +43,12 @@ class CheckResult:
 
 @dataclass(frozen=True)
 class Check:
-    """A family of figures computed together; ``run()`` returns its records."""
+    """A family of figures computed together; ``run()`` returns its records, named ``figures``."""
 
     name: str
     description: str
     run: Callable[[], list[CheckResult]]
+    figures: tuple[str, ...] = ()
     slow: bool = False
 
 

@@ -100,4 +100,4 @@ def column_wave() -> list[CheckResult]:
     ]  # fmt: skip
 
 
-CHECKS = [Check("column-wave", "constrained-column elastic wave: speed and stress jump", column_wave)]
+CHECKS = [Check("column-wave", "constrained-column elastic wave: speed and stress jump", column_wave, ("column-wave-speed", "column-wave-stress-jump"))]

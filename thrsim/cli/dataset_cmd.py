@@ -47,6 +47,7 @@ def dataset(
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
+    threads: Optional[int] = typer.Option(None, "--threads", help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)", metavar="N"),
     solver: str = typer.Option("fem", "--solver", hidden=True, help="fem, synthetic (pipeline tests) or module:function"),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
@@ -68,6 +69,8 @@ def dataset(
         raise ThrsimInputError(f"--connect-timeout must be positive, got {connect_timeout:g}")
     if workers < 1:
         raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
+    if threads is not None and threads < 1:
+        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
     sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
     plan = plan_sweep(
         parse_list(inclinations, "--inclinations"),
@@ -132,7 +135,7 @@ def dataset(
     try:
         result = run_sweep(
             out, plan, solver=solver, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout,
-            on_event=on_event, on_start=on_start,
+            threads=threads, on_event=on_event, on_start=on_start,
         )
     finally:
         if progress is not None:

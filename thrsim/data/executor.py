@@ -58,6 +58,13 @@ def is_worker_lost(error: BaseException) -> bool:
 def _worker_init(threads: int) -> None:
     for var in _THREAD_VARS:
         os.environ[var] = str(threads)
+    if "numba" in sys.modules:  # imported before this initializer ran: the env var is too late
+        try:
+            import numba
+
+            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+        except Exception:  # noqa: BLE001 - a thread cap is an optimisation, never a failure
+            pass
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL("libc.so.6", use_errno=True)

@@ -318,3 +318,39 @@ class ReamingCaseConfig(_Frozen):
     @property
     def frame_dt_s(self) -> float:
         return 1.0 / self.frame_rate_hz
+
+
+def _set_dotted(tree: dict, dotted: str, value) -> None:
+    *parents, leaf = dotted.split(".")
+    for key in parents:
+        tree = tree.setdefault(key, {})
+    tree[leaf] = value
+
+
+def load_case_config(path: str | None, overrides: dict[str, object]) -> ReamingCaseConfig:
+    """A reaming case from an optional JSON file of (partial, nested) settings, then dotted overrides.
+
+    ``overrides`` maps dotted field names (``bone.element_size_mm``) to values; None means "not
+    given". A missing or malformed file raises :class:`ThrsimInputError`; bad values raise
+    pydantic's ``ValidationError``.
+    """
+    import json
+    from pathlib import Path
+
+    from thrsim.errors import ThrsimInputError
+
+    settings: dict = {}
+    if path is not None:
+        file = Path(path)
+        if not file.is_file():
+            raise ThrsimInputError(f"{file}: no such configuration file")
+        try:
+            settings = json.loads(file.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise ThrsimInputError(f"{file}: not valid JSON ({error})") from None
+        if not isinstance(settings, dict):
+            raise ThrsimInputError(f"{file}: the configuration must be a JSON object")
+    for dotted, value in overrides.items():
+        if value is not None:
+            _set_dotted(settings, dotted, value)
+    return ReamingCaseConfig.model_validate(settings)

@@ -10,7 +10,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import err_console, print_json, print_table
-from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig, SolverConfig
+from thrsim.config import load_case_config
 from thrsim.errors import ThrsimInputError
 
 
@@ -18,13 +18,15 @@ def fem(
     inclination: float = typer.Option(..., "--inclination", help="reamer inclination γ in degrees [0, 90]", metavar="DEG"),
     anteversion: float = typer.Option(..., "--anteversion", help="reamer anteversion θ in degrees [0, 360]", metavar="DEG"),
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
-    frames: int = typer.Option(120, "--frames", help="frames to simulate at 60 per simulated second"),
-    force: float = typer.Option(230.0, "--force", help="axial push force in N"),
-    element_size: float = typer.Option(0.45, "--element-size", help="bone mesh element size in mm", metavar="MM"),
-    side: str = typer.Option("right", "--side", help="hip side: right or left"),
+    frames: Optional[int] = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
+    force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
+    element_size: Optional[float] = typer.Option(None, "--element-size", help="bone mesh element size in mm [default: 0.45]", metavar="MM"),
+    side: Optional[str] = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
     failure_displacement: Optional[float] = typer.Option(None, "--failure-displacement", help="damage u_f in mm (Table 8: 0.5, text: 0.1)", metavar="MM"),
     target_dt: Optional[float] = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
     threads: Optional[int] = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"),
+    mesh_file: Optional[Path] = typer.Option(None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Simulate one reaming case (SPEC §2 defaults) and write its case file atomically."""
@@ -33,18 +35,33 @@ def fem(
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir() or not os.access(folder, os.W_OK):
         raise ThrsimInputError(f"{out}: output folder {folder} does not exist or is not writable")
-    damage = JohnsonCookDamage() if failure_displacement is None else JohnsonCookDamage(displacement_at_failure_m=failure_displacement * 1e-3)
-    solver = SolverConfig(**{k: v for k, v in (("target_dt_s", target_dt), ("threads", threads)) if v is not None})
-    case = ReamingCaseConfig(
-        inclination_deg=inclination, anteversion_deg=anteversion, force_n=force, frames=frames,
-        bone=BonePatchConfig(element_size_mm=element_size, side=side), damage=damage, solver=solver,
-    )  # fmt: skip
+    case = load_case_config(
+        None if config is None else str(config),
+        {
+            "inclination_deg": inclination,
+            "anteversion_deg": anteversion,
+            "frames": frames,
+            "force_n": force,
+            "bone.element_size_mm": element_size,
+            "bone.side": side,
+            "damage.displacement_at_failure_m": None if failure_displacement is None else failure_displacement * 1e-3,
+            "solver.target_dt_s": target_dt,
+            "solver.threads": threads,
+        },
+    )
+    bone = None
+    if mesh_file is not None:
+        from thrsim.geometry.mesh_io import read_mesh
+
+        bone = read_mesh(mesh_file)
+        if len(bone.fixed_nodes) == 0:
+            raise ThrsimInputError(f"{mesh_file}: the mesh has no fixed nodes (a node set named 'fixed')")
     from thrsim.physics.reaming import run_case  # Numba: loaded only when a case runs
 
     columns = (TextColumn("reaming"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=as_json) as bar:
-        task = bar.add_task("frames", total=frames)
-        summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done))
+        task = bar.add_task("frames", total=case.frames)
+        summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone)
     if as_json:
         print_json(summary)
     else:

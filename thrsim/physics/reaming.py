@@ -166,6 +166,8 @@ class ReamingSimulation:
         if not (np.isfinite(solid.displacement).all() and np.isfinite(solid.velocity).all() and math.isfinite(self.position)):
             raise SimulationError(f"frame {frame}: non-finite displacement or velocity (the step is unstable)")
         kinetic = solid.kinetic_energy()
+        if not math.isfinite(kinetic):
+            raise SimulationError(f"frame {frame}: non-finite kinetic energy (the step is unstable)")
         budget = abs(self.contact_work) + abs(self.push_work) + 1e-9
         if kinetic > self.case.solver.energy_blowup_factor * budget:
             raise SimulationError(

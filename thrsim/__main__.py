@@ -1,0 +1,5 @@
+"""``python -m thrsim`` runs the ``thrsim`` command."""
+
+from thrsim.cli import main
+
+main()

@@ -32,18 +32,15 @@ def reamer_contact(
     head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
     stiffness, damping_ratio, friction, force,
 ):  # fmt: skip
-    """Write each node's contact force into ``force`` (N, 3); return (Fx, Fy, Fz, contacts, power).
+    """Write each node's contact force into ``force`` (N, 3); return how many nodes are in contact.
 
-    (Fx, Fy, Fz) is the total force on the bone (the reamer feels its opposite); ``power`` is
-    the rate of work done on the bone's nodes by the contact forces.
+    Totals (the force on the bone, the power of the contact forces) are left to the caller to
+    sum over ``force`` in a fixed order: a floating-point reduction across threads would make
+    results depend on the thread count.
     """
     reach = edge_axis_radius + edge_radius
     tooth_shell = edge_axis_radius - edge_radius
-    total_x = 0.0
-    total_y = 0.0
-    total_z = 0.0
     contacts = 0
-    power = 0.0
     for node in prange(len(alive)):
         force[node, 0] = 0.0
         force[node, 1] = 0.0
@@ -109,12 +106,8 @@ def reamer_contact(
         force[node, 0] = fx
         force[node, 1] = fy
         force[node, 2] = fz
-        total_x += fx
-        total_y += fy
-        total_z += fz
         contacts += 1
-        power += fx * velocity[node, 0] + fy * velocity[node, 1] + fz * velocity[node, 2]
-    return total_x, total_y, total_z, contacts, power
+    return contacts
 
 
 def spun_basis(rotation: np.ndarray, spin_angle: float) -> tuple[np.ndarray, np.ndarray]:

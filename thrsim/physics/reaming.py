@@ -129,15 +129,16 @@ class ReamingSimulation:
         """One step of bone and reamer; returns the total contact force on the bone and contacts."""
         solid = self.solid
         e1, e2 = spun_basis(self.rotation, self.omega * solid.time)
-        fx, fy, fz, contacts, power = reamer_contact(
+        contacts = reamer_contact(
             solid.positions, solid.velocity, solid.alive_nodes, solid.nodal_mass, self.centre, e1, e2, self.axis,
             self.speed, self.omega, self.reamer.head_radius, self.reamer.edge_axis_radius, self.reamer.edge_radius,
             self.tooth_cos, self.tooth_sin, self.reamer.tooth_polar_start, self.reamer.tooth_polar_end,
             self.case.contact.penalty_stiffness_n_m, self.case.contact.damping_ratio, self.case.contact.friction,
             self.contact_force,
         )  # fmt: skip
+        on_bone = self.contact_force.sum(axis=0)
+        power = float(np.einsum("ij,ij->", self.contact_force, solid.velocity))
         solid.step(self.contact_force)
-        on_bone = np.array([fx, fy, fz])
         # reamer: m·s̈ = push + gravity·D − (force on bone)·D
         acceleration = (self.force_n + self.gravity_load - float(on_bone @ self.axis)) / self.mass
         self.speed += solid.dt * acceleration

@@ -24,7 +24,7 @@ def _number(value: float | None) -> str:
         return "—"
     if isinstance(value, bool):
         return str(value)
-    return f"{value:.6g}"
+    return f"{value:.5g}"
 
 
 def verify(
@@ -77,7 +77,7 @@ def verify(
         table = Table(title="thrsim verification")
         for column, justify in (("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
                                 ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center")):  # fmt: skip
-            table.add_column(column, justify=justify, no_wrap=column != "check")
+            table.add_column(column, justify=justify, no_wrap=column != "check", overflow="fold", min_width=24 if column == "check" else None)
         for r in results:
             mark = "[green]pass[/green]" if r.passed else "[bold red]FAIL[/bold red]"
             table.add_row(r.name + (" (slow)" if r.slow else ""), _number(r.value), _number(r.reference), _number(r.error),

@@ -7,6 +7,11 @@ threshold process (element deletion), so it converges only in the mean (NOTES: h
 changed the removed volume by 4 % in a prototype). Needs
 ``thrsim.physics.reaming.run_case(case, out, progress=None, mesh=None) -> dict``; without it
 the check reports itself as not available (failed), so a missing solver is visible.
+
+Measured (2 cores, shared machine; 2,903 tets, 4 frames, γ 15°): Δt 4e-6 s vs 2e-6 s removed
+523 vs 456 elements, 60.5 vs 53.0 mm³ (14 %), reamer advance 0.198 vs 0.241 mm (18 %: FAILS the
+15 % tolerance), max kinetic ÷ internal 2e-3 vs 6e-5; 19–28 s and 50–53 s per frame; about 5 min
+in all. The default mass-scaled step is not converged in the first frames: see the report.
 """
 
 from __future__ import annotations

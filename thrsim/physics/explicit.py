@@ -38,7 +38,7 @@ LINEAR_BULK_VISCOSITY = 0.06
 @njit(parallel=True, cache=True)
 def element_update(
     tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-    stress, peeq, damage, initiation, plastic_work, element_force,
+    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
     lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
 ):  # fmt: skip
     """Advance every active element's stress by one step and write its nodal forces.
@@ -48,6 +48,8 @@ def element_update(
     """
     n_elements = len(volume)
     deleted = 0
+    poisson = lam / (2.0 * (lam + mu))
+    youngs = mu * (3.0 * lam + 2.0 * mu) / (lam + mu)
     for e in prange(n_elements):
         if active[e] == 0:
             continue
@@ -96,7 +98,13 @@ def element_update(
             if initiation[e] < 1.0:
                 initiation[e] += damage_initiation_increment(dpeeq, pressure / q_new, dpeeq / dt, d1, d2, d3, d4, rate0)
             else:
-                damage[e] = min(1.0, damage[e] + char_length[e] * dpeeq / u_f)
+                grown = min(1.0, damage[e] + char_length[e] * dpeeq / u_f) - damage[e]
+                damage[e] += grown
+                # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V
+                contracted = sxx * sxx + syy * syy + szz * szz + 2.0 * (sxy * sxy + syz * syz + szx * szx)
+                trace_s = sxx + syy + szz
+                energy_density = ((1.0 + poisson) * contracted - poisson * trace_s * trace_s) / (2.0 * youngs)
+                damage_work[e] += grown * energy_density * volume[e]
         stress[e, 0] = sxx
         stress[e, 1] = syy
         stress[e, 2] = szz
@@ -138,10 +146,10 @@ def node_update(offsets, entries, element_force, external_force, support_stiffne
                 velocity[node, i] = 0.0
                 du[node, i] = 0.0
             continue
-        k = support_stiffness[node]
-        fx = external_force[node, 0] - k * displacement[node, 0]
-        fy = external_force[node, 1] - k * displacement[node, 1]
-        fz = external_force[node, 2] - k * displacement[node, 2]
+        spring = support_stiffness[node]
+        fx = external_force[node, 0] - spring * displacement[node, 0]
+        fy = external_force[node, 1] - spring * displacement[node, 1]
+        fz = external_force[node, 2] - spring * displacement[node, 2]
         for entry in range(offsets[node], offsets[node + 1]):
             e, k = entries[entry] // 4, entries[entry] % 4
             fx += element_force[e, k, 0]
@@ -222,6 +230,7 @@ class ExplicitSolid:
         self.damage = np.zeros(n_el)
         self.initiation = np.zeros(n_el)
         self.plastic_work = np.zeros(n_el)
+        self.damage_work = np.zeros(n_el)
         self.active = np.ones(n_el, dtype=np.uint8)
         self.element_force = np.zeros((n_el, 4, 3))
         self.external_force = np.zeros((n_nodes, 3))
@@ -248,7 +257,7 @@ class ExplicitSolid:
         d = self.damage_law
         deleted = element_update(
             self.tets, self.grads, self.volume, self.char_length, self.bulk_viscosity_coefficient, self.active, self.du, self.dt,
-            self.stress, self.peeq, self.damage, self.initiation, self.plastic_work, self.element_force,
+            self.stress, self.peeq, self.damage, self.initiation, self.plastic_work, self.damage_work, self.element_force,
             self.lam, self.mu, j.a_pa, j.b_pa, j.n, j.c, j.reference_strain_rate_s,
             d.d1, d.d2, d.d3, d.d4, d.displacement_at_failure_m,
         )  # fmt: skip
@@ -333,6 +342,10 @@ class ExplicitSolid:
     def plastic_dissipation(self) -> float:
         return float(self.plastic_work.sum())
 
+    def damage_dissipation(self) -> float:
+        """Strain energy released by stiffness degradation (ABAQUS's ALLDMD)."""
+        return float(self.damage_work.sum())
+
     def internal_energy(self) -> float:
-        """Elastic strain energy plus plastic dissipation (ABAQUS's ALLIE without damage terms)."""
-        return self.elastic_energy() + self.plastic_dissipation()
+        """Elastic strain energy + plastic dissipation + damage dissipation (ABAQUS's ALLIE)."""
+        return self.elastic_energy() + self.plastic_dissipation() + self.damage_dissipation()

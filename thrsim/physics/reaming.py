@@ -43,6 +43,7 @@ ENERGY_NAMES = (
     "internal",
     "elastic",
     "plastic_dissipation",
+    "damage_dissipation",
     "contact_work",
     "push_work",
     "reamer_kinetic",
@@ -150,7 +151,8 @@ class ReamingSimulation:
 
     def record(self, log: FrameLog, mean_force: np.ndarray) -> None:
         solid = self.solid
-        kinetic, elastic, plastic = solid.kinetic_energy(), solid.elastic_energy(), solid.plastic_dissipation()
+        kinetic, elastic = solid.kinetic_energy(), solid.elastic_energy()
+        plastic, damage = solid.plastic_dissipation(), solid.damage_dissipation()
         log.time.append(solid.time)
         log.status.append(solid.active.copy())
         log.peeq.append(solid.peeq.astype(np.float32))
@@ -158,7 +160,7 @@ class ReamingSimulation:
         log.reamer_position.append(self.centre.copy())
         log.contact_force.append(mean_force.copy())
         log.energy.append(
-            [kinetic, elastic + plastic, elastic, plastic, self.contact_work, self.push_work,
+            [kinetic, elastic + plastic + damage, elastic, plastic, damage, self.contact_work, self.push_work,
              0.5 * self.mass * self.speed**2, solid.deleted_kinetic_energy]
         )  # fmt: skip
 

@@ -57,7 +57,7 @@ class SingleTet:
         j, d = self.hardening, self.damage_law
         element_update(
             self.tets, self.grads, self.volume, self.char_length, np.zeros(1), active, du, dt,
-            stress, peeq, damage, initiation, work, force,
+            stress, peeq, damage, initiation, work, np.zeros(1), force,
             self.lam, self.mu, j.a_pa, j.b_pa, j.n, j.c, j.reference_strain_rate_s,
             d.d1, d.d2, d.d3, d.d4, d.displacement_at_failure_m,
         )  # fmt: skip

@@ -10,9 +10,9 @@ radius ``edge_axis_radius = R + protrusion − edge_radius``, so the edge stands
 proud of the head. Tooth k sits at polar angle φ_k (from the pole), evenly spaced from
 ``tooth_first_polar_deg`` to ``tooth_last_polar_deg``, and at azimuth ψ_k = k × golden angle
 (137.5°), which spreads successive teeth evenly around the axis. Every edge is ``tooth_length``
-long (clipped at the pole and the equator), several times the polar spacing, so each point
-of the dome's profile is swept by several teeth per revolution: like a real reamer, the head
-cuts a full hemisphere without bald rings. Teeth are not counted in the mass.
+long (clipped at the pole and the equator), several times the polar spacing: every point of
+the profile between 10° and 80° from the pole is swept by 5–6 teeth per revolution, the pole
+cap by one, the last 0.2° before the equator by none. Teeth are not counted in the mass.
 
 Mass: the thesis's simplified solid head (steel, 7800 kg/m³) unless a wall thickness is given
 for a hollow one: m = ρ·(2π/3)(R³ − (R − w)³). The default 45 mm solid head weighs 0.186 kg.

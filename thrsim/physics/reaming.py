@@ -12,9 +12,10 @@ Start: the reamer sits on its axis, backed off until its teeth clear every bone 
 ``INITIAL_GAP_M``; frame 0 records the intact bone at t = 0. A case of N frames simulates
 N/frame_rate seconds and records N + 1 frames (fewer if it ends early).
 
-End reasons: ``completed``; ``perforated`` when for a whole frame nothing touched the reamer
-and its teeth reach past the outer face of the shell (recording a reamer falling freely
-through the hole would teach the learned simulator nothing).
+End reasons: ``completed``; ``perforated`` at the first frame in which nothing touched the
+reamer and its teeth reach past the outer face of the shell. That frame is not recorded
+(a reamer falling freely through the hole would teach the learned simulator nothing), so a
+case perforated at frame k holds frames 0 … k − 1.
 """
 
 from __future__ import annotations
@@ -101,6 +102,7 @@ class ReamingSimulation:
         self.outer_radius = case.bone.outer_radius
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
         self.first_contact_frame: int | None = None
+        self.perforated_frame: int | None = None
 
     def _initial_position(self) -> float:
         """Axial coordinate s where the teeth clear the nearest bone node by the initial gap."""
@@ -194,15 +196,17 @@ class ReamingSimulation:
                 force_sum += on_bone
                 contact_steps += contacts > 0
             self._check(frame)
+            if contact_steps == 0 and self.first_contact_frame is not None and self.perforated():
+                # a frame of free fall through the hole is not recorded
+                end_reason = "perforated"
+                self.perforated_frame = frame
+                break
             self.solid.delete_detached()
             if contact_steps and self.first_contact_frame is None:
                 self.first_contact_frame = frame
             self.record(log, force_sum / self.steps_per_frame)
             if progress:
                 progress(frame, frames)
-            if contact_steps == 0 and self.first_contact_frame is not None and self.perforated():
-                end_reason = "perforated"
-                break
         elapsed = time.perf_counter() - started
         return log, self._summary(log, end_reason, elapsed)
 
@@ -219,7 +223,7 @@ class ReamingSimulation:
             "frames": simulated,
             "requested_frames": self.case.frames,
             "end_reason": end_reason,
-            "perforated_frame": simulated if end_reason == "perforated" else None,
+            "perforated_frame": self.perforated_frame,
             "first_contact_frame": self.first_contact_frame,
             "elements": self.mesh.n_tets,
             "removed": removed,

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit, prange
 
 SLIP_REGULARISATION_M_S = 1e-3
@@ -28,7 +27,7 @@ SLIP_REGULARISATION_M_S = 1e-3
 
 @njit(parallel=True, cache=True)
 def reamer_contact(
-    positions, velocity, alive, nodal_mass, centre, e1, e2, axis, axial_speed, omega,
+    nodes, displacement, velocity, inverse_mass, nodal_mass, centre, e1, e2, axis, axial_speed, omega,
     head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
     stiffness, damping_ratio, friction, force,
 ):  # fmt: skip
@@ -41,15 +40,15 @@ def reamer_contact(
     reach = edge_axis_radius + edge_radius
     tooth_shell = edge_axis_radius - edge_radius
     contacts = 0
-    for node in prange(len(alive)):
+    for node in prange(len(inverse_mass)):
         force[node, 0] = 0.0
         force[node, 1] = 0.0
         force[node, 2] = 0.0
-        if not alive[node]:
+        if inverse_mass[node] == 0.0:  # orphaned: every element at this node is gone
             continue
-        qx = positions[node, 0] - centre[0]
-        qy = positions[node, 1] - centre[1]
-        qz = positions[node, 2] - centre[2]
+        qx = nodes[node, 0] + displacement[node, 0] - centre[0]
+        qy = nodes[node, 1] + displacement[node, 1] - centre[1]
+        qz = nodes[node, 2] + displacement[node, 2] - centre[2]
         r = math.sqrt(qx * qx + qy * qy + qz * qz)
         if r >= reach or r == 0.0:
             continue
@@ -110,8 +109,15 @@ def reamer_contact(
     return contacts
 
 
-def spun_basis(rotation: np.ndarray, spin_angle: float) -> tuple[np.ndarray, np.ndarray]:
-    """The reamer's e1, e2 axes after turning by ``spin_angle`` about D (``rotation`` at angle 0)."""
-    c, s = math.cos(spin_angle), math.sin(spin_angle)
-    e1, e2 = rotation[:, 0], rotation[:, 1]
-    return np.ascontiguousarray(c * e1 + s * e2), np.ascontiguousarray(-s * e1 + c * e2)
+
+@njit(cache=True)
+def contact_totals(force, velocity):
+    """Total force on the bone and the power of the contact forces, summed in node order
+    (deterministic whatever the thread count)."""
+    fx = fy = fz = power = 0.0
+    for node in range(len(force)):
+        fx += force[node, 0]
+        fy += force[node, 1]
+        fz += force[node, 2]
+        power += force[node, 0] * velocity[node, 0] + force[node, 1] * velocity[node, 1] + force[node, 2] * velocity[node, 2]
+    return fx, fy, fz, power

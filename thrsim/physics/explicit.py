@@ -164,6 +164,58 @@ def node_update(offsets, entries, element_force, external_force, support_stiffne
             displacement[node, i] += du[node, i]
 
 
+@njit(cache=True)
+def account_deletions(active, accounted, tets, element_mass, velocity, nodal_mass, inverse_mass, elements_at_node, debris):
+    """Take newly deleted elements' mass off their nodes; freeze nodes left with no element.
+
+    The debris carries its share of the nodes' momentum and kinetic energy out of the model:
+    ``debris`` accumulates [mass, px, py, pz, kinetic energy, count] so momentum and energy
+    can be balanced across deletion.
+    """
+    for e in range(len(active)):
+        if active[e] != 0 or accounted[e]:
+            continue
+        accounted[e] = True
+        share = element_mass[e] / 4.0
+        debris[5] += 1.0
+        for k in range(4):
+            node = tets[e, k]
+            vx, vy, vz = velocity[node, 0], velocity[node, 1], velocity[node, 2]
+            debris[0] += share
+            debris[1] += share * vx
+            debris[2] += share * vy
+            debris[3] += share * vz
+            debris[4] += 0.5 * share * (vx * vx + vy * vy + vz * vz)
+            nodal_mass[node] -= share
+            elements_at_node[node] -= 1
+            if elements_at_node[node] == 0:
+                nodal_mass[node] = 0.0
+                velocity[node, 0] = 0.0
+                velocity[node, 1] = 0.0
+                velocity[node, 2] = 0.0
+            inverse_mass[node] = 1.0 / nodal_mass[node] if nodal_mass[node] > 0.0 else 0.0
+
+
+@njit(cache=True)
+def solid_step(
+    tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
+    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
+    lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
+    accounted, element_mass, nodal_mass, elements_at_node, debris,
+    offsets, entries, external_force, support_stiffness, inverse_mass, held, velocity, displacement,
+):  # fmt: skip
+    """One central-difference step of the solid: stresses, deletions, then nodes. Returns deletions."""
+    deleted = element_update(
+        tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
+        stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
+        lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
+    )  # fmt: skip
+    if deleted > 0:
+        account_deletions(active, accounted, tets, element_mass, velocity, nodal_mass, inverse_mass, elements_at_node, debris)
+    node_update(offsets, entries, element_force, external_force, support_stiffness, inverse_mass, held, velocity, displacement, du, dt)
+    return deleted
+
+
 def von_mises(stress: np.ndarray) -> np.ndarray:
     """Von Mises equivalent of Voigt stresses (…, 6)."""
     s = np.asarray(stress)
@@ -234,11 +286,8 @@ class ExplicitSolid:
         self.active = np.ones(n_el, dtype=np.uint8)
         self.element_force = np.zeros((n_el, 4, 3))
         self.external_force = np.zeros((n_nodes, 3))
-        # what deleted elements took with them (debris leaves the model)
-        self.deleted_mass = 0.0
-        self.deleted_momentum = np.zeros(3)
-        self.deleted_kinetic_energy = 0.0
-        self.deleted_count = 0
+        # what deleted elements took with them: [mass, momentum (3), kinetic energy, count]
+        self.debris = np.zeros(6)
         self.detached_count = 0
         self._accounted = np.zeros(n_el, dtype=np.bool_)
 
@@ -251,48 +300,42 @@ class ExplicitSolid:
         """Nodes still attached to at least one active element."""
         return self.inverse_mass > 0.0
 
-    def step(self, external_force: np.ndarray | None = None) -> int:
-        """One central-difference step; returns how many elements were deleted in it."""
-        j = self.hardening
-        d = self.damage_law
-        deleted = element_update(
+    def kernel_arguments(self) -> tuple:
+        """The solid's arrays and constants in :func:`solid_step`'s order, external force last-but-six."""
+        j, d = self.hardening, self.damage_law
+        return (
             self.tets, self.grads, self.volume, self.char_length, self.bulk_viscosity_coefficient, self.active, self.du, self.dt,
             self.stress, self.peeq, self.damage, self.initiation, self.plastic_work, self.damage_work, self.element_force,
             self.lam, self.mu, j.a_pa, j.b_pa, j.n, j.c, j.reference_strain_rate_s,
             d.d1, d.d2, d.d3, d.d4, d.displacement_at_failure_m,
+            self._accounted, self.element_mass, self.nodal_mass, self.elements_at_node, self.debris,
+            self.offsets, self.entries,
         )  # fmt: skip
-        if deleted:
-            self._remove_deleted()
-        node_update(
-            self.offsets, self.entries, self.element_force,
-            self.external_force if external_force is None else external_force, self.support_stiffness,
-            self.inverse_mass, self.held, self.velocity, self.displacement, self.du, self.dt,
-        )  # fmt: skip
+
+    def step(self, external_force: np.ndarray | None = None) -> int:
+        """One central-difference step; returns how many elements were deleted in it."""
+        force = self.external_force if external_force is None else external_force
+        deleted = solid_step(
+            *self.kernel_arguments(), force, self.support_stiffness, self.inverse_mass, self.held, self.velocity, self.displacement
+        )
         self.time += self.dt
         return deleted
 
-    def _remove_deleted(self) -> None:
-        """Take deleted elements' mass off their nodes; nodes left with no element are frozen.
+    @property
+    def deleted_mass(self) -> float:
+        return float(self.debris[0])
 
-        The debris carries its share of the nodes' momentum and kinetic energy out of the model;
-        both are recorded so momentum and energy can be balanced across deletion.
-        """
-        newly = np.flatnonzero((self.active == 0) & ~self._accounted)
-        self._accounted[newly] = True
-        self.deleted_count += len(newly)
-        share = np.repeat(self.element_mass[newly] / 4.0, 4)
-        nodes = self.tets[newly].ravel()
-        v = self.velocity[nodes]
-        self.deleted_mass += float(share.sum())
-        self.deleted_momentum += (share[:, None] * v).sum(axis=0)
-        self.deleted_kinetic_energy += float(0.5 * (share * (v**2).sum(axis=1)).sum())
-        np.subtract.at(self.nodal_mass, nodes, share)
-        np.subtract.at(self.elements_at_node, nodes, 1)
-        touched = np.unique(nodes)
-        orphan = touched[self.elements_at_node[touched] == 0]
-        self.nodal_mass[orphan] = 0.0
-        self.velocity[orphan] = 0.0
-        self.inverse_mass[touched] = np.where(self.nodal_mass[touched] > 0, 1.0 / np.maximum(self.nodal_mass[touched], 1e-300), 0.0)
+    @property
+    def deleted_momentum(self) -> np.ndarray:
+        return self.debris[1:4].copy()
+
+    @property
+    def deleted_kinetic_energy(self) -> float:
+        return float(self.debris[4])
+
+    @property
+    def deleted_count(self) -> int:
+        return int(self.debris[5])
 
     def delete_detached(self) -> int:
         """Delete active elements no longer face-connected, through active elements, to supported bone.
@@ -316,7 +359,10 @@ class ExplicitSolid:
             self.active[detached] = 0
             self.damage[detached] = 1.0
             self.detached_count += count
-            self._remove_deleted()
+            account_deletions(
+                self.active, self._accounted, self.tets, self.element_mass, self.velocity,
+                self.nodal_mass, self.inverse_mass, self.elements_at_node, self.debris,
+            )  # fmt: skip
         return count
 
     def von_mises(self) -> np.ndarray:

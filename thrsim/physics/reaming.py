@@ -28,13 +28,15 @@ from pathlib import Path
 
 import numba
 import numpy as np
+from numba import njit
 
 from thrsim.config import ReamingCaseConfig
 from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
-from thrsim.physics.contact import reamer_contact, spun_basis
+from thrsim.physics.contact import contact_totals, reamer_contact
+from thrsim.physics.explicit import solid_step
 from thrsim.physics.explicit import ExplicitSolid
 from thrsim.physics.support import foundation_stiffness
 
@@ -66,6 +68,59 @@ class FrameLog:
     contact_force: list = field(default_factory=list)
 
 
+@njit(cache=True)
+def advance_reaming(
+    steps, time, nodes, rotation, axis, omega, head_radius, edge_axis_radius, edge_radius,
+    tooth_cos, tooth_sin, tooth_start, tooth_end, stiffness, damping_ratio, friction,
+    mass, force_n, gravity_load, reamer_state, totals,
+    tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
+    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
+    lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
+    accounted, element_mass, nodal_mass, elements_at_node, debris, offsets, entries,
+    contact_force, support_stiffness, inverse_mass, held, velocity, displacement,
+):  # fmt: skip
+    """The reaming loop, compiled: contact, solid step and the reamer's axial motion per step.
+
+    Reamer: m·s̈ = push + gravity·D − (contact force on the bone)·D, integrated with the same
+    central-difference step as the bone. Returns the time reached.
+    """
+    centre = np.empty(3)
+    e1 = np.empty(3)
+    e2 = np.empty(3)
+    for _ in range(steps):
+        spin_cos, spin_sin = math.cos(omega * time), math.sin(omega * time)
+        for i in range(3):
+            centre[i] = reamer_state[0] * axis[i]
+            e1[i] = spin_cos * rotation[i, 0] + spin_sin * rotation[i, 1]
+            e2[i] = -spin_sin * rotation[i, 0] + spin_cos * rotation[i, 1]
+        contacts = reamer_contact(
+            nodes, displacement, velocity, inverse_mass, nodal_mass, centre, e1, e2, axis, reamer_state[1], omega,
+            head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
+            stiffness, damping_ratio, friction, contact_force,
+        )  # fmt: skip
+        fx, fy, fz, power = contact_totals(contact_force, velocity)
+        solid_step(
+            tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
+            stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
+            lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
+            accounted, element_mass, nodal_mass, elements_at_node, debris,
+            offsets, entries, contact_force, support_stiffness, inverse_mass, held, velocity, displacement,
+        )  # fmt: skip
+        acceleration = (force_n + gravity_load - (fx * axis[0] + fy * axis[1] + fz * axis[2])) / mass
+        reamer_state[1] += dt * acceleration
+        advance = dt * reamer_state[1]
+        reamer_state[0] += advance
+        reamer_state[2] += power * dt
+        reamer_state[3] += force_n * advance
+        totals[0] += fx
+        totals[1] += fy
+        totals[2] += fz
+        if contacts > 0:
+            totals[3] += 1.0
+        time += dt
+    return time
+
+
 class ReamingSimulation:
     """Bone solid + rigid reamer, advanced frame by frame."""
 
@@ -93,12 +148,10 @@ class ReamingSimulation:
         self.mass = self.reamer.mass_kg
         self.force_n = case.force_n  # the surgeon's push; may change during a run
         self.gravity_load = self.mass * case.reamer.gravity_m_s2 * float(GRAVITY_DIRECTION @ self.axis)
-        self.position = self._initial_position()
-        self.start_position = self.position
-        self.speed = 0.0
+        self.start_position = self._initial_position()
+        # [axial position s, axial speed ṡ, work of contact forces on the bone, work of the push]
+        self.reamer_state = np.array([self.start_position, 0.0, 0.0, 0.0])
         self.contact_force = np.zeros((self.mesh.n_nodes, 3))
-        self.contact_work = 0.0
-        self.push_work = 0.0
         self.outer_radius = case.bone.outer_radius
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
         self.first_contact_frame: int | None = None
@@ -128,28 +181,46 @@ class ReamingSimulation:
     def centre(self) -> np.ndarray:
         return self.position * self.axis
 
-    def step(self) -> tuple[np.ndarray, int]:
-        """One step of bone and reamer; returns the total contact force on the bone and contacts."""
+    @property
+    def position(self) -> float:
+        """Axial coordinate s of the reamer centre along D (m)."""
+        return float(self.reamer_state[0])
+
+    @property
+    def speed(self) -> float:
+        return float(self.reamer_state[1])
+
+    @property
+    def contact_work(self) -> float:
+        return float(self.reamer_state[2])
+
+    @property
+    def push_work(self) -> float:
+        return float(self.reamer_state[3])
+
+    def advance(self, steps: int) -> tuple[np.ndarray, int]:
+        """Run ``steps`` steps of bone and reamer in one compiled loop.
+
+        Returns the sum over those steps of the contact force on the bone, and how many of the
+        steps had any contact.
+        """
         solid = self.solid
-        e1, e2 = spun_basis(self.rotation, self.omega * solid.time)
-        contacts = reamer_contact(
-            solid.positions, solid.velocity, solid.alive_nodes, solid.nodal_mass, self.centre, e1, e2, self.axis,
-            self.speed, self.omega, self.reamer.head_radius, self.reamer.edge_axis_radius, self.reamer.edge_radius,
+        contact = self.case.contact
+        totals = np.zeros(4)  # Σ force on bone (3), steps with contact
+        solid.time = advance_reaming(
+            steps, solid.time, self.mesh.nodes, self.rotation, self.axis, self.omega,
+            self.reamer.head_radius, self.reamer.edge_axis_radius, self.reamer.edge_radius,
             self.tooth_cos, self.tooth_sin, self.reamer.tooth_polar_start, self.reamer.tooth_polar_end,
-            self.case.contact.penalty_stiffness_n_m, self.case.contact.damping_ratio, self.case.contact.friction,
-            self.contact_force,
+            contact.penalty_stiffness_n_m, contact.damping_ratio, contact.friction,
+            self.mass, self.force_n, self.gravity_load, self.reamer_state, totals,
+            *solid.kernel_arguments(), self.contact_force, solid.support_stiffness, solid.inverse_mass,
+            solid.held, solid.velocity, solid.displacement,
         )  # fmt: skip
-        on_bone = self.contact_force.sum(axis=0)
-        power = float(np.einsum("ij,ij->", self.contact_force, solid.velocity))
-        solid.step(self.contact_force)
-        # reamer: m·s̈ = push + gravity·D − (force on bone)·D
-        acceleration = (self.force_n + self.gravity_load - float(on_bone @ self.axis)) / self.mass
-        self.speed += solid.dt * acceleration
-        advance = solid.dt * self.speed
-        self.position += advance
-        self.contact_work += power * solid.dt
-        self.push_work += self.force_n * advance
-        return on_bone, contacts
+        return totals[:3], int(totals[3])
+
+    def step(self) -> tuple[np.ndarray, int]:
+        """One step of bone and reamer; returns the contact force on the bone and whether it touched."""
+        return self.advance(1)
 
     def record(self, log: FrameLog, mean_force: np.ndarray) -> None:
         solid = self.solid
@@ -189,12 +260,7 @@ class ReamingSimulation:
         end_reason = "completed"
         started = time.perf_counter()
         for frame in range(1, frames + 1):
-            force_sum = np.zeros(3)
-            contact_steps = 0
-            for _ in range(self.steps_per_frame):
-                on_bone, contacts = self.step()
-                force_sum += on_bone
-                contact_steps += contacts > 0
+            force_sum, contact_steps = self.advance(self.steps_per_frame)
             self._check(frame)
             if contact_steps == 0 and self.first_contact_frame is not None and self.perforated():
                 # a frame of free fall through the hole is not recorded

@@ -21,8 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
-#: εᵖ below which the power law's infinite slope is replaced by the secant from zero
-_PEEQ_FLOOR = 1e-12
+#: smallest plastic increment considered, as ln Δ
+_LOG_FLOOR = math.log(1e-300)
 _RETURN_ITERATIONS = 100
 _RETURN_TOLERANCE = 1e-12
 
@@ -40,43 +40,39 @@ def jc_yield_stress(peeq: float, peeq_rate: float, a: float, b: float, n: float,
 def jc_radial_return(q_trial: float, peeq: float, dt: float, shear_modulus: float, a: float, b: float, n: float, c: float, rate0: float) -> float:
     """Plastic strain increment Δεᵖ ≥ 0 that returns a trial von Mises stress to the JC surface.
 
-    Solves q_trial − 3GΔ − σ_y(εᵖ + Δ, Δ/dt) = 0, a strictly decreasing function of Δ, by
-    Newton's method safeguarded with bisection inside the bracket [0, q_trial/3G] (the power
-    law and the logarithm both have infinite slope at zero, so plain Newton can overshoot).
-    Returns 0 when the trial state is elastic.
+    Solves g(Δ) = q_trial − 3GΔ − σ_y(εᵖ + Δ, Δ/dt) = 0, strictly decreasing in Δ. The root can
+    lie many decades below q_trial/3G (εᵖⁿ with n = 0.08 and the rate logarithm both have
+    infinite slope at zero), so Newton's method runs on z = ln Δ, where both become smooth,
+    safeguarded by bisection in z. Returns 0 when the trial state is elastic.
     """
     if q_trial <= jc_yield_stress(peeq, 0.0, a, b, n, c, rate0):
         return 0.0
-    lo, hi = 0.0, q_trial / (3.0 * shear_modulus)
-    x = 1e-3 * hi
+    z_lo, z_hi = _LOG_FLOOR, math.log(q_trial / (3.0 * shear_modulus))
+    # start from the elastic-perfectly-plastic estimate, itself an upper bound of the root
+    excess = q_trial - jc_yield_stress(peeq, 0.0, a, b, n, c, rate0)
+    z = min(math.log(excess / (3.0 * shear_modulus)), z_hi)
     for _ in range(_RETURN_ITERATIONS):
+        x = math.exp(z)
         p = peeq + x
         rate = x / dt
-        sy = jc_yield_stress(p, rate, a, b, n, c, rate0)
-        g = q_trial - 3.0 * shear_modulus * x - sy
+        rate_factor = 1.0 + c * math.log(rate / rate0) if rate > rate0 else 1.0
+        static = a + b * p**n
+        g = q_trial - 3.0 * shear_modulus * x - static * rate_factor
         if abs(g) <= _RETURN_TOLERANCE * q_trial:
             return x
         if g > 0.0:
-            lo = x
+            z_lo = z
         else:
-            hi = x
-        # derivative of σ_y with respect to Δ (hardening slope and rate slope)
-        static = a + b * max(p, _PEEQ_FLOOR) ** n
-        rate_factor = 1.0 + c * math.log(rate / rate0) if rate > rate0 else 1.0
-        slope = b * n * max(p, _PEEQ_FLOOR) ** (n - 1.0) * rate_factor
+            z_hi = z
+        # dg/dz = −Δ·(3G + ∂σ_y/∂Δ): hardening slope b·n·pⁿ⁻¹ and rate slope static·c/Δ
+        slope = x * (3.0 * shear_modulus + b * n * p ** (n - 1.0) * rate_factor)
         if rate > rate0:
-            slope += static * c / x
-        newton = x + g / (3.0 * shear_modulus + slope)
-        if lo < newton < hi:
-            x = newton
-        elif lo == 0.0:
-            # εᵖⁿ with n ≪ 1 puts the root many decades below hi: shrink geometrically
-            x = 1e-3 * hi
-        else:
-            x = math.sqrt(lo * hi) if hi > 10.0 * lo else 0.5 * (lo + hi)
-        if hi - lo <= _RETURN_TOLERANCE * hi:
+            slope += static * c
+        newton = z + g / slope
+        z = newton if z_lo < newton < z_hi else 0.5 * (z_lo + z_hi)
+        if z_hi - z_lo <= _RETURN_TOLERANCE:
             break
-    return x
+    return math.exp(z)
 
 
 @njit(cache=True, inline="always")

@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
-from thrsim.data.executor import LocalExecutor
 from thrsim.data.generate import load_dataset, read_manifest, run_sweep
 from thrsim.data.sweep import plan_sweep
 from thrsim.data.synthetic import synthetic_run_case

@@ -20,7 +20,7 @@ import numpy as np
 import pyigtl
 import pytest
 
-from conftest import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
+from igtl_helpers import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
 from thrsim.config import IgtlConfig
 from thrsim.io import igtl
 from thrsim.io.server import NAVIGATION_STATE, SIMULATED_REAMER

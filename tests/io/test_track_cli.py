@@ -13,7 +13,7 @@ from pathlib import Path
 import pyigtl
 import pytest
 
-from conftest import reamer_pose_mm, wait_until
+from igtl_helpers import reamer_pose_mm, wait_until
 
 pytestmark = pytest.mark.timeout(60)
 

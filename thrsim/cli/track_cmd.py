@@ -13,7 +13,6 @@ import typer
 from thrsim.cli.output import console
 from thrsim.config import IgtlConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.io.server import NavigationServer
 
 
 def _log_line(event: str, payload: dict, json_log: bool) -> None:
@@ -42,6 +41,8 @@ def _log_line(event: str, payload: dict, json_log: bool) -> None:
 
 
 async def _serve(config: IgtlConfig, duration: Optional[float], json_log: bool, interval: float) -> dict:
+    from thrsim.io.server import NavigationServer  # asyncio server: loaded only when tracking
+
     server = NavigationServer(config)
     try:
         host, port = await server.start()

@@ -1,13 +1,44 @@
 """Navigation trainer core: APP frame and cup angles, safe zone, tracking model, landmark
 registration and frame calibration. Pure numerics; the OpenIGTLink edge lives in thrsim.io."""
 
-from thrsim.nav.anatomy import AppFrame, angles_in_frame, app_frame, convert_angles, cup_angles, local_axis_from_angles
-from thrsim.nav.calibration import CalibrationRefused, FrameCalibration, calibrate_frames
-from thrsim.nav.pelvis import synthetic_pelvis_landmarks
-from thrsim.nav.registration import LandmarkRegistration, RegistrationEvent, RegistrationResult
-from thrsim.nav.safe_zone import SafeZoneStatus, safe_zone_status
-from thrsim.nav.session import NavigationSession
-from thrsim.nav.tracking import PROBE, REAMER, REFERENCE_FRAME, Box, Sphere, ToolGeometry, TrackingCamera, Visibility, look_at
+import importlib
+
+# Names are imported on first use (PEP 562): `thrsim nav ...` and the server then load only
+# what they need, and scipy.spatial stays out of every other command's start-up.
+_SOURCES = {
+    "AppFrame": "thrsim.nav.anatomy",
+    "Box": "thrsim.nav.tracking",
+    "CalibrationRefused": "thrsim.nav.calibration",
+    "FrameCalibration": "thrsim.nav.calibration",
+    "LandmarkRegistration": "thrsim.nav.registration",
+    "NavigationSession": "thrsim.nav.session",
+    "PROBE": "thrsim.nav.tracking",
+    "REAMER": "thrsim.nav.tracking",
+    "REFERENCE_FRAME": "thrsim.nav.tracking",
+    "RegistrationEvent": "thrsim.nav.registration",
+    "RegistrationResult": "thrsim.nav.registration",
+    "SafeZoneStatus": "thrsim.nav.safe_zone",
+    "Sphere": "thrsim.nav.tracking",
+    "ToolGeometry": "thrsim.nav.tracking",
+    "TrackingCamera": "thrsim.nav.tracking",
+    "Visibility": "thrsim.nav.tracking",
+    "angles_in_frame": "thrsim.nav.anatomy",
+    "app_frame": "thrsim.nav.anatomy",
+    "calibrate_frames": "thrsim.nav.calibration",
+    "convert_angles": "thrsim.nav.anatomy",
+    "cup_angles": "thrsim.nav.anatomy",
+    "local_axis_from_angles": "thrsim.nav.anatomy",
+    "look_at": "thrsim.nav.tracking",
+    "safe_zone_status": "thrsim.nav.safe_zone",
+    "synthetic_pelvis_landmarks": "thrsim.nav.pelvis",
+}
+
+
+def __getattr__(name: str):
+    if name in _SOURCES:
+        return getattr(importlib.import_module(_SOURCES[name]), name)
+    raise AttributeError(f"module 'thrsim.nav' has no attribute {name!r}")
+
 
 __all__ = [
     "PROBE",

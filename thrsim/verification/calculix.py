@@ -17,7 +17,7 @@ import numpy as np
 
 from thrsim.config import BoneMaterial, JohnsonCookHardening
 from thrsim.verification.bar_impact import BarImpact, ccx_available, run_ccx_bar, run_thrsim_bar
-from thrsim.verification.base import Check, CheckResult, Stopwatch, numba_threads, relative_error, result
+from thrsim.verification.base import Check, CheckResult, Stopwatch, numba_threads, result
 
 FIELD_TOLERANCE = 2e-3
 STRESS_TOLERANCE = 5e-3

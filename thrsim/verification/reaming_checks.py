@@ -18,7 +18,7 @@ the check runs on the default mesh. About 3 minutes on 2 cores.
 from __future__ import annotations
 
 from thrsim.config import BonePatchConfig, ReamingCaseConfig, SolverConfig
-from thrsim.verification.base import Check, CheckResult, Stopwatch, relative_error, result
+from thrsim.verification.base import Check, CheckResult, Stopwatch, result
 
 FRAMES = 10
 ELEMENT_SIZE_MM = 0.45

@@ -87,3 +87,24 @@ def test_element_size_controls_the_count():
     finer = generate_bone_patch(BonePatchConfig(element_size_mm=0.8))
     coarser = generate_bone_patch(BonePatchConfig(element_size_mm=1.2))
     assert finer.n_tets > 1.5 * coarser.n_tets
+
+
+def test_meshing_keeps_python_signal_dispositions():
+    # gmsh resets SIGPIPE to its C default; a later write to a closed socket in the same process
+    # (a tracker hanging up on the server) must raise, not kill the process
+    import subprocess
+    import sys
+
+    code = (
+        "import socket\n"
+        "from thrsim.config import BonePatchConfig\n"
+        "from thrsim.geometry.bone_patch import generate_bone_patch\n"
+        "generate_bone_patch(BonePatchConfig(element_size_mm=1.2))\n"
+        "a, b = socket.socketpair(); b.close()\n"
+        "try:\n"
+        "    a.sendall(b'x' * 100000); a.sendall(b'x' * 100000)\n"
+        "except BrokenPipeError:\n"
+        "    print('broken pipe raised')\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "broken pipe raised" in result.stdout

@@ -18,6 +18,8 @@ mesh for the same parameters and gmsh version.
 from __future__ import annotations
 
 import math
+import signal
+import threading
 
 import numpy as np
 
@@ -37,7 +39,7 @@ def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
     r_in, r_out = config.inner_radius_mm, config.inner_radius_mm + config.thickness_mm
     started_here = not gmsh.isInitialized()
     if started_here:
-        gmsh.initialize(interruptible=False)
+        _initialize_gmsh(gmsh)
     try:
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.option.setNumber("General.Verbosity", 0)
@@ -98,3 +100,18 @@ def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
     mesh = TetMesh(nodes=nodes_m, tets=tets, node_sets=node_sets, fixed_nodes=node_sets[OUTER])
     return mesh.mirrored(axis=0) if config.side == "left" else mesh
 
+
+def _initialize_gmsh(gmsh) -> None:
+    """Start gmsh, then give back the signal dispositions its C++ start-up resets.
+
+    gmsh sets SIGPIPE (and others) to their C defaults behind Python's back: a later write to a
+    closed socket, e.g. a tracker disconnecting from the server in the same process, would then
+    kill the process instead of raising BrokenPipeError.
+    """
+    names = ("SIGPIPE", "SIGINT", "SIGTERM")
+    saved = {name: signal.getsignal(getattr(signal, name)) for name in names if hasattr(signal, name)}
+    gmsh.initialize(interruptible=False)
+    if threading.current_thread() is threading.main_thread():
+        for name, handler in saved.items():
+            if handler is not None:
+                signal.signal(getattr(signal, name), handler)

@@ -97,3 +97,15 @@ def test_split_is_by_orientation_and_deterministic():
     assert (len(train), len(val), len(test)) == (31, 3, 6)
     rule = SplitRule(test_anteversions_deg=(0.0,), zero_inclination_split="test")
     assert rule.split(0.0, 0.0) == "test" and rule.split(30.0, 45.0) == "train"
+
+
+def test_coverage_order_reaches_every_inclination_and_force_early():
+    from thrsim.data.sweep import coverage_order, plan_sweep
+
+    plan = plan_sweep()
+    ordered = coverage_order(plan.cases)
+    assert sorted(c.case_id for c in ordered) == sorted(c.case_id for c in plan.cases)
+    first = ordered[:15]
+    assert {c.inclination_deg for c in first} == {0.0, 15.0, 30.0, 45.0}
+    assert {c.force_n for c in first} == {150.0, 230.0, 310.0}
+    assert len({c.anteversion_deg for c in first}) >= 3

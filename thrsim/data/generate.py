@@ -41,7 +41,7 @@ from thrsim.atomic import atomic_path
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
-from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan
+from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan, coverage_order
 from thrsim.errors import ThrsimInputError
 from thrsim.provenance import config_hash
 
@@ -394,7 +394,7 @@ def run_sweep(
             result = SweepResult(root=root, total=len(plan.cases), complete=0, skipped=0, adopted=0, executor=executor.description, notes=list(plan.notes))
             todo: list[CaseSpec] = []
             done = 0
-            for spec in plan.cases:
+            for spec in coverage_order(plan.cases):
                 old = manifest["cases"].get(spec.case_id)
                 entry = {**(old or {}), **_entry(spec, split, name)}
                 entry["attempts"] = (old or {}).get("attempts", 0)

@@ -235,3 +235,28 @@ def plan_sweep(
     if not planned:
         raise ThrsimInputError("the sweep has no cases")
     return SweepPlan(cases=planned, notes=notes, requested=len(wanted) * len(sizes))
+
+
+def coverage_order(cases: list[CaseSpec]) -> list[CaseSpec]:
+    """The order cases are run in: a sweep cut short (a session's end, a kill) still covers
+    every inclination, the split sets and the force axis, instead of one inclination's row.
+
+    Anteversions go in a spread order (0, 180, 90, 45, 135, ...: each next one the furthest
+    from those already taken), every inclination within one; the extra-force cases are
+    interleaved evenly with the main-force ones.
+    """
+    thetas = sorted({c.anteversion_deg for c in cases})
+    spread: list[float] = []
+    while len(spread) < len(thetas):
+        remaining = [t for t in thetas if t not in spread]
+        spread.append(max(remaining, key=lambda t: (min((abs(t - s) for s in spread), default=math.inf), -t)))
+    rank = {t: i for i, t in enumerate(spread)}
+
+    def key(c: CaseSpec) -> tuple:
+        return (rank[c.anteversion_deg], c.force_n, c.inclination_deg, c.element_size_mm or 0.0)
+
+    main = sorted((c for c in cases if c.force_n == DEFAULT_FORCE_N), key=key)
+    extra = sorted((c for c in cases if c.force_n != DEFAULT_FORCE_N), key=key)
+    position = {id(c): i / len(main) for i, c in enumerate(main)}
+    position.update({id(c): (j + 0.5) / len(extra) for j, c in enumerate(extra)})
+    return sorted(cases, key=lambda c: position[id(c)])

@@ -12,10 +12,10 @@ Start: the reamer sits on its axis, backed off until its teeth clear every bone 
 ``INITIAL_GAP_M``; frame 0 records the intact bone at t = 0. A case of N frames simulates
 N/frame_rate seconds and records N + 1 frames (fewer if it ends early).
 
-End reasons: ``completed``; ``perforated`` at the first frame in which nothing touched the
-reamer and its teeth reach past the outer face of the shell. That frame is not recorded
-(a reamer falling freely through the hole would teach the learned simulator nothing), so a
-case perforated at frame k holds frames 0 … k − 1.
+End reasons: ``completed``; ``perforated`` at the first frame that ends with the teeth past
+the outer face of the shell after touching bone for less than half of the frame: the reamer
+is falling through the hole. That frame is not recorded (a reamer falling freely teaches the
+learned simulator nothing), so a case perforated at frame k holds frames 0 … k − 1.
 """
 
 from __future__ import annotations
@@ -262,7 +262,7 @@ class ReamingSimulation:
         for frame in range(1, frames + 1):
             force_sum, contact_steps = self.advance(self.steps_per_frame)
             self._check(frame)
-            if contact_steps == 0 and self.first_contact_frame is not None and self.perforated():
+            if 2 * contact_steps < self.steps_per_frame and self.first_contact_frame is not None and self.perforated():
                 # a frame of free fall through the hole is not recorded
                 end_reason = "perforated"
                 self.perforated_frame = frame

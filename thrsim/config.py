@@ -171,6 +171,13 @@ class Orientation(_Frozen):
         return (math.sin(g) * math.cos(t), math.sin(g) * math.sin(t), -math.cos(g))
 
 
+def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> tuple[float, ...]:
+    bad = [v for v in values if not 0 <= v <= highest_deg]
+    if bad:
+        raise ValueError(f"{what} must lie in [0, {highest_deg:g}] degrees, got {bad}")
+    return values
+
+
 class SweepConfig(_Frozen):
     """Orientation sweep of the training cases [5.3.4]."""
 
@@ -182,18 +189,12 @@ class SweepConfig(_Frozen):
     @field_validator("inclinations_deg")
     @classmethod
     def _inclinations_in_range(cls, values: tuple[float, ...]) -> tuple[float, ...]:
-        bad = [v for v in values if not 0 <= v <= 90]
-        if bad:
-            raise ValueError(f"inclinations must lie in [0, 90] degrees, got {bad}")
-        return values
+        return _angles_within(values, 90.0, "inclinations")
 
     @field_validator("anteversions_deg")
     @classmethod
     def _anteversions_in_range(cls, values: tuple[float, ...]) -> tuple[float, ...]:
-        bad = [v for v in values if not 0 <= v <= 360]
-        if bad:
-            raise ValueError(f"anteversions must lie in [0, 360] degrees, got {bad}")
-        return values
+        return _angles_within(values, 360.0, "anteversions")
 
     @property
     def frame_dt_s(self) -> float:

@@ -139,6 +139,15 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
     return {
         "case_id": spec.case_id,
         "wall_s": wall,
+        **_file_record(check, sha, digest),
+        "solver_summary": _json_safe(summary),
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+    }
+
+
+def _file_record(check: dict, sha: str, digest: str) -> dict:
+    """What the manifest keeps of a validated case file."""
+    return {
         "frames": check["frames"],
         "elements": check["elements"],
         "removed": check["removed"],
@@ -146,8 +155,6 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
         "config_hash": check.get("config_hash"),
         "sha256": sha,
         "data_digest": digest,
-        "solver_summary": _json_safe(summary),
-        "worker": f"{socket.gethostname()}:{os.getpid()}",
     }
 
 
@@ -323,16 +330,7 @@ def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[
         _check_matches(check, spec, path)
     except ThrsimInputError:
         return None
-    return "adopted", {
-        "frames": check["frames"],
-        "elements": check["elements"],
-        "removed": check["removed"],
-        "removed_per_frame": check["removed_per_frame"],
-        "config_hash": check.get("config_hash"),
-        "sha256": sha,
-        "data_digest": data_digest(path),
-        "wall_s": None,
-    }
+    return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
 
 
 def run_sweep(

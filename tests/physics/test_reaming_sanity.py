@@ -35,7 +35,9 @@ def test_bone_is_removed_and_reamer_advances(baseline):
     assert summary["removed"] > 0
     assert summary["first_contact_frame"] == 1
     axial = (np.array(log.reamer_position) - log.reamer_position[0]) @ simulation.axis
-    assert axial[-1] > 0, "the reamer must advance along D on average"
+    # the advance chatters by ±0.1 mm from frame to frame; on average it is into the bone
+    assert axial[1:].mean() > 0, "the reamer must advance along D on average"
+    assert axial.min() > -0.2e-3, "the reamer must never back off far from where it started"
 
 
 def test_removed_elements_never_reappear_and_peeq_never_decreases(baseline):

@@ -1,4 +1,4 @@
-"""Write files to a temporary name in the target folder, then rename: never a half-written output."""
+"""Write files to a temporary name in the target folder, fsync, then rename: never a half-written output."""
 
 from __future__ import annotations
 
@@ -31,7 +31,25 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None) -> Iterato
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
     try:
         yield tmp
+        # flush the data to disk before the rename publishes it, and the rename itself after
+        with open(tmp, "rb+") as handle:
+            os.fsync(handle.fileno())
         os.replace(tmp, target)
+        fsync_folder(folder)
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+def fsync_folder(folder: Path) -> None:
+    """Make a rename in ``folder`` durable (a no-op where folders cannot be synced)."""
+    try:
+        descriptor = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(descriptor)
+    except OSError:
+        pass  # some file systems do not sync folders; the rename is still atomic
+    finally:
+        os.close(descriptor)

@@ -27,7 +27,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +35,7 @@ import h5py
 import numpy as np
 
 from thrsim import __version__
+from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import write_mesh_group
@@ -134,19 +134,6 @@ def _per_frame_dataset(group: h5py.Group, name: str, data: np.ndarray, dtype) ->
     group.create_dataset(name, data=data, chunks=chunks, **_COMPRESSION)
 
 
-def _fsync_dir(folder: Path) -> None:
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
-
-
 def write_case(
     path: str | os.PathLike,
     mesh: TetMesh,
@@ -172,10 +159,7 @@ def write_case(
     if not folder.is_dir():
         raise ThrsimInputError(f"{where}: output folder {folder} does not exist")
     config_text = json.dumps(config, sort_keys=True, default=_jsonable)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=folder)
-    os.close(fd)
-    tmp = Path(tmp_name)
-    try:
+    with atomic_path(path, suffix=".tmp") as tmp:
         with h5py.File(tmp, "w") as f:
             attrs = {
                 "format": CASE_FORMAT,
@@ -212,13 +196,6 @@ def write_case(
             energy.attrs["names"] = [str(n) for n in frames.energy_names]
             if frames.contact_force is not None:
                 g.create_dataset("contact_force", data=np.asarray(frames.contact_force, dtype=np.float64))
-        with open(tmp, "rb+") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-        _fsync_dir(folder)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 

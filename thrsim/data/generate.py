@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from thrsim import __version__
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, fsync_folder
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
@@ -132,7 +132,7 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
         sha = file_sha256(part)
         digest = data_digest(part)
         os.replace(part, final)
-        _fsync_dir(folder)
+        fsync_folder(folder)
     finally:
         if part.exists():
             part.unlink()
@@ -171,15 +171,6 @@ def _json_safe(value: Any) -> Any:
     return json.loads(json.dumps(value, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
 
 
-def _fsync_dir(folder: Path) -> None:
-    with contextlib.suppress(OSError):
-        fd = os.open(folder, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
 # ---------------------------------------------------------------- manifest
 
 
@@ -207,7 +198,7 @@ def write_manifest(root: Path, manifest: dict) -> None:
             json.dump(manifest, handle, indent=1, sort_keys=False)
             handle.flush()
             os.fsync(handle.fileno())
-    _fsync_dir(root)
+    fsync_folder(root)
 
 
 def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:

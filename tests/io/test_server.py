@@ -291,7 +291,8 @@ def test_slow_or_failing_simulator_never_blocks_replies(make_server):
         assert time.perf_counter() - start < 0.25  # while the hook sleeps in its thread
         status = read_message(sock)
         assert igtl.unpack_status(status.content)[2] == "model diverged"
-    assert server.server.stats["simulator_errors"] == 1
+    # the other connection's poses call the hook too: its failure may or may not be counted yet
+    assert server.server.stats["simulator_errors"] in (1, 2)
 
 
 def test_reply_header_fields_are_standard(nav_server):

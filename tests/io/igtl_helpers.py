@@ -5,6 +5,7 @@ a timeout). A module of its own (not conftest) so test files can import it by a 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
 import threading
 import time
@@ -58,11 +59,9 @@ def read_message(sock: socket.socket) -> igtl.Message:
 def is_closed(sock: socket.socket, timeout: float = 5.0) -> bool:
     """True once the peer has closed (drains any pending replies first)."""
     sock.settimeout(timeout)
-    try:
+    with contextlib.suppress(ConnectionResetError, BrokenPipeError):
         while sock.recv(65536):
-            pass
-    except (ConnectionResetError, BrokenPipeError):
-        pass
+            continue
     return True
 
 

@@ -301,6 +301,7 @@ class ReamingSimulation:
             "steps_per_frame": self.steps_per_frame,
             "dt_s": self.solid.dt,
             "max_kinetic_to_internal": float(ratio.max()) if ratio.size else None,
+            "kinetic_to_internal_target": self.case.solver.max_kinetic_to_internal,
             "reamer_mass_kg": self.mass,
             **self.solid.scaling.as_dict(),
         }

@@ -16,17 +16,10 @@ from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
-from thrsim.cli.output import format_validation_error
+from thrsim.cli.output import command_group, format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
-app = typer.Typer(
-    name="thrsim",
-    help="Physically-based and learned simulation of acetabular reaming (total hip replacement training).",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
-)
+app = command_group("Physically-based and learned simulation of acetabular reaming (total hip replacement training).", name="thrsim")
 
 
 

@@ -18,17 +18,10 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from thrsim.cli.output import console, err_console, print_json, print_table
+from thrsim.cli.output import command_group, console, err_console, print_json, print_table
 from thrsim.errors import SimulationError, ThrsimInputError
 
-app = typer.Typer(
-    name="dataset",
-    help="Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.",
-    no_args_is_help=False,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
-)
+app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
 

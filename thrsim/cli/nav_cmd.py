@@ -8,19 +8,13 @@ from typing import Optional
 
 import typer
 
-from thrsim.cli.output import print_json, print_table
+from thrsim.cli.output import command_group, print_json, print_table
 from thrsim.config import SafeZone
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.anatomy import APP_LANDMARKS, DEFINITIONS, angles_in_frame, app_frame, convert_angles
 from thrsim.nav.safe_zone import safe_zone_status
 
-app = typer.Typer(
-    help="Navigation geometry: cup angles in the anterior pelvic plane, definition conversions.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    context_settings={"help_option_names": ["-h", "--help"]},
-)
+app = command_group("Navigation geometry: cup angles in the anterior pelvic plane, definition conversions.")
 
 _VECTOR_HELP = "three numbers 'x,y,z' (write --flag=-1,0,0 when the first is negative)"
 

@@ -6,6 +6,7 @@ import json
 import math
 from typing import Any
 
+import typer
 from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
@@ -54,3 +55,15 @@ def format_validation_error(error: ValidationError) -> str:
         where = ".".join(str(p) for p in item.get("loc", ())) or error.title
         parts.append(f"{where}: {item.get('msg', 'invalid')}")
     return "invalid configuration: " + "; ".join(parts)
+
+
+def command_group(help: str, name: str | None = None, no_args_is_help: bool = True) -> typer.Typer:
+    """A typer app with thrsim's conventions: -h/--help, no completion install, no pretty tracebacks."""
+    return typer.Typer(
+        name=name,
+        help=help,
+        no_args_is_help=no_args_is_help,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+        context_settings={"help_option_names": ["-h", "--help"]},
+    )

@@ -292,10 +292,6 @@ class ExplicitSolid:
         self._accounted = np.zeros(n_el, dtype=np.bool_)
 
     @property
-    def positions(self) -> np.ndarray:
-        return self.mesh.nodes + self.displacement
-
-    @property
     def alive_nodes(self) -> np.ndarray:
         """Nodes still attached to at least one active element."""
         return self.inverse_mass > 0.0

@@ -71,3 +71,16 @@ def test_zero_force_after_first_contact_stops_removal(coarse_mesh):
     # the contact reaction pushes the unloaded reamer off the bone: removal stops within a frame
     last_frame = removed[-simulation.steps_per_frame :]
     assert last_frame[0] == last_frame[-1]
+
+
+def test_perforation_ends_the_case_before_the_reamer_falls():
+    bone = BonePatchConfig(element_size_mm=1.2)
+    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, force_n=600.0, frames=40, bone=bone)
+    simulation = ReamingSimulation(case)
+    log, summary = simulation.run(case.frames)
+    assert summary["end_reason"] == "perforated"
+    assert summary["frames"] == summary["perforated_frame"] - 1 == len(log.time) - 1
+    # every recorded frame has the teeth still inside the shell: no free fall is recorded
+    reach = simulation.reamer.outer_radius
+    tips = np.linalg.norm(np.array(log.reamer_position) + reach * simulation.axis, axis=1)
+    assert tips.max() <= bone.outer_radius

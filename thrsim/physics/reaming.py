@@ -13,9 +13,10 @@ Start: the reamer sits on its axis, backed off until its teeth clear every bone 
 N/frame_rate seconds and records N + 1 frames (fewer if it ends early).
 
 End reasons: ``completed``; ``perforated`` at the first frame that ends with the teeth past
-the outer face of the shell after touching bone for less than half of the frame: the reamer
-is falling through the hole. That frame is not recorded (a reamer falling freely teaches the
-learned simulator nothing), so a case perforated at frame k holds frames 0 … k − 1.
+the outer face of the shell: the outer face is held, so the reamer can only get there through
+a hole it has cut, and from there it falls. That frame is not recorded (a reamer falling
+freely teaches the learned simulator nothing), so a case perforated at frame k holds frames
+0 … k − 1.
 """
 
 from __future__ import annotations
@@ -262,7 +263,7 @@ class ReamingSimulation:
         for frame in range(1, frames + 1):
             force_sum, contact_steps = self.advance(self.steps_per_frame)
             self._check(frame)
-            if 2 * contact_steps < self.steps_per_frame and self.first_contact_frame is not None and self.perforated():
+            if self.first_contact_frame is not None and self.perforated():
                 # a frame of free fall through the hole is not recorded
                 end_reason = "perforated"
                 self.perforated_frame = frame
@@ -295,7 +296,7 @@ class ReamingSimulation:
             "removed": removed,
             "detached": self.solid.detached_count,
             "removed_volume_mm3": float(self.solid.volume[status[-1] == 0].sum() * 1e9),
-            "mean_peeq_active": float(self.solid.peeq[status[-1] > 0].mean()),
+            "mean_peeq_active": float(self.solid.peeq[status[-1] > 0].mean()) if (status[-1] > 0).any() else None,
             "reamer_advance_mm": float(axial[-1] * 1e3),
             "seconds_per_frame": elapsed / max(simulated, 1),
             "steps_per_frame": self.steps_per_frame,

@@ -6,6 +6,7 @@ import hashlib
 import json
 import platform
 from importlib import metadata
+from typing import Any
 
 from thrsim import __version__
 
@@ -27,3 +28,12 @@ def config_hash(config: dict) -> str:
     """Stable short hash of a JSON-serialisable configuration (key order does not matter)."""
     text = json.dumps(config, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def json_default(value: Any) -> Any:
+    """``json.dumps`` fallback for NumPy arrays and scalars."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    if hasattr(value, "item"):
+        return value.item()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")

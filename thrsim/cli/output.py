@@ -11,16 +11,10 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
+from thrsim.provenance import json_default
+
 console = Console()
 err_console = Console(stderr=True)
-
-
-def _json_default(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if hasattr(value, "item"):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 def print_json(payload: dict) -> None:
@@ -35,7 +29,7 @@ def print_json(payload: dict) -> None:
             return [clean(v) for v in value]
         return value
 
-    print(json.dumps(clean(payload), default=_json_default, indent=2))
+    print(json.dumps(clean(payload), default=json_default, indent=2))
 
 
 def print_table(title: str, rows: dict[str, Any]) -> None:

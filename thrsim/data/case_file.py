@@ -39,7 +39,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import write_mesh_group
-from thrsim.provenance import config_hash, package_versions
+from thrsim.provenance import config_hash, json_default, package_versions
 
 CASE_FORMAT = "thrsim-case"
 CASE_VERSION = 1
@@ -81,14 +81,6 @@ class Case:
     attrs: dict[str, Any] = field(default_factory=dict)
 
 
-def _jsonable(value: Any) -> Any:
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if hasattr(value, "item"):
-        return value.item()
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
-
-
 def _attr_value(value: Any) -> Any:
     """HDF5 attrs take scalars and strings; anything else is stored as JSON text."""
     if isinstance(value, (bool, np.bool_)):
@@ -97,7 +89,7 @@ def _attr_value(value: Any) -> Any:
         return value
     if value is None:
         return "null"
-    return json.dumps(value, default=_jsonable)
+    return json.dumps(value, default=json_default)
 
 
 def _check_frames(frames: CaseFrames, mesh: TetMesh, where: str) -> None:
@@ -158,7 +150,7 @@ def write_case(
     folder = path.parent if str(path.parent) else Path(".")
     if not folder.is_dir():
         raise ThrsimInputError(f"{where}: output folder {folder} does not exist")
-    config_text = json.dumps(config, sort_keys=True, default=_jsonable)
+    config_text = json.dumps(config, sort_keys=True, default=json_default)
     with atomic_path(path, suffix=".tmp") as tmp:
         with h5py.File(tmp, "w") as f:
             attrs = {

@@ -84,3 +84,28 @@ def test_perforation_ends_the_case_before_the_reamer_falls():
     reach = simulation.reamer.outer_radius
     tips = np.linalg.norm(np.array(log.reamer_position) + reach * simulation.axis, axis=1)
     assert tips.max() <= bone.outer_radius
+
+
+def test_tilted_reamer_missing_the_patch_passes_through_instead_of_perforating():
+    # γ 45° points the axis outside the 19° patch: no bone lies under the tip, so the teeth passing
+    # the outer-face radius beside the patch is no hole; the case ends when the dome has swept
+    # past every bone in its path, and that frame of free fall is not recorded
+    bone = BonePatchConfig(element_size_mm=1.2)
+    case = ReamingCaseConfig(inclination_deg=45.0, anteversion_deg=0.0, frames=40, bone=bone)
+    simulation = ReamingSimulation(case)
+    assert simulation.tip_exit_depth is None
+    log, summary = simulation.run(case.frames)
+    assert summary["end_reason"] == "passed_through"
+    assert summary["perforated_frame"] is None
+    assert summary["frames"] < case.frames and summary["frames"] == len(log.time) - 1
+    assert not simulation.bone_in_path()
+    axial = (np.array(log.reamer_position) - log.reamer_position[0]) @ simulation.axis
+    assert axial.max() < bone.thickness_mm * 1e-3 * 5, "a recorded frame must not show the reamer in free fall"
+
+
+def test_axis_through_the_patch_has_bone_under_the_tip(coarse_mesh):
+    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=1, bone=COARSE)
+    simulation = ReamingSimulation(case, coarse_mesh)
+    # the outer face lies under the tip, one mean edge length at most inside the outer sphere
+    assert COARSE.outer_radius - 1.2e-3 < simulation.tip_exit_depth <= COARSE.outer_radius + 1e-12
+    assert simulation.bone_in_path()

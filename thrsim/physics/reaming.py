@@ -12,11 +12,21 @@ Start: the reamer sits on its axis, backed off until its teeth clear every bone 
 ``INITIAL_GAP_M``; frame 0 records the intact bone at t = 0. A case of N frames simulates
 N/frame_rate seconds and records N + 1 frames (fewer if it ends early).
 
-End reasons: ``completed``; ``perforated`` at the first frame that ends with the teeth past
-the outer face of the shell: the outer face is held, so the reamer can only get there through
-a hole it has cut, and from there it falls. That frame is not recorded (a reamer falling
-freely teaches the learned simulator nothing), so a case perforated at frame k holds frames
-0 … k − 1.
+End reasons, checked at the end of every frame after first contact:
+
+* ``perforated``: the teeth's tip (the pole of the dome, c + R_teeth·D) has passed the outer
+  face where there is bone under it, i.e. beyond the outermost outer-face node lying within
+  one mean edge length of the reamer's axis line. The outer face is held, so the reamer can
+  only get there through a hole it has cut, and from there it falls. A tilted reamer whose
+  axis misses the patch (γ above the patch half-angle) has no bone under its tip and never
+  perforates; its teeth passing the outer-face radius beside the patch is not a hole.
+* ``passed_through``: no bone is left in the reamer's path (no attached node in front of the
+  head's equatorial plane within the teeth's reach of the axis): a tilted reamer has swept
+  through the patch and falls freely.
+* ``completed``: all requested frames.
+
+The ending frame is not recorded (a reamer falling freely teaches the learned simulator
+nothing), so a case ended at frame k holds frames 0 … k − 1.
 """
 
 from __future__ import annotations
@@ -36,6 +46,7 @@ from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
+from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.physics.contact import contact_totals, reamer_contact
 from thrsim.physics.explicit import solid_step
 from thrsim.physics.explicit import ExplicitSolid
@@ -153,10 +164,25 @@ class ReamingSimulation:
         # [axial position s, axial speed ṡ, work of contact forces on the bone, work of the push]
         self.reamer_state = np.array([self.start_position, 0.0, 0.0, 0.0])
         self.contact_force = np.zeros((self.mesh.n_nodes, 3))
-        self.outer_radius = case.bone.outer_radius
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
+        self.tip_exit_depth = self._tip_exit_depth()
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
+
+    def _tip_exit_depth(self) -> float | None:
+        """How far along D the outer face lies under the teeth's tip; None when no bone is under it.
+
+        Bone is under the tip when outer-face nodes lie within one mean edge length of the axis
+        line s·D; the outermost of them (largest x·D) is where the tip leaves the bone.
+        """
+        outer = self.mesh.fixed_nodes
+        if len(outer) == 0:
+            return None
+        points = self.mesh.nodes[outer]
+        along = points @ self.axis
+        lateral = np.linalg.norm(points - along[:, None] * self.axis, axis=1)
+        under_tip = lateral <= float(rms_edge_lengths(self.mesh.nodes, self.mesh.tets).mean())
+        return float(along[under_tip].max()) if under_tip.any() else None
 
     def _initial_position(self) -> float:
         """Axial coordinate s where the teeth clear the nearest bone node by the initial gap."""
@@ -252,8 +278,17 @@ class ReamingSimulation:
             )
 
     def perforated(self) -> bool:
-        tip = self.centre + self.reamer.outer_radius * self.axis
-        return float(np.linalg.norm(tip)) > self.outer_radius
+        """The teeth's tip has passed the outer face where there is bone under it."""
+        if self.tip_exit_depth is None:
+            return False
+        return self.position + self.reamer.outer_radius > self.tip_exit_depth
+
+    def bone_in_path(self) -> bool:
+        """Whether any attached node lies where the advancing dome can still meet it."""
+        relative = self.mesh.nodes[self.solid.alive_nodes] + self.solid.displacement[self.solid.alive_nodes] - self.centre
+        along = relative @ self.axis
+        lateral_sq = np.einsum("ij,ij->i", relative, relative) - along**2
+        return bool(np.any((along > 0.0) & (lateral_sq < self.reamer.outer_radius**2)))
 
     def run(self, frames: int, progress: Callable[[int, int], None] | None = None) -> tuple[FrameLog, dict]:
         log = FrameLog()
@@ -263,11 +298,15 @@ class ReamingSimulation:
         for frame in range(1, frames + 1):
             force_sum, contact_steps = self.advance(self.steps_per_frame)
             self._check(frame)
-            if self.first_contact_frame is not None and self.perforated():
-                # a frame of free fall through the hole is not recorded
-                end_reason = "perforated"
-                self.perforated_frame = frame
-                break
+            if self.first_contact_frame is not None:
+                # a frame of free fall, through a hole or past the bone, is not recorded
+                if self.perforated():
+                    end_reason = "perforated"
+                    self.perforated_frame = frame
+                    break
+                if not self.bone_in_path():
+                    end_reason = "passed_through"
+                    break
             self.solid.delete_detached()
             if contact_steps and self.first_contact_frame is None:
                 self.first_contact_frame = frame

@@ -57,6 +57,12 @@ def test_dataset_then_info(tmp_path, monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(root))  # rich table
     assert code == 0 and "removed fraction" in out
 
+    # without --json, every finished case gets its own line: a sweep logged to a file shows progress
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "logged"), *SMALL)
+    assert code == 0, err
+    lines = [line for line in err.splitlines() if "tets removed" in line]
+    assert len(lines) == 3 and any(line.startswith("g030.0_t090.0_f230N: 3 frames, completed, ") for line in lines)
+
     code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "plan"), "--dry-run", "--json")
     plan = json.loads(out)
     assert plan["cases"] == 60 and not (tmp_path / "plan").exists()

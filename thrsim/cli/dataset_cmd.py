@@ -120,6 +120,13 @@ def dataset(
         if progress is not None and task is not None and event.status in ("complete", "failed"):
             elapsed = max(1e-9, time.perf_counter() - state["t0"])
             progress.update(task, completed=event.done, fps=f"{state['frames'] / elapsed:.2f} frames/s")
+            if event.status == "complete":
+                # one line per case, so a sweep logged to a file shows its progress too
+                ending = f", {event.end_reason}" if event.end_reason else ""
+                progress.console.print(
+                    f"{event.case_id}: {event.frames} frames{ending}, {event.removed:,} tets removed, "
+                    f"{event.wall_s / 60:.1f} min ({event.done}/{event.total})"
+                )
             if event.status == "failed":
                 progress.console.print(f"[red]{event.case_id} failed: {event.message}[/red]")
         elif progress is not None and event.status == "retry":

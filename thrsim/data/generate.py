@@ -257,6 +257,8 @@ class SweepEvent:
     frames: int = 0
     wall_s: float = 0.0
     message: str = ""
+    removed: int = 0
+    end_reason: str = ""
 
 
 @dataclass
@@ -451,7 +453,13 @@ def run_sweep(
                     done += 1
                     write_manifest(root, manifest)
                     if on_event:
-                        on_event(SweepEvent(spec.case_id, "complete", done, result.total, int(fields["frames"]), float(fields["wall_s"])))
+                        on_event(
+                            SweepEvent(
+                                spec.case_id, "complete", done, result.total, int(fields["frames"]), float(fields["wall_s"]),
+                                removed=int(fields["removed"]),
+                                end_reason=str((fields.get("solver_summary") or {}).get("end_reason", "")),
+                            )
+                        )  # fmt: skip
                 if broken:
                     executor.restart()
                 queue = retry

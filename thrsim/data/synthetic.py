@@ -113,13 +113,13 @@ def synthetic_run_case(
         omega_rad_s=case.reamer.omega_rad_s,
         frame_dt_s=case.frame_dt_s,
         config=case.model_dump(mode="json"),
-        extra_attrs={"solver": "synthetic", "end_reason": "frames", "seconds_per_frame": wall / t_frames},
+        extra_attrs={"solver": "synthetic", "end_reason": "completed", "seconds_per_frame": wall / t_frames},
     )
     return {
         "frames": t_frames,
         "removed": removed,
         "seconds_per_frame": wall / t_frames,
         "max_kinetic_to_internal": 0.05,
-        "end_reason": "frames",
+        "end_reason": "completed",
         "solver": "synthetic",
     }

@@ -330,6 +330,25 @@ def _set_dotted(tree: dict, dotted: str, value) -> None:
     tree[leaf] = value
 
 
+def read_settings_file(path: str) -> dict:
+    """The JSON object of (partial, nested) settings in ``path``; ThrsimInputError if missing or malformed."""
+    import json
+    from pathlib import Path
+
+    from thrsim.errors import ThrsimInputError
+
+    file = Path(path)
+    if not file.is_file():
+        raise ThrsimInputError(f"{file}: no such configuration file")
+    try:
+        settings = json.loads(file.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ThrsimInputError(f"{file}: not valid JSON ({error})") from None
+    if not isinstance(settings, dict):
+        raise ThrsimInputError(f"{file}: the configuration must be a JSON object")
+    return settings
+
+
 def load_case_config(path: str | None, overrides: dict[str, object]) -> ReamingCaseConfig:
     """A reaming case from an optional JSON file of (partial, nested) settings, then dotted overrides.
 
@@ -337,22 +356,7 @@ def load_case_config(path: str | None, overrides: dict[str, object]) -> ReamingC
     given". A missing or malformed file raises :class:`ThrsimInputError`; bad values raise
     pydantic's ``ValidationError``.
     """
-    import json
-    from pathlib import Path
-
-    from thrsim.errors import ThrsimInputError
-
-    settings: dict = {}
-    if path is not None:
-        file = Path(path)
-        if not file.is_file():
-            raise ThrsimInputError(f"{file}: no such configuration file")
-        try:
-            settings = json.loads(file.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise ThrsimInputError(f"{file}: not valid JSON ({error})") from None
-        if not isinstance(settings, dict):
-            raise ThrsimInputError(f"{file}: the configuration must be a JSON object")
+    settings = read_settings_file(path) if path is not None else {}
     for dotted, value in overrides.items():
         if value is not None:
             _set_dotted(settings, dotted, value)

@@ -10,6 +10,7 @@ import sys
 import time
 from pathlib import Path
 
+import h5py
 import pytest
 
 from thrsim.cli import main
@@ -83,6 +84,41 @@ def test_dataset_bad_input(tmp_path, monkeypatch, capsys, args, message):
     code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *base, *args)
     assert code == 2 and out == ""
     assert err.startswith("thrsim: error:") and message in err and err.count("\n") == 1
+    assert not (tmp_path / "ds").exists()
+
+
+def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypatch, capsys):
+    wider = tmp_path / "wider.json"
+    wider.write_text(json.dumps({"bone": {"half_angle_deg": 30.0}, "damage": {"displacement_at_failure_m": 3e-4}}))
+    root = tmp_path / "ds"
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--config", str(wider), "--json")
+    assert code == 0, err
+    for entry in read_manifest(root)["cases"].values():
+        with h5py.File(root / entry["file"]) as case:
+            config = json.loads(case.attrs["config"])
+        assert config["bone"]["half_angle_deg"] == 30.0 and config["damage"]["displacement_at_failure_m"] == 3e-4
+    # the same folder without the file is another configuration: refused, nothing touched
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL)
+    assert code == 2 and "different configuration" in err and "half_angle_deg" in err
+    assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
+
+
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        (None, "no such configuration file"),
+        ("{not json", "not valid JSON"),
+        ('{"inclination_deg": 10, "frames": 4}', "inclination_deg, frames are set by the sweep's own flags"),
+        ('{"material": {"density_kg_m3": -1}}', "density_kg_m3"),
+    ],
+)
+def test_dataset_bad_config(tmp_path, monkeypatch, capsys, content, message):
+    config = tmp_path / "case.json"
+    if content is not None:
+        config.write_text(content)
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *SMALL, "--config", str(config))
+    assert code == 2 and out == "" and message in err and err.count("\n") == 1
     assert not (tmp_path / "ds").exists()
 
 

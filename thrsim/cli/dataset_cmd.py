@@ -40,6 +40,7 @@ def dataset(
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
+    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f", metavar="FILE"),
     threads: Optional[int] = typer.Option(None, "--threads", help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)", metavar="N"),
     solver: str = typer.Option("fem", "--solver", hidden=True, help="fem, synthetic (pipeline tests) or module:function"),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
@@ -65,6 +66,7 @@ def dataset(
     if threads is not None and threads < 1:
         raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
     sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
+    template_overrides = _template_overrides(config)
     plan = plan_sweep(
         parse_list(inclinations, "--inclinations"),
         parse_list(anteversions, "--anteversions"),
@@ -135,7 +137,7 @@ def dataset(
     try:
         result = run_sweep(
             out, plan, solver=solver, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout,
-            threads=threads, on_event=on_event, on_start=on_start,
+            threads=threads, on_event=on_event, on_start=on_start, template_overrides=template_overrides,
         )
     finally:
         if progress is not None:
@@ -179,3 +181,21 @@ def info(
     print_table(f"dataset {directory}", rows)
     if plot is not None:
         console.print(f"α histograms written to {plot}")
+
+
+_SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")
+
+
+def _template_overrides(config: Path | None) -> dict | None:
+    """The --config file's settings for every case, refusing the ones the sweep's own flags set."""
+    if config is None:
+        return None
+    from thrsim.config import read_settings_file
+    from thrsim.data.generate import template_of
+
+    settings = read_settings_file(str(config))
+    swept = [key for key in _SWEPT if key in settings]
+    if swept:
+        raise ThrsimInputError(f"{config}: {', '.join(swept)} are set by the sweep's own flags, not by --config")
+    template_of(1, settings)  # bad values fail here, before anything is run or written
+    return settings

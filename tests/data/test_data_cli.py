@@ -62,7 +62,7 @@ def test_dataset_then_info(tmp_path, monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "logged"), *SMALL)
     assert code == 0, err
     lines = [line for line in err.splitlines() if "tets removed" in line]
-    assert len(lines) == 3 and any(line.startswith("g030.0_t090.0_f230N: 3 frames, completed, ") for line in lines)
+    assert len(lines) == 3 and any(line.startswith("g030.0_t090.0_f230N: 3 frames recorded, completed, ") for line in lines)
 
     code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "plan"), "--dry-run", "--json")
     plan = json.loads(out)

@@ -126,8 +126,9 @@ def dataset(
                 # one line per case, so a sweep logged to a file shows its progress too
                 ending = f", {event.end_reason}" if event.end_reason else ""
                 progress.console.print(
-                    f"{event.case_id}: {event.frames} frames{ending}, {event.removed:,} tets removed, "
-                    f"{event.wall_s / 60:.1f} min ({event.done}/{event.total})"
+                    f"{event.case_id}: {event.frames} frames recorded{ending}, {event.removed:,} tets removed, "
+                    f"{event.wall_s / 60:.1f} min ({event.done}/{event.total})",
+                    soft_wrap=True,
                 )
             if event.status == "failed":
                 progress.console.print(f"[red]{event.case_id} failed: {event.message}[/red]")

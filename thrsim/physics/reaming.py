@@ -285,7 +285,8 @@ class ReamingSimulation:
 
     def bone_in_path(self) -> bool:
         """Whether any attached node lies where the advancing dome can still meet it."""
-        relative = self.mesh.nodes[self.solid.alive_nodes] + self.solid.displacement[self.solid.alive_nodes] - self.centre
+        alive = self.solid.alive_nodes
+        relative = self.mesh.nodes[alive] + self.solid.displacement[alive] - self.centre
         along = relative @ self.axis
         lateral_sq = np.einsum("ij,ij->i", relative, relative) - along**2
         return bool(np.any((along > 0.0) & (lateral_sq < self.reamer.outer_radius**2)))

@@ -187,12 +187,13 @@ def contact_stability_terms(safety_factor: float, penalty_factor: float, damping
 class ReamerHoldConfig(_Frozen):
     """The hand-held reamer's axial degree of freedom: what the surgeon's push drives.
 
-    The head (0.186 kg) does not move alone: the shaft, the power driver (about 1.5 kg for
-    acetabular reamer drivers) and the surgeon's forearm move with it, and the arm resists fast
-    motion. The push therefore acts on an effective mass with an axial damper to ground:
-    M·s̈ = F + G − F_contact·D − c·ṡ. With c·ṡ ≪ F at reaming feed rates the damper takes a
-    negligible share of the push in steady reaming, while it removes the tooth-impact chatter a
-    free 0.186 kg body shows (bouncing ~14 times a frame, airborne 62 % of the steps).
+    The head (0.186 kg) does not move alone: the shaft, the power driver and the part of the
+    surgeon's arm that moves with them (together 1.5–3 kg) move with it, and the arm resists
+    fast motion. The push therefore acts on an effective mass with an axial damper to ground:
+    M·s̈ = F + G − F_contact·D − c·ṡ. The damper is sized to remove the tooth-impact chatter a
+    free 0.186 kg head shows (bouncing ~14 times a frame, airborne 62 % of the steps); at
+    reaming feed rates (≈ 0.2 mm/s while seating) c·ṡ is under 1 N, a negligible share of the
+    push.
     """
 
     effective_mass_kg: float = Field(2.0, gt=0, description="head + shaft + driver + the arm's share")

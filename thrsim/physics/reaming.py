@@ -34,6 +34,11 @@ End reasons, checked at the end of every frame after first contact:
 * ``passed_through``: no bone is left in the reamer's path (no attached node in front of the
   head's equatorial plane within the teeth's reach of the axis): a tilted reamer has swept
   through the patch and falls freely.
+* ``stalled``: for ``STALL_FRAMES`` frames nothing was removed and the reamer's within-frame
+  mean position moved less than ``STALL_MOTION_M``: it rests on bone it cannot cut, in practice
+  elements pressed against the held (encastre) outer face, which are loaded in near-uniaxial
+  compression and so never yield (von Mises plasticity ignores pressure). Those frames are
+  recorded; nothing later would differ.
 * ``completed``: all requested frames.
 
 The ending frame is not recorded (a reamer falling freely teaches the learned simulator
@@ -65,6 +70,9 @@ from thrsim.physics.support import foundation_stiffness
 INITIAL_GAP_M = 5e-5
 #: frames after first contact spent seating the reamer, left out of the steady-reaming statistics
 SEATING_FRAMES = 5
+#: a case whose reamer neither removes bone nor moves for this many frames has stalled
+STALL_FRAMES = 10
+STALL_MOTION_M = 1e-6
 
 # reamer state: [axial position s (m), axial speed ṡ (m/s)]
 POSITION, SPEED = 0, 1
@@ -418,6 +426,9 @@ class ReamingSimulation:
             self.record(log)
             if progress:
                 progress(frame, frames)
+            if self.first_contact_frame is not None and _stalled(log):
+                end_reason = "stalled"
+                break
         elapsed = time.perf_counter() - started
         return log, self._summary(log, end_reason, elapsed)
 
@@ -486,6 +497,15 @@ def steady_reaming_statistics(records: dict[str, np.ndarray], first_contact_fram
         "feed_rate_mm_s": float(np.polyfit(frames, axial[:, 0] * 1e3, 1)[0]),
         "removal_rate_mm3_s": float(np.polyfit(frames, removed_volume, 1)[0]),
     }
+
+
+def _stalled(log: FrameLog) -> bool:
+    """No element removed and the mean axial position still over the last ``STALL_FRAMES`` frames."""
+    if len(log.status) <= STALL_FRAMES:
+        return False
+    removed_then, removed_now = (log.status[-1 - STALL_FRAMES] == 0).sum(), (log.status[-1] == 0).sum()
+    moved = abs(log.reamer_axial[-1][0] - log.reamer_axial[-1 - STALL_FRAMES][0])
+    return bool(removed_now == removed_then and moved < STALL_MOTION_M)
 
 
 def _along(points: np.ndarray, axis: np.ndarray) -> np.ndarray:

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import h5py
 import pytest
+from checkout_cli import THRSIM, checkout_env
 
 from thrsim.cli import main
 from thrsim.data.case_file import validate_case
@@ -149,10 +150,9 @@ def _children(pid: int) -> list[int]:
 
 def test_kill9_parent_then_resume(tmp_path):
     root = tmp_path / "ds"
-    args = ["thrsim"]
-    cmd = args + ["dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
+    cmd = [*THRSIM, "dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
                   "--extra-forces", "none", "--solver", "synthetic", "--workers", "2", "--json"]
-    env = {**os.environ, "THRSIM_SYNTHETIC_SECONDS_PER_FRAME": "0.4"}
+    env = checkout_env(THRSIM_SYNTHETIC_SECONDS_PER_FRAME="0.4")
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 60
     workers: list[int] = []
@@ -178,7 +178,7 @@ def test_kill9_parent_then_resume(tmp_path):
     assert not alive
     assert len(workers) >= 2, "the pool's worker processes were not seen"
 
-    again = subprocess.run(cmd, env={**os.environ}, capture_output=True, text=True, timeout=90)
+    again = subprocess.run(cmd, env=checkout_env(), capture_output=True, text=True, timeout=90)
     assert again.returncode == 0, again.stderr
     summary = json.loads(again.stdout)
     assert summary["cases"] == 5 and summary["failed"] == 0

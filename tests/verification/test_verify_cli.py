@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import shutil
-import subprocess
-import sys
 
 import pytest
+from checkout_cli import run_thrsim
 from typer.testing import CliRunner
 
 from thrsim.cli import app
@@ -15,14 +13,9 @@ from thrsim.cli import app
 KEYS = {"name", "figure", "reference", "value", "error", "tolerance", "passed", "seconds", "slow"}
 
 
-def _thrsim() -> list[str]:
-    exe = shutil.which("thrsim")
-    return [exe] if exe else [sys.executable, "-c", "from thrsim.cli import main; main()"]
-
-
 @pytest.mark.timeout(300)
 def test_verify_json_subprocess_runs_every_fast_check() -> None:
-    completed = subprocess.run([*_thrsim(), "verify", "--json"], capture_output=True, text=True, timeout=280)
+    completed = run_thrsim("verify", "--json", timeout=280)
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     payload = json.loads(completed.stdout)  # exactly one JSON object on stdout
     assert payload["passed"] is True
@@ -67,6 +60,6 @@ def test_verify_exit_code_1_when_a_check_fails(monkeypatch) -> None:
 
 
 def test_verify_unknown_name_is_a_usage_error() -> None:
-    completed = subprocess.run([*_thrsim(), "verify", "--only", "no-such-check"], capture_output=True, text=True, timeout=120)
+    completed = run_thrsim("verify", "--only", "no-such-check")
     assert completed.returncode == 2
     assert "unknown verification check" in completed.stderr

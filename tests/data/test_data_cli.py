@@ -88,6 +88,29 @@ def test_dataset_bad_input(tmp_path, monkeypatch, capsys, args, message):
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.parametrize("obstacle", ["dangling link", "file"])
+def test_dataset_out_that_cannot_be_created_is_refused_by_dry_run_and_run(tmp_path, monkeypatch, capsys, obstacle):
+    """A fresh clone once held `data` as a link to another machine's folder: `--out data/default`
+    must fail with the one-line error, and `--dry-run` must say so rather than approve the plan."""
+    monkeypatch.chdir(tmp_path)
+    if obstacle == "dangling link":
+        (tmp_path / "data").symlink_to(tmp_path / "elsewhere" / "thrsim-data")
+    else:
+        (tmp_path / "data").write_text("not a folder")
+    for extra in (["--dry-run"], []):
+        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", "data/default", *SMALL, *extra)
+        assert code == 2 and out == "", (extra, err)
+        assert err.startswith("thrsim: error: data/default: cannot create the dataset folder: data is ") and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_dataset_dry_run_refuses_what_the_run_refuses(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "ds"
+    assert run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--frames", "5", "--dry-run")
+    assert code == 2 and "different configuration" in err
+
+
 def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypatch, capsys):
     wider = tmp_path / "wider.json"
     wider.write_text(json.dumps({"bone": {"half_angle_deg": 30.0}, "damage": {"displacement_at_failure_m": 3e-4}}))

@@ -77,6 +77,9 @@ def dataset(
         element_sizes_mm=sizes,
     )
     if dry_run:
+        from thrsim.data.generate import check_sweep_target
+
+        check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
         rows = [
             {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)}
             for c in plan.cases

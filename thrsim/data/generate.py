@@ -37,7 +37,7 @@ from pathlib import Path
 from typing import Any
 
 from thrsim import __version__
-from thrsim.atomic import atomic_path, fsync_folder
+from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
@@ -326,6 +326,36 @@ def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[
     return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
 
 
+@dataclass(frozen=True)
+class SweepTarget:
+    """What a sweep into a folder is, checked before anything runs: see :func:`check_sweep_target`."""
+
+    template: dict
+    solver: str
+    identity: dict
+    manifest: dict | None  # the folder's manifest, None for a new dataset
+
+
+def check_sweep_target(root: Path, plan: SweepPlan, *, solver: str | Callable = "fem", template_overrides: dict | None = None) -> SweepTarget:
+    """Every refusal a sweep can meet before it runs, without touching ``root``.
+
+    The plan asks one frame count, the solver is known, ``root`` is a dataset of this very
+    configuration (or empty, or absent) and can be created. ``--dry-run`` calls this too, so
+    what it approves, the run accepts.
+    """
+    frames = {c.frames for c in plan.cases}
+    if len(frames) != 1:
+        raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
+    template = template_of(frames.pop(), template_overrides)
+    name = solver_name(solver)
+    identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
+    manifest = check_directory(root, identity)
+    check_folder_creatable(root, "dataset folder")
+    if not callable(solver):
+        resolve_solver(solver)  # an unknown solver is an input error, found before any work
+    return SweepTarget(template, name, identity, manifest)
+
+
 def run_sweep(
     root: str | os.PathLike,
     plan: SweepPlan,
@@ -347,15 +377,8 @@ def run_sweep(
     :class:`ThrsimInputError` before anything in ``root`` is touched.
     """
     root = Path(root)
-    frames = {c.frames for c in plan.cases}
-    if len(frames) != 1:
-        raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
-    template = template_of(frames.pop(), template_overrides)
-    name = solver_name(solver)
-    identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
-    manifest = check_directory(root, identity)
-    if not callable(solver):
-        resolve_solver(solver)  # an unknown solver is an input error, found before any work
+    target = check_sweep_target(root, plan, solver=solver, template_overrides=template_overrides)
+    template, name, identity, manifest = target.template, target.solver, target.identity, target.manifest
 
     own_executor = executor is None
     if executor is None:

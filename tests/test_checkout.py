@@ -3,6 +3,7 @@ even when another checkout's ``thrsim`` is installed or first on PATH."""
 
 from __future__ import annotations
 
+import ast
 import re
 import subprocess
 import sys
@@ -56,3 +57,28 @@ def test_no_test_starts_a_thrsim_found_on_path():
         if suspicious.search(line) and "argv" not in line  # sys.argv of an in-process run is fine
     ]
     assert not offenders, f"start the command with checkout_cli.THRSIM / run_thrsim instead: {offenders}"
+
+
+def _subprocess_calls_without_env(path: Path) -> list[int]:
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if (
+            isinstance(node, ast.Call)
+            and isinstance(node.func, ast.Attribute)
+            and isinstance(node.func.value, ast.Name)
+            and node.func.value.id == "subprocess"
+            and node.func.attr in ("run", "Popen", "call", "check_call", "check_output")
+            and not any(k.arg == "env" for k in node.keywords)
+        ):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_every_python_subprocess_gets_this_checkout_on_its_path():
+    """A script or ``-c`` code started with this interpreter imports whatever thrsim its path finds."""
+    offenders = [
+        f"{path.relative_to(REPO_ROOT)}:{line}"
+        for path in sorted((REPO_ROOT / "tests").rglob("*.py"))
+        for line in _subprocess_calls_without_env(path)
+    ]
+    assert not offenders, f"pass env=checkout_env() (or use run_thrsim): {offenders}"

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pyigtl
 import pytest
+from checkout_cli import checkout_env
 
 from igtl_helpers import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
 from thrsim.config import IgtlConfig
@@ -207,7 +208,7 @@ def test_valid_client_keeps_being_served_during_a_garbage_burst(nav_server, pyig
     # server's GIL and measure that instead).
     client = pyigtl_client()
     attackers = [
-        subprocess.Popen([sys.executable, str(GARBAGE_PEER), str(nav_server.port), "3"], stdout=subprocess.PIPE, text=True)
+        subprocess.Popen([sys.executable, str(GARBAGE_PEER), str(nav_server.port), "3"], stdout=subprocess.PIPE, text=True, env=checkout_env())
         for _ in range(2)
     ]
     latencies = []

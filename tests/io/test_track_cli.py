@@ -55,7 +55,7 @@ def test_track_stops_after_duration_and_refuses_bad_flags():
 def test_nav_angles_json_and_errors():
     landmarks = ["--asis-right", "115,0,0", "--asis-left=-115,0,0", "--pubic-right", "22,0,-88", "--pubic-left=-22,0,-88"]
     ok = subprocess.run(
-        [*THRSIM, "nav", "angles", "--axis", "0.620885,0.258819,-0.739942", *landmarks, "--json"], capture_output=True, text=True, timeout=30
+        [*THRSIM, "nav", "angles", "--axis", "0.620885,0.258819,-0.739942", *landmarks, "--json"], capture_output=True, text=True, timeout=30, env=checkout_env()
     )
     assert ok.returncode == 0, ok.stderr
     result = json.loads(ok.stdout)

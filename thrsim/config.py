@@ -260,15 +260,38 @@ class TrackingVolumeConfig(_Frozen):
         return self
 
 
+KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference")
+
+
 class IgtlConfig(_Frozen):
-    """OpenIGTLink listener: where it listens and how much it tolerates from a peer."""
+    """OpenIGTLink listener: where it listens and how much it tolerates from a peer.
+
+    Poses are kept per device name: the ``known_devices`` always, and at most
+    ``max_other_devices`` other names (first come), so no client can grow the shared session
+    without bound by inventing names. A connection that sends nothing for ``idle_timeout_s`` is
+    closed; when every one of the ``max_clients`` slots is taken, a new connection takes the slot
+    of one that has sent no whole message in the ``reclaim_after_s`` since it connected (otherwise
+    the newcomer is refused): idle sockets cannot lock a tracker out (see :mod:`thrsim.io.server`).
+    """
 
     host: str = "127.0.0.1"
     port: int = Field(18944, ge=0, le=65535, description="0 = any free port (tests)")
     max_body_bytes: int = Field(1 << 20, gt=0)
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
+    idle_timeout_s: float = Field(15.0, gt=0, description="a connection that sends no message for this long is closed")
+    reclaim_after_s: float = Field(1.0, ge=0, description="when all slots are taken, a connection silent this long since connecting gives its slot to a newcomer")
     stale_pose_s: float = Field(0.5, gt=0, description="a pose older than this no longer counts as tracked")
+    known_devices: tuple[str, ...] = Field(KNOWN_TRACKER_DEVICES, description="TRANSFORM device names always accepted")
+    max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")
+
+    @field_validator("known_devices")
+    @classmethod
+    def _device_names_fit_the_header(cls, names: tuple[str, ...]) -> tuple[str, ...]:
+        for name in names:
+            if not name or not name.isprintable() or not name.isascii() or len(name) > 20:
+                raise ValueError(f"device name {name!r} must be 1 to 20 printable ASCII characters")
+        return names
 
 
 class ThrsimConfig(_Frozen):

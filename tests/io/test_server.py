@@ -176,16 +176,6 @@ def test_random_bytes_close_only_that_connection(nav_server):
         assert still_served(bystander)
 
 
-def test_max_clients_is_enforced(make_server):
-    server = make_server(IgtlConfig(port=0, max_clients=2))
-    with server.connect() as first, server.connect() as second:
-        assert wait_until(lambda: server.server.clients == 2)
-        with server.connect() as third:
-            assert is_closed(third)
-        assert still_served(first) and still_served(second)
-    assert server.server.stats["rejected_connections"] == 1
-
-
 def test_large_body_does_not_stall_other_clients(make_server):
     server = make_server(IgtlConfig(port=0, max_body_bytes=8 << 20))
     big = igtl.encode_message(igtl.Message("IMAGE", "Volume", os.urandom(4 << 20)))
@@ -207,6 +197,7 @@ def test_valid_client_keeps_being_served_during_a_garbage_burst(nav_server, pyig
     # Hostile peers in their own processes, as on a real network (threads here would share the
     # server's GIL and measure that instead).
     client = pyigtl_client()
+    assert client.round_trip(reamer_pose_mm(), timeout=5.0) is not None  # a tracker streams from the start
     attackers = [
         subprocess.Popen([sys.executable, str(GARBAGE_PEER), str(nav_server.port), "3"], stdout=subprocess.PIPE, text=True, env=checkout_env())
         for _ in range(2)
@@ -218,7 +209,7 @@ def test_valid_client_keeps_being_served_during_a_garbage_burst(nav_server, pyig
         while time.monotonic() < deadline:
             start = time.perf_counter()
             reply = client.round_trip(reamer_pose_mm(), timeout=2.0)
-            assert reply is not None, "valid client starved during the burst"
+            assert reply is not None, f"valid client starved during the burst"
             latencies.append(time.perf_counter() - start)
     finally:
         sent = sum(json.loads(a.communicate(timeout=15)[0])["sent"] for a in attackers)

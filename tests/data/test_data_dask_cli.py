@@ -14,7 +14,6 @@ import signal
 import socket
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -102,7 +101,6 @@ def _run_cli(out: Path, *extra: str) -> dict:
 
 def test_cli_on_external_dask_cluster_matches_local_pool(tmp_path, dask_cluster):
     address, procs, logs = dask_cluster
-    started = time.perf_counter()
 
     # the local run goes first: the cluster comes up meanwhile
     local = _run_cli(tmp_path / "local", "--workers", "2")
@@ -146,4 +144,3 @@ def test_cli_on_external_dask_cluster_matches_local_pool(tmp_path, dask_cluster)
     # a rerun against the same cluster skips everything
     again = _run_cli(tmp_path / "dask", "--scheduler", address, "--connect-timeout", "10")
     assert (again["skipped"], again["generated"]) == (CASES, 0)
-    assert time.perf_counter() - started < 150

@@ -6,7 +6,6 @@ import json
 import os
 import signal
 import socket
-import time
 
 import numpy as np
 import pytest
@@ -107,14 +106,13 @@ def test_refusals_touch_nothing(tmp_path):
     assert not (tmp_path / "new").exists()
 
 
+@pytest.mark.timeout(25)  # Dask's own connect timeout is 30 s: a sweep that ignored ours would hang past this
 def test_unreachable_scheduler_fails_fast(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    started = time.perf_counter()
-    with pytest.raises(ThrsimInputError, match="cannot reach the Dask scheduler"):
+    with pytest.raises(ThrsimInputError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:\d+ within 1 s"):
         run_sweep(tmp_path / "ds", small_plan(), solver="synthetic", scheduler=f"tcp://127.0.0.1:{port}", connect_timeout_s=1.0)
-    assert time.perf_counter() - started < 15
     assert not (tmp_path / "ds").exists()
     with pytest.raises(ThrsimInputError, match="tcp://HOST:PORT"):
         run_sweep(tmp_path / "ds", small_plan(), solver="synthetic", scheduler="tcp://nohostport")

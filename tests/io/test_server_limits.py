@@ -58,12 +58,10 @@ def test_idle_sockets_in_every_slot_do_not_lock_out_a_tracker(make_server):
     with contextlib.ExitStack() as stack:
         idle = [stack.enter_context(server.connect()) for _ in range(config.max_clients)]
         assert wait_until(lambda: server.server.clients == config.max_clients)
-        started = time.monotonic()
         tracker, _ = raw_tracker_round_trip(server, deadline_s=10.0)
         stack.enter_context(tracker)
-        # in because an idle socket's slot was reclaimed, long before any idle timeout ran out
-        assert time.monotonic() - started < config.idle_timeout_s
-        assert server.server.stats["reclaimed_slots"] >= 1
+        # in because an idle socket's slot was reclaimed, not because an idle timeout ran out
+        assert server.server.stats["reclaimed_slots"] >= 1 and server.server.stats["idle_timeouts"] == 0
         # a real OpenIGTLink client (pyigtl, which reconnects by itself) gets in too
         client = pyigtl.OpenIGTLinkClient("127.0.0.1", server.port)
         try:

@@ -111,6 +111,25 @@ def test_dataset_dry_run_refuses_what_the_run_refuses(tmp_path, monkeypatch, cap
     assert code == 2 and "different configuration" in err
 
 
+@pytest.mark.parametrize("extra", [["--dry-run"], []])
+def test_dataset_solver_is_one_of_thrsims_own_and_no_module_is_imported(tmp_path, monkeypatch, capsys, extra):
+    marker = tmp_path / "imported"
+    (tmp_path / "not_thrsim_solver.py").write_text(f"open({str(marker)!r}, 'w').close()\ndef run(case, out):\n    return {{}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    args = [a for a in SMALL if a not in ("--solver", "synthetic")]
+    for solver in ("not_thrsim_solver:run", "os:system", "nope"):
+        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *args, "--solver", solver, *extra)
+        assert code == 2 and out == "" and err == f"thrsim: error: --solver must be one of fem, synthetic, got {solver!r}\n"
+    assert not marker.exists() and not (tmp_path / "ds").exists()
+
+
+def test_dataset_solver_choices_are_the_named_solvers():
+    from thrsim.cli.dataset_cmd import _SOLVER_CHOICES
+    from thrsim.data.generate import SOLVERS
+
+    assert set(_SOLVER_CHOICES) == set(SOLVERS)
+
+
 def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypatch, capsys):
     wider = tmp_path / "wider.json"
     wider.write_text(json.dumps({"bone": {"half_angle_deg": 30.0}, "damage": {"displacement_at_failure_m": 3e-4}}))

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
-from thrsim.data.generate import load_dataset, read_manifest, run_sweep
+from thrsim.data.generate import load_dataset, read_manifest, resolve_solver, run_sweep
 from thrsim.data.sweep import plan_sweep
 from thrsim.data.synthetic import synthetic_run_case
 from thrsim.errors import ThrsimInputError
@@ -185,3 +185,17 @@ def test_real_solver_sweep_local_matches_dask(tmp_path):
         assert entry["removed"] == b[case_id]["removed"]
         assert entry["data_digest"] == b[case_id]["data_digest"]
         assert entry["solver_summary"]["end_reason"]
+
+
+def test_solvers_by_name_are_thrsims_own_only(tmp_path, monkeypatch):
+    marker = tmp_path / "imported"
+    (tmp_path / "outside_solver.py").write_text(f"open({str(marker)!r}, 'w').close()\ndef run(case, out):\n    return {{}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in ("outside_solver:run", "os:system", "subprocess:run"):
+        with pytest.raises(ThrsimInputError, match="only thrsim's own solvers"):
+            resolve_solver(name)
+        with pytest.raises(ThrsimInputError, match="only thrsim's own solvers"):
+            run_sweep(tmp_path / "ds", small_plan(), solver=name)
+    assert not marker.exists() and not (tmp_path / "ds").exists()
+    assert resolve_solver("synthetic") is synthetic_run_case
+    assert resolve_solver(crash_once) is crash_once  # Python callers may pass their own callable

@@ -3,10 +3,23 @@
 Local runs use a process pool (``--workers N``); ``--scheduler tcp://HOST:PORT`` sends the
 same tasks to a Dask scheduler instead. Start one and its workers with::
 
-    dask scheduler --host 0.0.0.0 --port 8786
-    dask worker tcp://HEAD:8786 --nworkers 4 --nthreads 1    # on each machine
+    dask scheduler --host 127.0.0.1 --port 8786               # or a private interface, see below
+    dask worker tcp://127.0.0.1:8786 --nworkers 4 --nthreads 1
 
 (the output directory must be visible at the same path on every worker).
+
+Security: a Dask scheduler has no authentication of its own, and its tasks are pickled
+functions, so anyone who reaches its port can run code on every worker. Never listen on
+``0.0.0.0`` on a network you do not control. On one machine keep it on loopback
+(``--host 127.0.0.1``); across machines bind it to a private interface that only the cluster
+reaches, or keep it on loopback and reach it through an SSH tunnel
+(``ssh -N -L 8786:127.0.0.1:8786 HEAD``, then ``--scheduler tcp://127.0.0.1:8786``); on a
+shared network use Dask's TLS: ``dask scheduler --protocol tls --tls-ca-file ca.pem --tls-cert
+scheduler.pem --tls-key scheduler.key``, workers with ``tls://HEAD:8786`` and their own
+``--tls-*`` files, and thrsim with ``--scheduler tls://HEAD:8786`` and the client's certificate
+in Dask's configuration (``DASK_DISTRIBUTED__COMM__TLS__CA_FILE``,
+``DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT``, ``DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY``,
+``DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True``).
 """
 
 from __future__ import annotations
@@ -24,6 +37,7 @@ from thrsim.errors import SimulationError, ThrsimInputError
 app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
+_SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without importing it here
 
 
 @app.callback(invoke_without_command=True)
@@ -42,7 +56,7 @@ def dataset(
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f", metavar="FILE"),
     threads: Optional[int] = typer.Option(None, "--threads", help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)", metavar="N"),
-    solver: str = typer.Option("fem", "--solver", hidden=True, help="fem, synthetic (pipeline tests) or module:function"),
+    solver: str = typer.Option("fem", "--solver", hidden=True, help=f"one of thrsim's own: {', '.join(_SOLVER_CHOICES)} (synthetic: the pipeline tests' stand-in, not physics)"),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -59,6 +73,8 @@ def dataset(
 
     if out is None:
         raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
+    if solver not in _SOLVER_CHOICES:  # never a module named on the command line
+        raise ThrsimInputError(f"--solver must be one of {', '.join(_SOLVER_CHOICES)}, got {solver!r}")
     if connect_timeout <= 0:
         raise ThrsimInputError(f"--connect-timeout must be positive, got {connect_timeout:g}")
     if workers < 1:

@@ -60,13 +60,16 @@ _AXES = ("inclination_deg", "anteversion_deg", "force_n")
 
 
 def resolve_solver(solver: str | Callable) -> Callable:
-    """'fem' (the explicit solver), 'synthetic' (the test stand-in), 'module:function' or a callable."""
+    """'fem' (the explicit solver), 'synthetic' (the test stand-in), a callable (Python callers),
+    or 'thrsim.module:function'; a module outside thrsim is refused before it is imported."""
     if callable(solver):
         return solver
     ref = SOLVERS.get(solver, solver)
     module_name, _, attr = ref.partition(":")
     if not module_name or not attr:
-        raise ThrsimInputError(f"unknown solver {solver!r}: use fem, synthetic or module:function")
+        raise ThrsimInputError(f"unknown solver {solver!r}: use {', '.join(SOLVERS)}")
+    if module_name.split(".")[0] != "thrsim":
+        raise ThrsimInputError(f"solver {solver!r}: only thrsim's own solvers are run by name ({', '.join(SOLVERS)})")
     try:
         module = importlib.import_module(module_name)
         return getattr(module, attr)

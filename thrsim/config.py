@@ -179,10 +179,18 @@ def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> 
 
 
 class SweepConfig(_Frozen):
-    """Orientation sweep of the training cases [5.3.4]."""
+    """Orientation sweep of the training cases [5.3.4]: the one definition of the sweep's
+    defaults (``thrsim.data.sweep`` and ``thrsim dataset``'s options take theirs from here).
+
+    The full orientation grid runs at ``forces_n``; ``extra_forces_n`` run on the grid's
+    orientations whose anteversion is in ``extra_force_anteversions_deg`` (every inclination).
+    """
 
     inclinations_deg: tuple[float, ...] = (0.0, 15.0, 30.0, 45.0)
     anteversions_deg: tuple[float, ...] = tuple(float(a) for a in range(0, 181, 15))
+    forces_n: tuple[float, ...] = Field((230.0,), description="the thesis's mean push force [5.3.2]")
+    extra_forces_n: tuple[float, ...] = (150.0, 310.0)
+    extra_force_anteversions_deg: tuple[float, ...] = (0.0, 90.0, 180.0)
     frames: int = Field(120, ge=1)
     frame_rate_hz: float = Field(60.0, gt=0)
 

@@ -32,11 +32,14 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import command_group, console, err_console, print_json, print_table
+from thrsim.config import SweepConfig
+from thrsim.data.sweep import format_list
 from thrsim.errors import SimulationError, ThrsimInputError
 
 app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
+_SWEEP = SweepConfig()  # the sweep's defaults, defined once in thrsim.config
 _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without importing it here
 
 
@@ -44,12 +47,12 @@ _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without 
 def dataset(
     ctx: typer.Context,
     out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
-    inclinations: str = typer.Option("0,15,30,45", "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
-    anteversions: str = typer.Option("0:180:15", "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
-    frames: int = typer.Option(120, "--frames", help="output frames per case (60 per simulated second)", metavar="N"),
-    forces: str = typer.Option("230", "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
-    extra_forces: str = typer.Option("150,310", "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
-    extra_force_anteversions: str = typer.Option("0,90,180", "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
+    inclinations: str = typer.Option(format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
+    anteversions: str = typer.Option(format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
+    frames: int = typer.Option(_SWEEP.frames, "--frames", help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second)", metavar="N"),
+    forces: str = typer.Option(format_list(_SWEEP.forces_n), "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
+    extra_forces: str = typer.Option(format_list(_SWEEP.extra_forces_n), "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
+    extra_force_anteversions: str = typer.Option(format_list(_SWEEP.extra_force_anteversions_deg), "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
     element_sizes: Optional[str] = typer.Option(None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"),
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
@@ -62,9 +65,10 @@ def dataset(
 ) -> None:
     """Run the orientation sweep into --out DIR (skips complete cases, redoes the rest).
 
-    Default: γ 0, 15, 30, 45 × θ 0:180:15 at 230 N, plus 150 and 310 N at θ 0, 90, 180;
-    γ = 0 cases that differ only in θ are one physical case and run once. Split by orientation:
-    test θ ∈ {45, 135}, validation θ = 90 (γ > 0), the rest (and γ = 0) train.
+    Default: the grid of --inclinations × --anteversions at --forces, plus --extra-forces at
+    --extra-force-anteversions (the defaults shown below); γ = 0 cases that differ only in θ are
+    one physical case and run once. Split by orientation: test θ ∈ {45, 135}, validation θ = 90
+    (γ > 0), the rest (and γ = 0) train.
     """
     if ctx.invoked_subcommand is not None:
         return

@@ -1,4 +1,6 @@
-"""Validated configuration: every default inherited from the source thesis (SPEC §2), with units.
+"""Validated configuration, with units. The defaults are the numbers of the source thesis, "Machine
+Learning and Interactive Real-Time Simulation for Training on Relevant Total Hip Replacement
+Skills" (its section, table or equation in brackets), unless a docstring says why one differs.
 
 Inside, quantities are SI (m, kg, s, N, Pa, rad) unless a field name says otherwise
 (``_mm``, ``_deg``): those are user-facing values, converted once by the properties here.
@@ -159,7 +161,7 @@ class ContactConfig(_Frozen):
 
 
 class Orientation(_Frozen):
-    """Reamer orientation in the bone frame: D = (sin γ cos θ, sin γ sin θ, −cos γ) (SPEC §3)."""
+    """Reamer orientation in the bone frame: the axis D = (sin γ cos θ, sin γ sin θ, −cos γ) points from the reamer into the bone (−z at γ = 0)."""
 
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
@@ -216,22 +218,6 @@ class LabelConfig(_Frozen):
     tau: float = 0.42
     von_mises_scale_pa: float = Field(1e7, gt=0)
     removed_threshold: float = Field(0.3, gt=0, lt=1)
-
-
-class GraphNetworkConfig(_Frozen):
-    """Encode–process–decode Graph Network sizes [7.3.2–7.3.3] (widths × layers)."""
-
-    message_passing_steps: int = Field(10, ge=1)
-    node_encoder: tuple[int, ...] = (40,)
-    node_core: tuple[int, ...] = (300, 300)
-    edge_encoder: tuple[int, ...] = (20, 20)
-    edge_core: tuple[int, ...] = (30,)
-    global_encoder: tuple[int, ...] = (11, 11)
-    global_core: tuple[int, ...] = (20,)
-    training_graphs: int = 4000
-    validation_graphs: int = 1000
-    epochs: int = Field(350, ge=1)
-    rollout_steps: int = Field(60, ge=1)
 
 
 class SafeZone(_Frozen):
@@ -300,23 +286,6 @@ class IgtlConfig(_Frozen):
             if not name or not name.isprintable() or not name.isascii() or len(name) > 20:
                 raise ValueError(f"device name {name!r} must be 1 to 20 printable ASCII characters")
         return names
-
-
-class ThrsimConfig(_Frozen):
-    """All defaults in one object; each part of thrsim reads the section it needs."""
-
-    bone: BonePatchConfig = BonePatchConfig()
-    material: BoneMaterial = BoneMaterial()
-    hardening: JohnsonCookHardening = JohnsonCookHardening()
-    damage: JohnsonCookDamage = JohnsonCookDamage()
-    reamer: ReamerConfig = ReamerConfig()
-    contact: ContactConfig = ContactConfig()
-    sweep: SweepConfig = SweepConfig()
-    labels: LabelConfig = LabelConfig()
-    network: GraphNetworkConfig = GraphNetworkConfig()
-    safe_zone: SafeZone = SafeZone()
-    tracking: TrackingVolumeConfig = TrackingVolumeConfig()
-    igtl: IgtlConfig = IgtlConfig()
 
 
 class SolverConfig(_Frozen):

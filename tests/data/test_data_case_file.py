@@ -1,4 +1,4 @@
-"""The SPEC §4 case file: layout, round trip, streaming, validation, checksums."""
+"""The case file: layout, round trip, streaming, validation, checksums."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The ground-truth case file (SPEC §4): one HDF5 file per reaming case.
+"""The ground-truth case file: one HDF5 file per reaming case.
 
 Layout::
 

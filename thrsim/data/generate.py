@@ -3,7 +3,7 @@
 Directory layout::
 
     DIR/manifest.json        written atomically by the coordinating process after every case
-    DIR/cases/<case_id>.h5   one SPEC §4 case file per physical case
+    DIR/cases/<case_id>.h5   one case file (thrsim.data.case_file) per physical case
     DIR/.lock                held (flock) while a run is going on
 
 Safety: a worker runs the solver into ``cases/<case_id>.h5.<random>.part``, validates it

@@ -3,7 +3,7 @@
 It exists for tests and demonstrations of the data pipeline (sweeps, executors, resume, labels,
 readers) without the cost of the explicit solver: a structured tet block under the reamer, a
 reamer advancing along its axis D, PEEQ growing and elements removed where the reamer head
-overlaps them. Nothing in it is physics; the case files it writes follow SPEC §4 exactly and
+overlaps them. Nothing in it is physics; the case files it writes follow the case-file layout (:mod:`thrsim.data.case_file`) exactly and
 carry ``attrs["solver"] = "synthetic"``.
 """
 

@@ -2,7 +2,7 @@
 
 Exchange formats (.vtu, .msh, .inp and anything else meshio reads) carry coordinates in
 millimetres by default (``units``), as CAD and ABAQUS users expect; thrsim's HDF5 layout is SI
-(metres), the same ``/mesh`` group as a ground-truth case file (SPEC §4). Writes go to a
+(metres), the same ``/mesh`` group as a ground-truth case file (:mod:`thrsim.data.case_file`). Writes go to a
 temporary name first and are renamed only when complete.
 """
 

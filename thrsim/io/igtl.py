@@ -3,7 +3,7 @@
 Why not pyigtl (the PyPI package) on the server side: it does not verify the CRC-64, silently
 drops message types it does not know (STATUS, SENSOR, ...), blocks in ``send_message(wait=True)``
 without a peer, serves one client at a time from a polling thread and installs signal handlers
-(NOTES, Navigation and tracking). A trainer that must stay up through malformed input needs
+(pyigtl 0.3.4). A trainer that must stay up through malformed input needs
 every byte checked and nothing blocking, so the framing lives here and the asyncio server in
 :mod:`thrsim.io.server` uses it; pyigtl stays a test peer.
 

@@ -264,7 +264,7 @@ class IgtlConfig(_Frozen):
     ``max_other_devices`` other names (first come), so no client can grow the shared session
     without bound by inventing names. A connection that sends nothing for ``idle_timeout_s`` is
     closed; when every one of the ``max_clients`` slots is taken, a new connection takes the slot
-    of one that has sent no whole message in the ``reclaim_after_s`` since it connected (otherwise
+    of one that has sent no well-formed message in the ``reclaim_after_s`` since it connected (otherwise
     the newcomer is refused): idle sockets cannot lock a tracker out (see :mod:`thrsim.io.server`).
     """
 

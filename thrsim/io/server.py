@@ -18,8 +18,8 @@ reply where the stream allows one. Per message:
 
 Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
 STATUS (7, time out) and is closed. When every slot is taken, a newcomer takes the slot of the
-oldest connection that has not sent one whole message in the ``reclaim_after_s`` since it
-connected (that one gets STATUS 7); with none such, the newcomer gets STATUS 6 (busy) and is
+oldest connection that has not sent one well-formed message in the ``reclaim_after_s`` since
+it connected (that one gets STATUS 7); with none such, the newcomer gets STATUS 6 (busy) and is
 closed. So idle sockets cannot lock a tracker out, and a client that has spoken keeps its slot
 until its idle timeout.
 
@@ -78,7 +78,7 @@ class _Connection:
         self.writer = writer
         self.handler_task = asyncio.current_task()
         self.connected_at = asyncio.get_running_loop().time()
-        self.spoke = False  # has sent a whole message: a client, not (yet) an idle socket
+        self.spoke = False  # has sent a well-formed message: a client, not (yet) an idle socket
         self.version = 1
         self.send_lock = asyncio.Lock()
         self.pending: tuple[np.ndarray, float | None] | None = None
@@ -163,6 +163,7 @@ class NavigationServer:
         )  # fmt: skip
         self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors"), 0))
         self._connections: set[_Connection] = set()
+        self._handlers: set[asyncio.Task] = set()  # every connection's task, reclaimed ones included
         self._other_devices: set[str] = set()  # TRANSFORM names beyond config.known_devices, bounded
         self._server: asyncio.Server | None = None
 
@@ -181,7 +182,7 @@ class NavigationServer:
         if self._server is None:
             return
         self._server.close()
-        tasks = [c.handler_task for c in self._connections] + [c.simulator_task for c in self._connections if c.simulator_task]
+        tasks = list(self._handlers) + [c.simulator_task for c in self._connections if c.simulator_task]
         for connection in list(self._connections):
             connection.close()  # the handler's next read sees end of stream and returns
         if tasks:
@@ -196,7 +197,7 @@ class NavigationServer:
 
     def _take_slot(self, connection: _Connection) -> bool:
         """Admit ``connection``; when full, reclaim the slot of the oldest socket that never sent a
-        whole message, if it has had ``reclaim_after_s`` to do so."""
+        well-formed message, if it has had ``reclaim_after_s`` to do so."""
         if len(self._connections) >= self.config.max_clients:
             now = asyncio.get_running_loop().time()
             mute = [c for c in self._connections if not c.spoke and now - c.connected_at >= self.config.reclaim_after_s]
@@ -216,6 +217,7 @@ class NavigationServer:
         connection = _Connection(self, writer)
         if not self._take_slot(connection):
             return
+        self._handlers.add(connection.handler_task)
         try:
             while await self._serve_one(reader, connection):
                 pass
@@ -230,6 +232,7 @@ class NavigationServer:
             connection.say_goodbye(igtl.STATUS_UNKNOWN_ERROR, "InternalError", f"{type(error).__name__}: {error}")
         finally:
             self._connections.discard(connection)
+            self._handlers.discard(connection.handler_task)
             connection.close()
 
     async def _serve_one(self, reader: asyncio.StreamReader, connection: _Connection) -> bool:
@@ -255,7 +258,6 @@ class NavigationServer:
             )
             return False
         body = await asyncio.wait_for(reader.readexactly(header.body_size), timeout)
-        connection.spoke = True
         self.stats["messages"] += 1
         # the whole message is in: the stream is still framed, so whatever goes wrong now is
         # answered with a STATUS and the connection goes on
@@ -268,6 +270,7 @@ class NavigationServer:
                 await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
                 return not error.fatal
             connection.version = message.version
+            connection.spoke = True  # a well-formed, checksummed message: a client, not an idle socket
             await self._dispatch(message, connection)
         except (ConnectionError, asyncio.TimeoutError):
             raise  # the peer is gone or not reading: the connection ends (see _handle)

@@ -1,4 +1,4 @@
-"""Configuration defaults (SPEC §2), unit conversions and validation."""
+"""Configuration: unit conversions, consistent derived constants, settings files and validation."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from thrsim.cli.output import format_validation_error
 from thrsim.config import (
     BoneMaterial,
     BonePatchConfig,
+    IgtlConfig,
     JohnsonCookDamage,
     JohnsonCookHardening,
     LabelConfig,
@@ -18,43 +19,41 @@ from thrsim.config import (
     ReamerConfig,
     ReamingCaseConfig,
     SweepConfig,
-    ThrsimConfig,
+    load_case_config,
 )
+from thrsim.errors import ThrsimInputError
 
 
-def test_spec_defaults():
-    config = ThrsimConfig()
-    bone = config.bone
-    assert (bone.inner_radius_mm, bone.element_size_mm, bone.min_element_size_mm) == (22.0, 0.45, 0.045)
-    assert bone.side == "right" and bone.support_side_faces
-    assert bone.inner_radius == pytest.approx(0.022)
-    assert bone.outer_radius == pytest.approx((22.0 + bone.thickness_mm) * 1e-3)
-    assert bone.half_angle == pytest.approx(math.radians(bone.half_angle_deg))
+def test_millimetres_and_degrees_become_si_once():
+    bone = BonePatchConfig(inner_radius_mm=20.0, thickness_mm=3.0, half_angle_deg=30.0, element_size_mm=0.9)
+    assert (bone.inner_radius, bone.outer_radius, bone.half_angle) == pytest.approx((0.020, 0.023, math.radians(30.0)))
+    assert ReamerConfig(head_diameter_mm=50.0).head_radius == pytest.approx(0.025)
+    assert ReamingCaseConfig(inclination_deg=0, anteversion_deg=0, frame_rate_hz=30.0).frame_dt_s == pytest.approx(1 / 30)
+    assert SweepConfig(frame_rate_hz=120.0).frame_dt_s == pytest.approx(1 / 120)
 
-    material = config.material
-    assert (material.density_kg_m3, material.youngs_modulus_pa, material.poisson_ratio) == (1700.0, 17e9, 0.35)
-    assert material.shear_modulus_pa == pytest.approx(17e9 / 2.7)
-    hardening = config.hardening
-    assert (hardening.a_pa, hardening.b_pa, hardening.n, hardening.c) == (50e6, 101e6, 0.08, 0.03)
-    assert hardening.reference_strain_rate_s == 1e-3
-    damage = config.damage
-    assert (damage.d1, damage.d2, damage.d3, damage.d4) == (-0.09, 0.08, 0.006, 0.0)
-    assert JohnsonCookDamage.TABLE_8_U_F_M == 5e-4 and JohnsonCookDamage.TEXT_U_F_M == 1e-4
 
-    reamer = config.reamer
-    assert (reamer.head_diameter_mm, reamer.tooth_count, reamer.omega_rad_s) == (45.0, 56, 136.0)
-    assert reamer.head_radius == pytest.approx(0.0225)
-    assert (reamer.density_kg_m3, reamer.youngs_modulus_pa, reamer.poisson_ratio) == (7800.0, 200e9, 0.3)
-    assert (config.contact.friction, config.contact.damping_ratio) == (0.3, 0.2)
+@pytest.mark.parametrize(("youngs", "nu", "rho"), [(17e9, 0.35, 1700.0), (200e9, 0.3, 7800.0), (1e6, 0.0, 1000.0)])
+def test_elastic_constants_agree_with_each_other(youngs, nu, rho):
+    material = BoneMaterial(youngs_modulus_pa=youngs, poisson_ratio=nu, density_kg_m3=rho)
+    shear, lame, bulk = material.shear_modulus_pa, material.lame_lambda_pa, material.bulk_modulus_pa
+    assert lame + 2 * shear / 3 == pytest.approx(bulk)  # K = λ + 2G/3
+    assert shear * (3 * lame + 2 * shear) / (lame + shear) == pytest.approx(youngs)  # E from (λ, G)
+    assert material.dilatational_wave_speed_m_s == pytest.approx(math.sqrt((bulk + 4 * shear / 3) / rho))
 
-    sweep = config.sweep
-    assert sweep.inclinations_deg == (0.0, 15.0, 30.0, 45.0)
-    assert sweep.anteversions_deg == tuple(float(a) for a in range(0, 181, 15))
-    assert sweep.frames == 120 and sweep.frame_dt_s == pytest.approx(1 / 60)
-    labels = config.labels
-    assert (labels.mu, labels.tau, labels.von_mises_scale_pa, labels.removed_threshold) == (0.38, 0.42, 1e7, 0.3)
-    assert ReamingCaseConfig(inclination_deg=0, anteversion_deg=0).force_n == 230.0
-    assert config.igtl.port == 18944
+
+def test_a_case_takes_partial_settings_from_a_file_and_flags_override_them(tmp_path):
+    settings = tmp_path / "case.json"
+    settings.write_text('{"bone": {"half_angle_deg": 30, "element_size_mm": 0.9}, "inclination_deg": 15, "anteversion_deg": 30}')
+    case = load_case_config(str(settings), {"bone.element_size_mm": 1.2, "force_n": None, "frames": 5})
+    assert (case.bone.half_angle_deg, case.bone.element_size_mm, case.frames) == (30.0, 1.2, 5)
+    assert case.force_n == ReamingCaseConfig(inclination_deg=15, anteversion_deg=30).force_n  # None: not given
+    assert case.bone.thickness_mm == BonePatchConfig().thickness_mm  # untouched fields keep their defaults
+    for text, message in (("[1, 2]", "must be a JSON object"), ("{oops", "not valid JSON")):
+        settings.write_text(text)
+        with pytest.raises(ThrsimInputError, match=message):
+            load_case_config(str(settings), {})
+    with pytest.raises(ThrsimInputError, match="no such configuration file"):
+        load_case_config(str(tmp_path / "missing.json"), {})
 
 
 def test_jc_damage_initiation_strain_is_negative_for_every_triaxiality():
@@ -99,6 +98,9 @@ def test_reamer_axis(inclination, anteversion, axis):
         (JohnsonCookHardening, {"a_pa": -1}),
         (JohnsonCookDamage, {"displacement_at_failure_m": 0}),
         (LabelConfig, {"removed_threshold": 1.5}),
+        (IgtlConfig, {"known_devices": ("x" * 21,)}),
+        (IgtlConfig, {"known_devices": ("Werkzeug\u00e9",)}),
+        (IgtlConfig, {"idle_timeout_s": 0}),
     ],
 )
 def test_invalid_values_are_refused(model, values):

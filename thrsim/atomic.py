@@ -53,3 +53,29 @@ def fsync_folder(folder: Path) -> None:
         pass  # some file systems do not sync folders; the rename is still atomic
     finally:
         os.close(descriptor)
+
+
+def check_folder_creatable(folder: str | os.PathLike, what: str = "output folder") -> None:
+    """Refuse, before any work, a folder that cannot be used or created as ``mkdir -p`` would.
+
+    ``folder`` may exist (then it must be a writable directory) or be created: each part of its
+    path that exists must be a directory (a file or a dangling symbolic link in the way is
+    refused) and the deepest existing one must be writable. Raises :class:`ThrsimInputError`.
+    """
+    folder = Path(folder)
+    if folder.is_dir():
+        if not os.access(folder, os.W_OK | os.X_OK):
+            raise ThrsimInputError(f"{folder}: {what} is not writable")
+        return
+    probe = folder
+    while True:
+        if os.path.lexists(probe) and not probe.is_dir():
+            kind = "a dangling symbolic link" if probe.is_symlink() and not probe.exists() else "not a directory"
+            raise ThrsimInputError(f"{folder}: cannot create the {what}: {probe} is {kind}")
+        if probe.is_dir():
+            break
+        if probe.parent == probe:
+            break
+        probe = probe.parent
+    if not os.access(probe, os.W_OK | os.X_OK):
+        raise ThrsimInputError(f"{folder}: cannot create the {what}: {probe} is not writable")

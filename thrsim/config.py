@@ -1,4 +1,6 @@
-"""Validated configuration: every default inherited from the source thesis (SPEC §2), with units.
+"""Validated configuration, with units. The defaults are the numbers of the source thesis, "Machine
+Learning and Interactive Real-Time Simulation for Training on Relevant Total Hip Replacement
+Skills" (its section, table or equation in brackets), unless a docstring says why one differs.
 
 Inside, quantities are SI (m, kg, s, N, Pa, rad) unless a field name says otherwise
 (``_mm``, ``_deg``): those are user-facing values, converted once by the properties here.
@@ -201,7 +203,7 @@ class ReamerHoldConfig(_Frozen):
 
 
 class Orientation(_Frozen):
-    """Reamer orientation in the bone frame: D = (sin γ cos θ, sin γ sin θ, −cos γ) (SPEC §3)."""
+    """Reamer orientation in the bone frame: the axis D = (sin γ cos θ, sin γ sin θ, −cos γ) points from the reamer into the bone (−z at γ = 0)."""
 
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
@@ -221,10 +223,18 @@ def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> 
 
 
 class SweepConfig(_Frozen):
-    """Orientation sweep of the training cases [5.3.4]."""
+    """Orientation sweep of the training cases [5.3.4]: the one definition of the sweep's
+    defaults (``thrsim.data.sweep`` and ``thrsim dataset``'s options take theirs from here).
+
+    The full orientation grid runs at ``forces_n``; ``extra_forces_n`` run on the grid's
+    orientations whose anteversion is in ``extra_force_anteversions_deg`` (every inclination).
+    """
 
     inclinations_deg: tuple[float, ...] = (0.0, 15.0, 30.0, 45.0)
     anteversions_deg: tuple[float, ...] = tuple(float(a) for a in range(0, 181, 15))
+    forces_n: tuple[float, ...] = Field((230.0,), description="the thesis's mean push force [5.3.2]")
+    extra_forces_n: tuple[float, ...] = (150.0, 310.0)
+    extra_force_anteversions_deg: tuple[float, ...] = (0.0, 90.0, 180.0)
     frames: int = Field(120, ge=1)
     frame_rate_hz: float = Field(60.0, gt=0)
 
@@ -250,22 +260,6 @@ class LabelConfig(_Frozen):
     tau: float = 0.42
     von_mises_scale_pa: float = Field(1e7, gt=0)
     removed_threshold: float = Field(0.3, gt=0, lt=1)
-
-
-class GraphNetworkConfig(_Frozen):
-    """Encode–process–decode Graph Network sizes [7.3.2–7.3.3] (widths × layers)."""
-
-    message_passing_steps: int = Field(10, ge=1)
-    node_encoder: tuple[int, ...] = (40,)
-    node_core: tuple[int, ...] = (300, 300)
-    edge_encoder: tuple[int, ...] = (20, 20)
-    edge_core: tuple[int, ...] = (30,)
-    global_encoder: tuple[int, ...] = (11, 11)
-    global_core: tuple[int, ...] = (20,)
-    training_graphs: int = 4000
-    validation_graphs: int = 1000
-    epochs: int = Field(350, ge=1)
-    rollout_steps: int = Field(60, ge=1)
 
 
 class SafeZone(_Frozen):
@@ -302,32 +296,38 @@ class TrackingVolumeConfig(_Frozen):
         return self
 
 
+KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference")
+
+
 class IgtlConfig(_Frozen):
-    """OpenIGTLink listener: where it listens and how much it tolerates from a peer."""
+    """OpenIGTLink listener: where it listens and how much it tolerates from a peer.
+
+    Poses are kept per device name: the ``known_devices`` always, and at most
+    ``max_other_devices`` other names (first come), so no client can grow the shared session
+    without bound by inventing names. A connection that sends nothing for ``idle_timeout_s`` is
+    closed; when every one of the ``max_clients`` slots is taken, a new connection takes the slot
+    of one that has sent no well-formed message in the ``reclaim_after_s`` since it connected (otherwise
+    the newcomer is refused): idle sockets cannot lock a tracker out (see :mod:`thrsim.io.server`).
+    """
 
     host: str = "127.0.0.1"
     port: int = Field(18944, ge=0, le=65535, description="0 = any free port (tests)")
     max_body_bytes: int = Field(1 << 20, gt=0)
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
+    idle_timeout_s: float = Field(15.0, gt=0, description="a connection that sends no message for this long is closed")
+    reclaim_after_s: float = Field(1.0, ge=0, description="when all slots are taken, a connection silent this long since connecting gives its slot to a newcomer")
     stale_pose_s: float = Field(0.5, gt=0, description="a pose older than this no longer counts as tracked")
+    known_devices: tuple[str, ...] = Field(KNOWN_TRACKER_DEVICES, description="TRANSFORM device names always accepted")
+    max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")
 
-
-class ThrsimConfig(_Frozen):
-    """All defaults in one object; each part of thrsim reads the section it needs."""
-
-    bone: BonePatchConfig = BonePatchConfig()
-    material: BoneMaterial = BoneMaterial()
-    hardening: JohnsonCookHardening = JohnsonCookHardening()
-    damage: JohnsonCookDamage = JohnsonCookDamage()
-    reamer: ReamerConfig = ReamerConfig()
-    contact: ContactConfig = ContactConfig()
-    sweep: SweepConfig = SweepConfig()
-    labels: LabelConfig = LabelConfig()
-    network: GraphNetworkConfig = GraphNetworkConfig()
-    safe_zone: SafeZone = SafeZone()
-    tracking: TrackingVolumeConfig = TrackingVolumeConfig()
-    igtl: IgtlConfig = IgtlConfig()
+    @field_validator("known_devices")
+    @classmethod
+    def _device_names_fit_the_header(cls, names: tuple[str, ...]) -> tuple[str, ...]:
+        for name in names:
+            if not name or not name.isprintable() or not name.isascii() or len(name) > 20:
+                raise ValueError(f"device name {name!r} must be 1 to 20 printable ASCII characters")
+        return names
 
 
 class SolverConfig(_Frozen):

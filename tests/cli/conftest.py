@@ -1,36 +1,19 @@
-"""Run the installed ``thrsim`` console script as a user would."""
+"""Run this checkout's ``thrsim`` command as a user would (a subprocess), or its entry point in process."""
 
 from __future__ import annotations
 
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-
-
-def _thrsim_command() -> list[str]:
-    beside = Path(sys.executable).with_name("thrsim")  # the interpreter's own script, not a shim
-    if beside.exists():
-        return [str(beside)]
-    found = shutil.which("thrsim")
-    if found:
-        return [found]
-    return [sys.executable, "-c", "from thrsim.cli import main; main()"]
-
-
-THRSIM = _thrsim_command()
+from checkout_cli import run_thrsim
 
 
 @pytest.fixture
 def thrsim():
-    """``thrsim(*args, cwd=...)`` → CompletedProcess with text stdout/stderr."""
-
-    def run(*args: str, cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
-        return subprocess.run([*THRSIM, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout)
-
-    return run
+    """``thrsim(*args, cwd=...)`` → CompletedProcess with text stdout/stderr (this checkout's code)."""
+    return run_thrsim
 
 
 @pytest.fixture

@@ -112,3 +112,17 @@ def test_bad_options(thrsim_inprocess, tmp_path, args, needle):
 def test_bad_option_through_the_console_script(thrsim, tmp_path):
     line = assert_one_line_error(thrsim("mesh", "--element-size", "-1", "--json", cwd=tmp_path), "element_size_mm")
     assert "invalid configuration" in line
+
+
+def test_an_os_error_is_one_line_and_exit_2(thrsim_inprocess, tmp_path, monkeypatch):
+    """Whatever the system refuses on a path (no space, no permission) reaches the user as the documented line."""
+    import errno
+
+    import thrsim.cli.mesh_cmd as mesh_cmd
+
+    def full_disk(mesh, path, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(mesh_cmd, "write_mesh", full_disk)
+    line = assert_one_line_error(thrsim_inprocess("mesh", "--element-size", "1.2", "--out", "m.vtu", cwd=tmp_path), "m.vtu")
+    assert line == "thrsim: error: m.vtu: No space left on device"

@@ -1,4 +1,4 @@
-"""The SPEC §4 case file: layout, round trip, streaming, validation, checksums."""
+"""The case file: layout, round trip, streaming, validation, checksums."""
 
 from __future__ import annotations
 
@@ -110,6 +110,21 @@ def test_synthetic_solver_writes_a_valid_case(tmp_path):
     checked = validate_case(tmp_path / "s.h5")
     assert checked["frames"] == summary["frames"] == 5
     assert checked["removed"] == summary["removed"] > 0
+
+
+def test_synthetic_summary_is_read_from_its_frames(tmp_path):
+    """The stand-in's kinetic ÷ internal is what its energy frames say, and follows the case
+    (a lighter reamer head moves with less kinetic energy), not a constant."""
+    ratios = []
+    for density in (7800.0, 2000.0):
+        config = ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, frames=6, reamer={"density_kg_m3": density})
+        summary = synthetic_run_case(config, tmp_path / f"s{density:g}.h5")
+        case = read_case(tmp_path / f"s{density:g}.h5")
+        names = list(case.frames.energy_names)
+        kinetic, internal = case.frames.energy[1:, names.index("kinetic")], case.frames.energy[1:, names.index("internal")]
+        assert summary["max_kinetic_to_internal"] == pytest.approx(float(np.max(kinetic / internal)))
+        ratios.append(summary["max_kinetic_to_internal"])
+    assert ratios[1] == pytest.approx(ratios[0] * 2000.0 / 7800.0)
 
 
 def _corrupt(path, fn):

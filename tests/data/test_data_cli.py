@@ -12,6 +12,7 @@ from pathlib import Path
 
 import h5py
 import pytest
+from checkout_cli import THRSIM, checkout_env
 
 from thrsim.cli import main
 from thrsim.data.case_file import validate_case
@@ -87,6 +88,48 @@ def test_dataset_bad_input(tmp_path, monkeypatch, capsys, args, message):
     assert not (tmp_path / "ds").exists()
 
 
+@pytest.mark.parametrize("obstacle", ["dangling link", "file"])
+def test_dataset_out_that_cannot_be_created_is_refused_by_dry_run_and_run(tmp_path, monkeypatch, capsys, obstacle):
+    """A fresh clone once held `data` as a link to another machine's folder: `--out data/default`
+    must fail with the one-line error, and `--dry-run` must say so rather than approve the plan."""
+    monkeypatch.chdir(tmp_path)
+    if obstacle == "dangling link":
+        (tmp_path / "data").symlink_to(tmp_path / "elsewhere" / "thrsim-data")
+    else:
+        (tmp_path / "data").write_text("not a folder")
+    for extra in (["--dry-run"], []):
+        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", "data/default", *SMALL, *extra)
+        assert code == 2 and out == "", (extra, err)
+        assert err.startswith("thrsim: error: data/default: cannot create the dataset folder: data is ") and err.count("\n") == 1, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
+
+
+def test_dataset_dry_run_refuses_what_the_run_refuses(tmp_path, monkeypatch, capsys):
+    root = tmp_path / "ds"
+    assert run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--frames", "5", "--dry-run")
+    assert code == 2 and "different configuration" in err
+
+
+@pytest.mark.parametrize("extra", [["--dry-run"], []])
+def test_dataset_solver_is_one_of_thrsims_own_and_no_module_is_imported(tmp_path, monkeypatch, capsys, extra):
+    marker = tmp_path / "imported"
+    (tmp_path / "not_thrsim_solver.py").write_text(f"open({str(marker)!r}, 'w').close()\ndef run(case, out):\n    return {{}}\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    args = [a for a in SMALL if a not in ("--solver", "synthetic")]
+    for solver in ("not_thrsim_solver:run", "os:system", "nope"):
+        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *args, "--solver", solver, *extra)
+        assert code == 2 and out == "" and err == f"thrsim: error: --solver must be one of fem, synthetic, got {solver!r}\n"
+    assert not marker.exists() and not (tmp_path / "ds").exists()
+
+
+def test_dataset_solver_choices_are_the_named_solvers():
+    from thrsim.cli.dataset_cmd import _SOLVER_CHOICES
+    from thrsim.data.generate import SOLVERS
+
+    assert set(_SOLVER_CHOICES) == set(SOLVERS)
+
+
 def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypatch, capsys):
     wider = tmp_path / "wider.json"
     wider.write_text(json.dumps({"bone": {"half_angle_deg": 30.0}, "damage": {"displacement_at_failure_m": 3e-4}}))
@@ -149,10 +192,9 @@ def _children(pid: int) -> list[int]:
 
 def test_kill9_parent_then_resume(tmp_path):
     root = tmp_path / "ds"
-    args = ["thrsim"]
-    cmd = args + ["dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
+    cmd = [*THRSIM, "dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
                   "--extra-forces", "none", "--solver", "synthetic", "--workers", "2", "--json"]
-    env = {**os.environ, "THRSIM_SYNTHETIC_SECONDS_PER_FRAME": "0.4"}
+    env = checkout_env(THRSIM_SYNTHETIC_SECONDS_PER_FRAME="0.4")
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 60
     workers: list[int] = []
@@ -178,7 +220,7 @@ def test_kill9_parent_then_resume(tmp_path):
     assert not alive
     assert len(workers) >= 2, "the pool's worker processes were not seen"
 
-    again = subprocess.run(cmd, env={**os.environ}, capture_output=True, text=True, timeout=90)
+    again = subprocess.run(cmd, env=checkout_env(), capture_output=True, text=True, timeout=90)
     assert again.returncode == 0, again.stderr
     summary = json.loads(again.stdout)
     assert summary["cases"] == 5 and summary["failed"] == 0

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+from checkout_cli import checkout_env
 
 from thrsim.config import BonePatchConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
@@ -106,5 +107,5 @@ def test_meshing_keeps_python_signal_dispositions():
         "except BrokenPipeError:\n"
         "    print('broken pipe raised')\n"
     )
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=checkout_env())
     assert result.returncode == 0 and "broken pipe raised" in result.stdout

@@ -8,12 +8,11 @@ import h5py
 import meshio
 import numpy as np
 import pytest
+from geometry_helpers import CUBE_NODES, CUBE_TETS, orient
 
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import WRITABLE_SUFFIXES, read_mesh, write_mesh
-
-from geometry_helpers import CUBE_NODES, CUBE_TETS, orient
 
 
 @pytest.fixture
@@ -148,3 +147,24 @@ def test_read_refuses_bad_files(tmp_path, name, content, problem):
     with pytest.raises(ThrsimInputError, match=problem) as error:
         read_mesh(path)
     assert str(path) in str(error.value)
+
+
+def test_one_mesh_group_reader_for_mesh_files_and_case_files(tmp_path):
+    """Mesh files and ground-truth case files share the /mesh group; its reader lives beside its writer."""
+    from thrsim.config import ReamingCaseConfig
+    from thrsim.data.case_file import read_case
+    from thrsim.data.synthetic import block_mesh, synthetic_run_case
+    from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
+
+    mesh = block_mesh(n=2)
+    with h5py.File(tmp_path / "m.h5", "w") as f:
+        write_mesh_group(f.create_group("mesh"), mesh)
+    with h5py.File(tmp_path / "m.h5", "r") as f:
+        back = read_mesh_group(f["mesh"])
+    assert np.array_equal(back.nodes, mesh.nodes) and np.array_equal(back.tets, mesh.tets)
+    assert np.array_equal(back.fixed_nodes, mesh.fixed_nodes) and set(back.node_sets) == set(mesh.node_sets)
+    synthetic_run_case(ReamingCaseConfig(inclination_deg=0, anteversion_deg=0, frames=2), tmp_path / "c.h5")
+    with h5py.File(tmp_path / "c.h5", "r") as f:
+        from_group = read_mesh_group(f["mesh"])
+    assert np.array_equal(read_case(tmp_path / "c.h5").mesh.tets, from_group.tets)
+    assert np.array_equal(read_mesh(tmp_path / "c.h5").nodes, from_group.nodes)

@@ -135,3 +135,20 @@ def test_random_bytes_never_raise_anything_but_protocol_errors(data):
         for unpack in (igtl.unpack_transform, igtl.unpack_sensor, igtl.unpack_string, igtl.unpack_status):
             with contextlib.suppress(igtl.IgtlProtocolError):
                 unpack(message.content)
+
+
+def test_device_names_round_trip_as_latin_1_within_20_bytes():
+    for name in ("ReamerToReference", "\u00e9" * 20, "T\u00f6\u00f6l"):
+        raw = igtl.encode_message(igtl.Message("TRANSFORM", name, igtl.pack_transform(np.eye(4))))
+        header = igtl.parse_header(raw[: igtl.HEADER_SIZE])
+        assert header.device_name == name
+        assert raw[14 : 14 + len(name)] == name.encode("latin-1")
+    for bad in ("x" * 21, "\u20ac", "\u00e9" * 21):
+        with pytest.raises(ValueError):
+            igtl.encode_message(igtl.Message("TRANSFORM", bad, b""))
+    # any 20 bytes a peer sends decode to a name that encodes back to the same bytes
+    every_byte = bytes(range(1, 256))
+    for start in range(0, len(every_byte), 20):
+        chunk = every_byte[start : start + 20]
+        header = igtl.HEADER.pack(1, b"STATUS", chunk, 0, 0, igtl.crc64(b""))
+        assert igtl.encode_device_name(igtl.parse_header(header).device_name) == chunk

@@ -1,4 +1,4 @@
-"""APP frame and Murray's cup angles: the issue's 40/15 check on both sides, the NOTES figures,
+"""APP frame and Murray's cup angles: the 40/15 check on both sides, the pitfalls' figures,
 the thesis's eq. 1–2, conversions round-tripping, and one-line errors for bad input."""
 
 from __future__ import annotations
@@ -96,7 +96,7 @@ def test_three_point_plane_equals_standard_for_symmetric_pelvis_and_shifts_for_a
 
 def test_pelvic_tilt_moves_anteversion_when_frame_is_not_the_app():
     # Tilt the pelvis 10° about the lateral axis while the cup stays fixed in the room: measured
-    # in the APP the anteversion changes by about the tilt (NOTES: ~0.75°/° for real cups).
+    # in the APP the anteversion changes by about the tilt (about 0.75° per degree for real cups).
     landmarks = synthetic_pelvis_landmarks("right")
     tilt = Rotation.from_euler("x", 10.0, degrees=True)
     tilted = moved(landmarks, tilt, np.zeros(3))

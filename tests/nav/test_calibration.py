@@ -1,4 +1,4 @@
-"""Frame calibration tracker → headset: robust averaging, residuals, refusals (NOTES figures)."""
+"""Frame calibration tracker → headset: robust averaging, residuals, refusals."""
 
 from __future__ import annotations
 

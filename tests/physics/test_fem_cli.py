@@ -8,6 +8,7 @@ import sys
 
 import numpy as np
 import pytest
+from checkout_cli import run_thrsim
 
 from thrsim.data.case_file import read_case, validate_case
 
@@ -15,7 +16,7 @@ pytestmark = pytest.mark.timeout(300)
 
 
 def thrsim(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "thrsim", *args], capture_output=True, text=True, timeout=280)
+    return run_thrsim(*args, timeout=280)
 
 
 def test_fem_writes_a_valid_case(tmp_path):

@@ -1,7 +1,8 @@
 """The ``thrsim`` command: one typer app, each subcommand in its own module of this package.
 
 Every subcommand module exposes a function that is registered here; errors of the user's
-making (:class:`ThrsimInputError`, pydantic validation) become one line on stderr and exit 2.
+making (:class:`ThrsimInputError`, pydantic validation) and any ``OSError`` the system raises
+on a path (a file in the way, no permission, a full disk) become one line on stderr and exit 2.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
-from thrsim.cli.output import command_group, format_validation_error
+from thrsim.cli.output import command_group, describe_os_error, format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
 app = command_group("Physically-based and learned simulation of acetabular reaming (total hip replacement training).", name="thrsim")
@@ -61,6 +62,9 @@ def main() -> None:
     except SimulationError as error:
         typer.echo(f"thrsim: simulation stopped: {error}", err=True)
         sys.exit(3)
+    except OSError as error:  # a path the system refuses (exists, permission, disk full): still one line
+        typer.echo(f"thrsim: error: {describe_os_error(error)}", err=True)
+        sys.exit(2)
     except KeyboardInterrupt:
         typer.echo("thrsim: interrupted", err=True)
         sys.exit(130)

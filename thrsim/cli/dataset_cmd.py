@@ -3,10 +3,23 @@
 Local runs use a process pool (``--workers N``); ``--scheduler tcp://HOST:PORT`` sends the
 same tasks to a Dask scheduler instead. Start one and its workers with::
 
-    dask scheduler --host 0.0.0.0 --port 8786
-    dask worker tcp://HEAD:8786 --nworkers 4 --nthreads 1    # on each machine
+    dask scheduler --host 127.0.0.1 --port 8786               # or a private interface, see below
+    dask worker tcp://127.0.0.1:8786 --nworkers 4 --nthreads 1
 
 (the output directory must be visible at the same path on every worker).
+
+Security: a Dask scheduler has no authentication of its own, and its tasks are pickled
+functions, so anyone who reaches its port can run code on every worker. Never listen on
+``0.0.0.0`` on a network you do not control. On one machine keep it on loopback
+(``--host 127.0.0.1``); across machines bind it to a private interface that only the cluster
+reaches, or keep it on loopback and reach it through an SSH tunnel
+(``ssh -N -L 8786:127.0.0.1:8786 HEAD``, then ``--scheduler tcp://127.0.0.1:8786``); on a
+shared network use Dask's TLS: ``dask scheduler --protocol tls --tls-ca-file ca.pem --tls-cert
+scheduler.pem --tls-key scheduler.key``, workers with ``tls://HEAD:8786`` and their own
+``--tls-*`` files, and thrsim with ``--scheduler tls://HEAD:8786`` and the client's certificate
+in Dask's configuration (``DASK_DISTRIBUTED__COMM__TLS__CA_FILE``,
+``DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT``, ``DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY``,
+``DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True``).
 """
 
 from __future__ import annotations
@@ -19,38 +32,43 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import command_group, console, err_console, print_json, print_table
+from thrsim.config import SweepConfig
+from thrsim.data.sweep import format_list
 from thrsim.errors import SimulationError, ThrsimInputError
 
 app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
+_SWEEP = SweepConfig()  # the sweep's defaults, defined once in thrsim.config
+_SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without importing it here
 
 
 @app.callback(invoke_without_command=True)
 def dataset(
     ctx: typer.Context,
     out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
-    inclinations: str = typer.Option("0,15,30,45", "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
-    anteversions: str = typer.Option("0:180:15", "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
-    frames: int = typer.Option(120, "--frames", help="output frames per case (60 per simulated second)", metavar="N"),
-    forces: str = typer.Option("230", "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
-    extra_forces: str = typer.Option("150,310", "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
-    extra_force_anteversions: str = typer.Option("0,90,180", "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
+    inclinations: str = typer.Option(format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
+    anteversions: str = typer.Option(format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
+    frames: int = typer.Option(_SWEEP.frames, "--frames", help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second)", metavar="N"),
+    forces: str = typer.Option(format_list(_SWEEP.forces_n), "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
+    extra_forces: str = typer.Option(format_list(_SWEEP.extra_forces_n), "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
+    extra_force_anteversions: str = typer.Option(format_list(_SWEEP.extra_force_anteversions_deg), "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
     element_sizes: Optional[str] = typer.Option(None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"),
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
     scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f", metavar="FILE"),
     threads: Optional[int] = typer.Option(None, "--threads", help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)", metavar="N"),
-    solver: str = typer.Option("fem", "--solver", hidden=True, help="fem, synthetic (pipeline tests) or module:function"),
+    solver: str = typer.Option("fem", "--solver", hidden=True, help=f"one of thrsim's own: {', '.join(_SOLVER_CHOICES)} (synthetic: the pipeline tests' stand-in, not physics)"),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Run the orientation sweep into --out DIR (skips complete cases, redoes the rest).
 
-    Default: γ 0, 15, 30, 45 × θ 0:180:15 at 230 N, plus 150 and 310 N at θ 0, 90, 180;
-    γ = 0 cases that differ only in θ are one physical case and run once. Split by orientation:
-    test θ ∈ {45, 135}, validation θ = 90 (γ > 0), the rest (and γ = 0) train.
+    Default: the grid of --inclinations × --anteversions at --forces, plus --extra-forces at
+    --extra-force-anteversions (the defaults shown below); γ = 0 cases that differ only in θ are
+    one physical case and run once. Split by orientation: test θ ∈ {45, 135}, validation θ = 90
+    (γ > 0), the rest (and γ = 0) train.
     """
     if ctx.invoked_subcommand is not None:
         return
@@ -59,6 +77,8 @@ def dataset(
 
     if out is None:
         raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
+    if solver not in _SOLVER_CHOICES:  # never a module named on the command line
+        raise ThrsimInputError(f"--solver must be one of {', '.join(_SOLVER_CHOICES)}, got {solver!r}")
     if connect_timeout <= 0:
         raise ThrsimInputError(f"--connect-timeout must be positive, got {connect_timeout:g}")
     if workers < 1:
@@ -77,6 +97,9 @@ def dataset(
         element_sizes_mm=sizes,
     )
     if dry_run:
+        from thrsim.data.generate import check_sweep_target
+
+        check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
         rows = [
             {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)}
             for c in plan.cases

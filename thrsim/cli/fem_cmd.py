@@ -32,7 +32,7 @@ def fem(
     mesh_file: Optional[Path] = typer.Option(None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Simulate one reaming case (SPEC §2 defaults) and write its case file atomically."""
+    """Simulate one reaming case (the thesis's settings by default) and write its case file atomically."""
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ThrsimInputError(f"{out}: the case file must end in .h5")
     folder = out.parent if str(out.parent) else Path(".")

@@ -24,7 +24,7 @@ def mesh(
     out: Optional[Path] = typer.Option(None, "--out", help=f"write the mesh ({', '.join(WRITABLE_SUFFIXES)})", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Generate the default bone mesh (SPEC §2, §4) or validate one read --from a file, and summarise it."""
+    """Generate the default bone mesh or validate one read --from a file, and summarise it."""
     if units not in ("mm", "m"):
         raise ThrsimInputError(f"--units must be mm or m, got {units!r}")
     if side not in ("right", "left"):

@@ -51,6 +51,16 @@ def format_validation_error(error: ValidationError) -> str:
     return "invalid configuration: " + "; ".join(parts)
 
 
+def describe_os_error(error: OSError) -> str:
+    """'<file>: <problem>' for an OSError (both files for a rename), on one line."""
+    problem = error.strerror or str(error) or type(error).__name__
+    if error.filename is not None and error.filename2 is not None:
+        return f"{error.filename} -> {error.filename2}: {problem}"
+    if error.filename is not None:
+        return f"{error.filename}: {problem}"
+    return " ".join(problem.split())
+
+
 def command_group(help: str, name: str | None = None, no_args_is_help: bool = True) -> typer.Typer:
     """A typer app with thrsim's conventions: -h/--help, no completion install, no pretty tracebacks."""
     return typer.Typer(

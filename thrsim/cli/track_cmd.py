@@ -6,13 +6,15 @@ import asyncio
 import json
 import signal
 import time
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
 from thrsim.cli.output import console
 from thrsim.config import IgtlConfig
 from thrsim.errors import ThrsimInputError
+
+_DEFAULT = IgtlConfig()
 
 
 def _log_line(event: str, payload: dict, json_log: bool) -> None:
@@ -78,10 +80,19 @@ def track(
     duration: Optional[float] = typer.Option(None, "--duration", help="stop after this many seconds (default: until SIGINT/SIGTERM)", metavar="S"),
     json_log: bool = typer.Option(False, "--json-log", help="log one JSON object per line on stdout instead of rich text"),
     log_interval: float = typer.Option(1.0, "--log-interval", help="seconds between state log lines", metavar="S"),
+    idle_timeout: float = typer.Option(_DEFAULT.idle_timeout_s, "--idle-timeout", help="close a connection that sends nothing for this long", metavar="S"),
+    devices: Optional[List[str]] = typer.Option(None, "--device", help=f"accept TRANSFORMs under this device name too (repeatable; always: {', '.join(_DEFAULT.known_devices)})", metavar="NAME"),
 ) -> None:
-    """Serve tracker poses (TRANSFORM) and force (SENSOR) over OpenIGTLink; reply NavigationState; log state."""
+    """Serve tracker poses (TRANSFORM) and force (SENSOR) over OpenIGTLink; reply NavigationState; log state.
+
+    It listens on 127.0.0.1 by default. The protocol has no authentication or encryption: to
+    reach it from another machine, prefer an SSH tunnel (``ssh -L 18944:127.0.0.1:18944 HOST``)
+    or a private interface over ``--host 0.0.0.0``.
+    """
     if duration is not None and duration <= 0:
         raise ThrsimInputError(f"--duration must be positive, got {duration}")
     if log_interval <= 0:
         raise ThrsimInputError(f"--log-interval must be positive, got {log_interval}")
-    asyncio.run(_serve(IgtlConfig(host=host, port=igtl_port), duration, json_log, log_interval))
+    known = tuple(dict.fromkeys((*_DEFAULT.known_devices, *(devices or ()))))
+    config = IgtlConfig(host=host, port=igtl_port, idle_timeout_s=idle_timeout, known_devices=known)
+    asyncio.run(_serve(config, duration, json_log, log_interval))

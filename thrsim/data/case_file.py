@@ -1,4 +1,4 @@
-"""The ground-truth case file (SPEC §4): one HDF5 file per reaming case.
+"""The ground-truth case file: one HDF5 file per reaming case.
 
 Layout::
 
@@ -42,7 +42,7 @@ from thrsim import __version__
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.geometry.mesh_io import write_mesh_group
+from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
 from thrsim.provenance import config_hash, json_default, package_versions
 
 CASE_FORMAT = "thrsim-case"
@@ -233,12 +233,6 @@ def _open(path: Path) -> h5py.File:
         raise ThrsimInputError(f"{path}: not a readable HDF5 file ({error})") from None
 
 
-def read_mesh_group(f: h5py.File) -> TetMesh:
-    g = f["mesh"]
-    sets = {name: g["node_sets"][name][()] for name in g.get("node_sets", {})}
-    return TetMesh(nodes=g["nodes"][()], tets=g["tets"][()], node_sets=sets, fixed_nodes=g["fixed_nodes"][()])
-
-
 def read_case(path: str | os.PathLike) -> Case:
     """Read a whole case into memory (use :class:`CaseReader` to stream frames instead)."""
     path = Path(path)
@@ -257,7 +251,7 @@ def read_case(path: str | os.PathLike) -> Case:
                 energy_names=_energy_names(g["energy"]),
                 **{name: g[name][()] if name in g else None for name in OPTIONAL_PER_FRAME},
             )
-            return Case(path=path, mesh=read_mesh_group(f), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=_decode_attrs(f.attrs))
+            return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=_decode_attrs(f.attrs))
         except KeyError as error:
             raise ThrsimInputError(f"{path}: missing dataset ({error})") from None
 
@@ -285,7 +279,7 @@ class CaseReader:
     @property
     def mesh(self) -> TetMesh:
         if self._mesh is None:
-            self._mesh = read_mesh_group(self._file)
+            self._mesh = read_mesh_group(self._file["mesh"])
         return self._mesh
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
@@ -353,136 +347,156 @@ _REQUIRED_ATTRS = ("version", "inclination_deg", "anteversion_deg", "force_n", "
 
 
 def validate_case(path: str | os.PathLike) -> dict[str, Any]:
-    """Check a case file against SPEC §4 and physical sense; return a summary or raise ThrsimInputError.
+    """Check a case file's format, then the physical sense of its frames; return a summary or
+    raise ThrsimInputError naming the file and the first problem.
 
-    Refused: wrong format attribute, a missing dataset or attribute, inconsistent shapes, wrong
-    dtypes, non-finite values, time not increasing, status other than 0/1, a removed element
-    that reappears, PEEQ decreasing for an element still active, frame 0 not intact
-    (every element active, no plastic strain).
+    Format (:func:`_check_format`): the format attribute, every required dataset and attribute,
+    consistent shapes, integer dtypes, node indices that exist, finite values, time strictly
+    increasing. History (:func:`_check_history`): status only 0/1, frame 0 intact (every element
+    active, no plastic strain), no negative PEEQ or von Mises stress, a removed element never
+    reappears, PEEQ never decreases for an element still active.
     """
     path = Path(path)
     with _open(path) as f:
-        fmt = f.attrs.get("format")
-        if isinstance(fmt, bytes):
-            fmt = fmt.decode()
-        if fmt != CASE_FORMAT:
-            raise ThrsimInputError(f"{path}: not a thrsim case file (format attribute {fmt!r}, expected {CASE_FORMAT!r})")
-        missing = [name for name in _REQUIRED if name not in f or not isinstance(f[name], h5py.Dataset)]
-        if missing:
-            raise ThrsimInputError(f"{path}: missing dataset /{missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
-        missing_attrs = [a for a in _REQUIRED_ATTRS if a not in f.attrs]
-        if missing_attrs:
-            raise ThrsimInputError(f"{path}: missing attribute {missing_attrs[0]!r}")
-        nodes, tets, fixed = f["mesh/nodes"], f["mesh/tets"], f["mesh/fixed_nodes"]
-        g = f["frames"]
-        if nodes.ndim != 2 or nodes.shape[1] != 3:
-            raise ThrsimInputError(f"{path}: /mesh/nodes has shape {nodes.shape}, expected (N, 3)")
-        if tets.ndim != 2 or tets.shape[1] != 4:
-            raise ThrsimInputError(f"{path}: /mesh/tets has shape {tets.shape}, expected (E, 4)")
-        n_nodes, n_el = nodes.shape[0], tets.shape[0]
-        n_frames = g["time"].shape[0] if g["time"].ndim == 1 else -1
-        if n_frames < 1:
-            raise ThrsimInputError(f"{path}: /frames/time must be a non-empty (T,) array, got shape {g['time'].shape}")
-        expected = {
-            "status": (n_frames, n_el),
-            "peeq": (n_frames, n_el),
-            "von_mises": (n_frames, n_el),
-            "reamer_position": (n_frames, 3),
-            "reamer_axis": (3,),
-        }
-        expected.update({name: (n_frames, *trailing) for name, trailing in OPTIONAL_PER_FRAME.items() if name in g})
-        for name, shape in expected.items():
-            if g[name].shape != shape:
-                raise ThrsimInputError(f"{path}: /frames/{name} has shape {g[name].shape}, expected {shape} (T={n_frames}, E={n_el})")
-        energy = g["energy"]
-        names = _energy_names(energy)
-        if energy.ndim != 2 or energy.shape != (n_frames, len(names)):
-            raise ThrsimInputError(f"{path}: /frames/energy has shape {energy.shape}, expected ({n_frames}, {len(names)}) for names {list(names)}")
-        lacking = [n for n in REQUIRED_ENERGIES if n not in names]
-        if lacking:
-            raise ThrsimInputError(f"{path}: /frames/energy lacks {', '.join(lacking)} (names {list(names)})")
-        for name, kind in (("mesh/tets", "i"), ("mesh/fixed_nodes", "i"), ("frames/status", "u")):
-            if f[name].dtype.kind not in (kind, "u" if kind == "i" else kind):
-                raise ThrsimInputError(f"{path}: /{name} has dtype {f[name].dtype}, expected integers")
-
-        tets_v = tets[()]
-        if n_el and (tets_v.min() < 0 or tets_v.max() >= n_nodes):
-            raise ThrsimInputError(f"{path}: /mesh/tets refers to nodes that do not exist")
-        fixed_v = fixed[()]
-        if len(fixed_v) and (fixed_v.min() < 0 or fixed_v.max() >= n_nodes):
-            raise ThrsimInputError(f"{path}: /mesh/fixed_nodes refers to nodes that do not exist")
-        for name in ("mesh/nodes", "frames/time", "frames/reamer_position", "frames/reamer_axis", "frames/energy") + tuple(
-            f"frames/{name}" for name in OPTIONAL_PER_FRAME if name in g
-        ):
-            values = f[name][()]
-            if not np.isfinite(values).all():
-                raise ThrsimInputError(f"{path}: /{name} holds NaN or infinite values")
-        time = g["time"][()]
-        if n_frames > 1 and not np.all(np.diff(time) > 0):
-            raise ThrsimInputError(f"{path}: /frames/time is not strictly increasing")
-
-        status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
-        prev_status = prev_peeq = None
-        removed_per_frame: list[int] = []
-        peeq_max = 0.0
-        vm_min, vm_max = np.inf, -np.inf
-        for t in range(n_frames):
-            status = status_ds[t]
-            peeq = peeq_ds[t].astype(np.float64)
-            vm = vm_ds[t].astype(np.float64)
-            if not (np.isfinite(peeq).all() and np.isfinite(vm).all()):
-                raise ThrsimInputError(f"{path}: frame {t}: PEEQ or von Mises holds NaN or infinite values")
-            if np.any(status > 1):
-                raise ThrsimInputError(f"{path}: frame {t}: status values other than 0 and 1")
-            if peeq.min(initial=0.0) < 0 or vm.min(initial=0.0) < 0:
-                raise ThrsimInputError(f"{path}: frame {t}: negative PEEQ or von Mises stress")
-            if t == 0:
-                if not np.all(status == 1):
-                    raise ThrsimInputError(f"{path}: frame 0 is not intact ({int((status == 0).sum())} element(s) removed)")
-                if peeq.max(initial=0.0) > 0:
-                    raise ThrsimInputError(f"{path}: frame 0 is not intact (PEEQ up to {peeq.max():.3g})")
-            else:
-                back = (prev_status == 0) & (status == 1)
-                if back.any():
-                    raise ThrsimInputError(
-                        f"{path}: frame {t}: {int(back.sum())} removed element(s) reappear (first: element {int(np.flatnonzero(back)[0])})"
-                    )
-                live = status == 1
-                tol = 1e-6 * np.maximum(1.0, np.abs(prev_peeq))
-                dropped = live & (peeq < prev_peeq - tol)
-                if dropped.any():
-                    first = int(np.flatnonzero(dropped)[0])
-                    raise ThrsimInputError(
-                        f"{path}: frame {t}: PEEQ decreases for {int(dropped.sum())} element(s) (first: element {first}, "
-                        f"{prev_peeq[first]:.6g} -> {peeq[first]:.6g})"
-                    )
-            removed_per_frame.append(int(n_el - int(status.sum())))
-            peeq_max = max(peeq_max, float(peeq.max(initial=0.0)))
-            if n_el:
-                vm_min, vm_max = min(vm_min, float(vm.min())), max(vm_max, float(vm.max()))
-            prev_status, prev_peeq = status, peeq
+        n_nodes, n_el, n_frames, names = _check_format(f, path)
+        history = _check_history(f["frames"], path, n_frames, n_el)
         attrs = _decode_attrs(f.attrs)
-        summary = {
-            "path": str(path),
-            "format": CASE_FORMAT,
-            "version": attrs.get("version"),
-            "frames": int(n_frames),
-            "elements": int(n_el),
-            "nodes": int(n_nodes),
-            "removed": removed_per_frame[-1],
-            "removed_fraction": removed_per_frame[-1] / n_el if n_el else 0.0,
-            "removed_per_frame": removed_per_frame,
-            "peeq_max": peeq_max,
-            "von_mises_min_pa": vm_min if n_el else 0.0,
-            "von_mises_max_pa": vm_max if n_el else 0.0,
-            "energy_names": list(names),
-            "inclination_deg": attrs.get("inclination_deg"),
-            "anteversion_deg": attrs.get("anteversion_deg"),
-            "force_n": attrs.get("force_n"),
-            "config_hash": attrs.get("config_hash"),
-            "thrsim_version": attrs.get("thrsim_version"),
-        }
-        for key in ("end_reason", "perforated_frame", "seconds_per_frame"):
-            if key in attrs:
-                summary[key] = attrs[key]
-        return summary
+    removed_per_frame = history["removed_per_frame"]
+    summary = {
+        "path": str(path),
+        "format": CASE_FORMAT,
+        "version": attrs.get("version"),
+        "frames": int(n_frames),
+        "elements": int(n_el),
+        "nodes": int(n_nodes),
+        "removed": removed_per_frame[-1],
+        "removed_fraction": removed_per_frame[-1] / n_el if n_el else 0.0,
+        "removed_per_frame": removed_per_frame,
+        "peeq_max": history["peeq_max"],
+        "von_mises_min_pa": history["von_mises_min_pa"],
+        "von_mises_max_pa": history["von_mises_max_pa"],
+        "energy_names": list(names),
+        "inclination_deg": attrs.get("inclination_deg"),
+        "anteversion_deg": attrs.get("anteversion_deg"),
+        "force_n": attrs.get("force_n"),
+        "config_hash": attrs.get("config_hash"),
+        "thrsim_version": attrs.get("thrsim_version"),
+    }
+    for key in ("end_reason", "perforated_frame", "seconds_per_frame"):
+        if key in attrs:
+            summary[key] = attrs[key]
+    return summary
+
+
+def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, ...]]:
+    """The file's layout: returns (nodes, elements, frames, energy names) or raises."""
+    fmt = f.attrs.get("format")
+    if isinstance(fmt, bytes):
+        fmt = fmt.decode()
+    if fmt != CASE_FORMAT:
+        raise ThrsimInputError(f"{path}: not a thrsim case file (format attribute {fmt!r}, expected {CASE_FORMAT!r})")
+    missing = [name for name in _REQUIRED if name not in f or not isinstance(f[name], h5py.Dataset)]
+    if missing:
+        raise ThrsimInputError(f"{path}: missing dataset /{missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    missing_attrs = [a for a in _REQUIRED_ATTRS if a not in f.attrs]
+    if missing_attrs:
+        raise ThrsimInputError(f"{path}: missing attribute {missing_attrs[0]!r}")
+    nodes, tets, fixed = f["mesh/nodes"], f["mesh/tets"], f["mesh/fixed_nodes"]
+    g = f["frames"]
+    if nodes.ndim != 2 or nodes.shape[1] != 3:
+        raise ThrsimInputError(f"{path}: /mesh/nodes has shape {nodes.shape}, expected (N, 3)")
+    if tets.ndim != 2 or tets.shape[1] != 4:
+        raise ThrsimInputError(f"{path}: /mesh/tets has shape {tets.shape}, expected (E, 4)")
+    n_nodes, n_el = nodes.shape[0], tets.shape[0]
+    n_frames = g["time"].shape[0] if g["time"].ndim == 1 else -1
+    if n_frames < 1:
+        raise ThrsimInputError(f"{path}: /frames/time must be a non-empty (T,) array, got shape {g['time'].shape}")
+    expected = {
+        "status": (n_frames, n_el),
+        "peeq": (n_frames, n_el),
+        "von_mises": (n_frames, n_el),
+        "reamer_position": (n_frames, 3),
+        "reamer_axis": (3,),
+    }
+    expected.update({name: (n_frames, *trailing) for name, trailing in OPTIONAL_PER_FRAME.items() if name in g})
+    for name, shape in expected.items():
+        if g[name].shape != shape:
+            raise ThrsimInputError(f"{path}: /frames/{name} has shape {g[name].shape}, expected {shape} (T={n_frames}, E={n_el})")
+    energy = g["energy"]
+    names = _energy_names(energy)
+    if energy.ndim != 2 or energy.shape != (n_frames, len(names)):
+        raise ThrsimInputError(f"{path}: /frames/energy has shape {energy.shape}, expected ({n_frames}, {len(names)}) for names {list(names)}")
+    lacking = [n for n in REQUIRED_ENERGIES if n not in names]
+    if lacking:
+        raise ThrsimInputError(f"{path}: /frames/energy lacks {', '.join(lacking)} (names {list(names)})")
+    for name, kind in (("mesh/tets", "i"), ("mesh/fixed_nodes", "i"), ("frames/status", "u")):
+        if f[name].dtype.kind not in (kind, "u" if kind == "i" else kind):
+            raise ThrsimInputError(f"{path}: /{name} has dtype {f[name].dtype}, expected integers")
+
+    tets_v = tets[()]
+    if n_el and (tets_v.min() < 0 or tets_v.max() >= n_nodes):
+        raise ThrsimInputError(f"{path}: /mesh/tets refers to nodes that do not exist")
+    fixed_v = fixed[()]
+    if len(fixed_v) and (fixed_v.min() < 0 or fixed_v.max() >= n_nodes):
+        raise ThrsimInputError(f"{path}: /mesh/fixed_nodes refers to nodes that do not exist")
+    for name in ("mesh/nodes", "frames/time", "frames/reamer_position", "frames/reamer_axis", "frames/energy") + tuple(
+        f"frames/{name}" for name in OPTIONAL_PER_FRAME if name in g
+    ):
+        values = f[name][()]
+        if not np.isfinite(values).all():
+            raise ThrsimInputError(f"{path}: /{name} holds NaN or infinite values")
+    time = g["time"][()]
+    if n_frames > 1 and not np.all(np.diff(time) > 0):
+        raise ThrsimInputError(f"{path}: /frames/time is not strictly increasing")
+    return n_nodes, n_el, n_frames, names
+
+
+def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[str, Any]:
+    """The per-element frames make physical sense, read one frame at a time; returns the
+    removed count per frame, the largest PEEQ and the von Mises range."""
+    status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
+    prev_status = prev_peeq = None
+    removed_per_frame: list[int] = []
+    peeq_max = 0.0
+    vm_min, vm_max = np.inf, -np.inf
+    for t in range(n_frames):
+        status = status_ds[t]
+        peeq = peeq_ds[t].astype(np.float64)
+        vm = vm_ds[t].astype(np.float64)
+        if not (np.isfinite(peeq).all() and np.isfinite(vm).all()):
+            raise ThrsimInputError(f"{path}: frame {t}: PEEQ or von Mises holds NaN or infinite values")
+        if np.any(status > 1):
+            raise ThrsimInputError(f"{path}: frame {t}: status values other than 0 and 1")
+        if peeq.min(initial=0.0) < 0 or vm.min(initial=0.0) < 0:
+            raise ThrsimInputError(f"{path}: frame {t}: negative PEEQ or von Mises stress")
+        if t == 0:
+            if not np.all(status == 1):
+                raise ThrsimInputError(f"{path}: frame 0 is not intact ({int((status == 0).sum())} element(s) removed)")
+            if peeq.max(initial=0.0) > 0:
+                raise ThrsimInputError(f"{path}: frame 0 is not intact (PEEQ up to {peeq.max():.3g})")
+        else:
+            back = (prev_status == 0) & (status == 1)
+            if back.any():
+                raise ThrsimInputError(
+                    f"{path}: frame {t}: {int(back.sum())} removed element(s) reappear (first: element {int(np.flatnonzero(back)[0])})"
+                )
+            live = status == 1
+            tol = 1e-6 * np.maximum(1.0, np.abs(prev_peeq))
+            dropped = live & (peeq < prev_peeq - tol)
+            if dropped.any():
+                first = int(np.flatnonzero(dropped)[0])
+                raise ThrsimInputError(
+                    f"{path}: frame {t}: PEEQ decreases for {int(dropped.sum())} element(s) (first: element {first}, "
+                    f"{prev_peeq[first]:.6g} -> {peeq[first]:.6g})"
+                )
+        removed_per_frame.append(int(n_el - int(status.sum())))
+        peeq_max = max(peeq_max, float(peeq.max(initial=0.0)))
+        if n_el:
+            vm_min, vm_max = min(vm_min, float(vm.min())), max(vm_max, float(vm.max()))
+        prev_status, prev_peeq = status, peeq
+    return {
+        "removed_per_frame": removed_per_frame,
+        "peeq_max": peeq_max,
+        "von_mises_min_pa": vm_min if n_el else 0.0,
+        "von_mises_max_pa": vm_max if n_el else 0.0,
+    }

@@ -3,7 +3,7 @@
 Directory layout::
 
     DIR/manifest.json        written atomically by the coordinating process after every case
-    DIR/cases/<case_id>.h5   one SPEC §4 case file per physical case
+    DIR/cases/<case_id>.h5   one case file (thrsim.data.case_file) per physical case
     DIR/.lock                held (flock) while a run is going on
 
 Safety: a worker runs the solver into ``cases/<case_id>.h5.<random>.part``, validates it
@@ -37,13 +37,13 @@ from pathlib import Path
 from typing import Any
 
 from thrsim import __version__
-from thrsim.atomic import atomic_path, fsync_folder
+from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan, coverage_order
 from thrsim.errors import ThrsimInputError
-from thrsim.provenance import config_hash
+from thrsim.provenance import config_hash, json_default
 
 MANIFEST = "manifest.json"
 MANIFEST_FORMAT = "thrsim-dataset"
@@ -60,13 +60,16 @@ _AXES = ("inclination_deg", "anteversion_deg", "force_n")
 
 
 def resolve_solver(solver: str | Callable) -> Callable:
-    """'fem' (the explicit solver), 'synthetic' (the test stand-in), 'module:function' or a callable."""
+    """'fem' (the explicit solver), 'synthetic' (the test stand-in), a callable (Python callers),
+    or 'thrsim.module:function'; a module outside thrsim is refused before it is imported."""
     if callable(solver):
         return solver
     ref = SOLVERS.get(solver, solver)
     module_name, _, attr = ref.partition(":")
     if not module_name or not attr:
-        raise ThrsimInputError(f"unknown solver {solver!r}: use fem, synthetic or module:function")
+        raise ThrsimInputError(f"unknown solver {solver!r}: use {', '.join(SOLVERS)}")
+    if module_name.split(".")[0] != "thrsim":
+        raise ThrsimInputError(f"solver {solver!r}: only thrsim's own solvers are run by name ({', '.join(SOLVERS)})")
     try:
         module = importlib.import_module(module_name)
         return getattr(module, attr)
@@ -140,7 +143,7 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
         "case_id": spec.case_id,
         "wall_s": wall,
         **_file_record(check, sha, digest),
-        "solver_summary": _json_safe(summary),
+        "solver_summary": json.loads(json.dumps(summary, default=json_default)),
         "worker": f"{socket.gethostname()}:{os.getpid()}",
     }
 
@@ -165,10 +168,6 @@ def _check_matches(check: dict, spec: CaseSpec, path: Path) -> None:
             raise ThrsimInputError(f"{path}: {key} is {got}, expected {want:g} for case {spec.case_id}")
     if check["frames"] > spec.frames + 1:  # frame 0 (intact, before contact) plus at most the frames asked for
         raise ThrsimInputError(f"{path}: {check['frames']} frames, more than the {spec.frames} asked for (+ frame 0)")
-
-
-def _json_safe(value: Any) -> Any:
-    return json.loads(json.dumps(value, default=lambda v: v.tolist() if hasattr(v, "tolist") else str(v)))
 
 
 # ---------------------------------------------------------------- manifest
@@ -326,6 +325,36 @@ def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[
     return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
 
 
+@dataclass(frozen=True)
+class SweepTarget:
+    """What a sweep into a folder is, checked before anything runs: see :func:`check_sweep_target`."""
+
+    template: dict
+    solver: str
+    identity: dict
+    manifest: dict | None  # the folder's manifest, None for a new dataset
+
+
+def check_sweep_target(root: Path, plan: SweepPlan, *, solver: str | Callable = "fem", template_overrides: dict | None = None) -> SweepTarget:
+    """Every refusal a sweep can meet before it runs, without touching ``root``.
+
+    The plan asks one frame count, the solver is known, ``root`` is a dataset of this very
+    configuration (or empty, or absent) and can be created. ``--dry-run`` calls this too, so
+    what it approves, the run accepts.
+    """
+    frames = {c.frames for c in plan.cases}
+    if len(frames) != 1:
+        raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
+    template = template_of(frames.pop(), template_overrides)
+    name = solver_name(solver)
+    identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
+    manifest = check_directory(root, identity)
+    check_folder_creatable(root, "dataset folder")
+    if not callable(solver):
+        resolve_solver(solver)  # an unknown solver is an input error, found before any work
+    return SweepTarget(template, name, identity, manifest)
+
+
 def run_sweep(
     root: str | os.PathLike,
     plan: SweepPlan,
@@ -344,19 +373,12 @@ def run_sweep(
     """Run every case of ``plan`` not already complete in ``root``; return the tally.
 
     Input problems (a different configuration in ``root``, an unreachable scheduler) raise
-    :class:`ThrsimInputError` before anything in ``root`` is touched.
+    :class:`ThrsimInputError` before anything in ``root`` is touched. The steps: check the
+    target (:func:`check_sweep_target`), take the folder's lock, take stock of the cases already
+    there (:meth:`_Sweep.take_stock`), run the rest with retries (:meth:`_Sweep.run`).
     """
     root = Path(root)
-    frames = {c.frames for c in plan.cases}
-    if len(frames) != 1:
-        raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
-    template = template_of(frames.pop(), template_overrides)
-    name = solver_name(solver)
-    identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
-    manifest = check_directory(root, identity)
-    if not callable(solver):
-        resolve_solver(solver)  # an unknown solver is an input error, found before any work
-
+    target = check_sweep_target(root, plan, solver=solver, template_overrides=template_overrides)
     own_executor = executor is None
     if executor is None:
         executor = make_executor(workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s)
@@ -365,112 +387,147 @@ def run_sweep(
     started = time.perf_counter()
     try:
         root.mkdir(parents=True, exist_ok=True)
-        cases_dir = root / CASES_DIR
         with _locked(root):
-            manifest = read_manifest(root) or manifest
-            cases_dir.mkdir(exist_ok=True)
-            if manifest is None:
-                manifest = {
-                    "format": MANIFEST_FORMAT,
-                    "version": MANIFEST_VERSION,
-                    "created": _now(),
-                    "identity": identity,
-                    "identity_hash": config_hash(identity),
-                    "split_rule": split.as_dict(),
-                    "cases": {},
-                }
-            manifest["split_rule"] = split.as_dict()
+            (root / CASES_DIR).mkdir(exist_ok=True)
+            manifest = _open_manifest(read_manifest(root) or target.manifest, target.identity, split)
             manifest.setdefault("runs", []).append({"started": _now(), "executor": executor.description, "threads_per_case": threads, "cases": len(plan.cases)})
-            _clean_stale(cases_dir)
-            result = SweepResult(root=root, total=len(plan.cases), complete=0, skipped=0, adopted=0, executor=executor.description, notes=list(plan.notes))
-            todo: list[CaseSpec] = []
-            done = 0
-            for spec in coverage_order(plan.cases):
-                old = manifest["cases"].get(spec.case_id)
-                entry = {**(old or {}), **_entry(spec, split, name)}
-                entry["attempts"] = (old or {}).get("attempts", 0)
-                found = _existing_complete(root, spec, old)
-                if found is None:
-                    entry["status"] = "pending"
-                    manifest["cases"][spec.case_id] = entry
-                    todo.append(spec)
-                    continue
-                kind, fields = found
-                if kind == "skipped":
-                    entry = {**old, **{k: v for k, v in entry.items() if k in ("params", "split", "file")}}
-                    result.skipped += 1
-                else:
-                    entry.update(fields, status="complete", adopted=True, finished=_now())
-                    result.adopted += 1
-                manifest["cases"][spec.case_id] = entry
-                done += 1
-                if on_event:
-                    on_event(SweepEvent(spec.case_id, kind, done, result.total, entry.get("frames", 0)))
-            write_manifest(root, manifest)
+            _clean_stale(root / CASES_DIR)
+            sweep = _Sweep(root, manifest, SweepResult(root=root, total=len(plan.cases), complete=0, skipped=0, adopted=0, executor=executor.description, notes=list(plan.notes)), on_event)
+            todo = sweep.take_stock(coverage_order(plan.cases, plan.main_forces_n), split, target.solver)
             if on_start:
-                on_start(done, result.total, executor.description)
-
-            attempts: dict[str, int] = {}
-            queue = list(todo)
-            while queue:
-                futures = {}
-                for spec in queue:
-                    attempts[spec.case_id] = attempts.get(spec.case_id, 0) + 1
-                    manifest["cases"][spec.case_id]["attempts"] = manifest["cases"][spec.case_id].get("attempts", 0) + 1
-                    futures[executor.submit(run_one_case, spec.params(), template, str(cases_dir), solver, threads, key=spec.case_id)] = spec
-                write_manifest(root, manifest)
-                retry: list[CaseSpec] = []
-                broken = False
-                for future in executor.as_completed(list(futures)):
-                    spec = futures[future]
-                    entry = manifest["cases"][spec.case_id]
-                    try:
-                        fields = future.result()
-                    except Exception as error:  # noqa: BLE001 - every failure is recorded per case
-                        if is_worker_lost(error):
-                            broken = True
-                            if attempts[spec.case_id] < MAX_ATTEMPTS:
-                                retry.append(spec)
-                                if on_event:
-                                    on_event(SweepEvent(spec.case_id, "retry", done, result.total, message="worker lost"))
-                                continue
-                            message = f"worker died {attempts[spec.case_id]} times running this case"
-                        else:
-                            message = f"{type(error).__name__}: {str(error).strip().splitlines()[0] if str(error).strip() else ''}"
-                        entry.update(status="failed", error=message, finished=_now())
-                        result.failed[spec.case_id] = message
-                        done += 1
-                        write_manifest(root, manifest)
-                        if on_event:
-                            on_event(SweepEvent(spec.case_id, "failed", done, result.total, message=message))
-                        continue
-                    fields.pop("case_id", None)
-                    entry.update(fields, status="complete", finished=_now())
-                    entry.pop("error", None)
-                    entry.pop("adopted", None)
-                    result.complete += 1
-                    result.frames_generated += int(fields["frames"])
-                    done += 1
-                    write_manifest(root, manifest)
-                    if on_event:
-                        on_event(
-                            SweepEvent(
-                                spec.case_id, "complete", done, result.total, int(fields["frames"]), float(fields["wall_s"]),
-                                removed=int(fields["removed"]),
-                                end_reason=str((fields.get("solver_summary") or {}).get("end_reason", "")),
-                            )
-                        )  # fmt: skip
-                if broken:
-                    executor.restart()
-                queue = retry
-            result.wall_s = time.perf_counter() - started
-            manifest["runs"][-1].update(finished=_now(), wall_s=result.wall_s, generated=result.complete, failed=len(result.failed))
+                on_start(sweep.done, sweep.result.total, executor.description)
+            sweep.run(executor, todo, target.template, solver, threads)
+            sweep.result.wall_s = time.perf_counter() - started
+            manifest["runs"][-1].update(finished=_now(), wall_s=sweep.result.wall_s, generated=sweep.result.complete, failed=len(sweep.result.failed))
             write_manifest(root, manifest)
-            _clean_stale(cases_dir)
-            return result
+            _clean_stale(root / CASES_DIR)
+            return sweep.result
     finally:
         if own_executor:
             executor.close(cancel=True)
+
+
+def _open_manifest(manifest: dict | None, identity: dict, split: SplitRule) -> dict:
+    """The folder's manifest, or a new one for this identity; the split rule is this run's."""
+    if manifest is None:
+        manifest = {
+            "format": MANIFEST_FORMAT,
+            "version": MANIFEST_VERSION,
+            "created": _now(),
+            "identity": identity,
+            "identity_hash": config_hash(identity),
+            "cases": {},
+        }
+    manifest["split_rule"] = split.as_dict()
+    return manifest
+
+
+class _Sweep:
+    """One run's bookkeeping: the manifest entries, the tally, the progress events."""
+
+    def __init__(self, root: Path, manifest: dict, result: SweepResult, on_event: Callable[[SweepEvent], None] | None):
+        self.root = root
+        self.manifest = manifest
+        self.result = result
+        self.on_event = on_event
+        self.done = 0
+
+    def emit(self, case_id: str, status: str, **fields: Any) -> None:
+        if self.on_event:
+            self.on_event(SweepEvent(case_id, status, self.done, self.result.total, **fields))
+
+    def save(self) -> None:
+        write_manifest(self.root, self.manifest)
+
+    # ---- adoption: what is already on disk
+
+    def take_stock(self, specs: list[CaseSpec], split: SplitRule, solver: str) -> list[CaseSpec]:
+        """Skip cases whose file matches the manifest, adopt valid files it missed; return the rest."""
+        cases = self.manifest["cases"]
+        todo: list[CaseSpec] = []
+        for spec in specs:
+            old = cases.get(spec.case_id)
+            entry = {**(old or {}), **_entry(spec, split, solver), "attempts": (old or {}).get("attempts", 0)}
+            found = _existing_complete(self.root, spec, old)
+            if found is None:
+                cases[spec.case_id] = {**entry, "status": "pending"}
+                todo.append(spec)
+                continue
+            kind, fields = found
+            if kind == "skipped":
+                entry = {**old, **{k: v for k, v in entry.items() if k in ("params", "split", "file")}}
+                self.result.skipped += 1
+            else:
+                entry.update(fields, status="complete", adopted=True, finished=_now())
+                self.result.adopted += 1
+            cases[spec.case_id] = entry
+            self.done += 1
+            self.emit(spec.case_id, kind, frames=entry.get("frames", 0))
+        self.save()
+        return todo
+
+    # ---- scheduling and retries
+
+    def run(self, executor: Executor, todo: list[CaseSpec], template: dict, solver: str | Callable, threads: int | None) -> None:
+        """Submit every case; a case whose worker died is resubmitted (at most MAX_ATTEMPTS runs)."""
+        attempts: dict[str, int] = {}
+        cases_dir = str(self.root / CASES_DIR)
+        queue = list(todo)
+        while queue:
+            futures = {}
+            for spec in queue:
+                attempts[spec.case_id] = attempts.get(spec.case_id, 0) + 1
+                entry = self.manifest["cases"][spec.case_id]
+                entry["attempts"] = entry.get("attempts", 0) + 1
+                futures[executor.submit(run_one_case, spec.params(), template, cases_dir, solver, threads, key=spec.case_id)] = spec
+            self.save()
+            retry: list[CaseSpec] = []
+            broken = False
+            for future in executor.as_completed(list(futures)):
+                spec = futures[future]
+                try:
+                    fields = future.result()
+                except Exception as error:  # noqa: BLE001 - every failure is recorded per case
+                    broken = broken or is_worker_lost(error)
+                    if is_worker_lost(error) and attempts[spec.case_id] < MAX_ATTEMPTS:
+                        retry.append(spec)
+                        self.emit(spec.case_id, "retry", message="worker lost")
+                    else:
+                        self.failed(spec, error, attempts[spec.case_id])
+                    continue
+                self.completed(spec, fields)
+            if broken:
+                executor.restart()
+            queue = retry
+
+    # ---- progress: the manifest after every case, and an event
+
+    def failed(self, spec: CaseSpec, error: BaseException, attempts: int) -> None:
+        if is_worker_lost(error):
+            message = f"worker died {attempts} times running this case"
+        else:
+            text = str(error).strip()
+            message = f"{type(error).__name__}: {text.splitlines()[0] if text else ''}"
+        self.manifest["cases"][spec.case_id].update(status="failed", error=message, finished=_now())
+        self.result.failed[spec.case_id] = message
+        self.done += 1
+        self.save()
+        self.emit(spec.case_id, "failed", message=message)
+
+    def completed(self, spec: CaseSpec, fields: dict) -> None:
+        fields = {k: v for k, v in fields.items() if k != "case_id"}
+        entry = self.manifest["cases"][spec.case_id]
+        entry.update(fields, status="complete", finished=_now())
+        entry.pop("error", None)
+        entry.pop("adopted", None)
+        self.result.complete += 1
+        self.result.frames_generated += int(fields["frames"])
+        self.done += 1
+        self.save()
+        self.emit(
+            spec.case_id, "complete", frames=int(fields["frames"]), wall_s=float(fields["wall_s"]), removed=int(fields["removed"]),
+            end_reason=str((fields.get("solver_summary") or {}).get("end_reason", "")),
+        )  # fmt: skip
 
 
 def load_dataset(root: str | os.PathLike, split: str | None = None, complete_only: bool = True) -> list[dict]:

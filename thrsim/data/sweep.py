@@ -8,9 +8,9 @@ freely (``0:30:15,45``). Duplicates are dropped.
 every γ = 0 case of one force and element size is one physical case: it is run once, recorded
 with θ = 0, and the anteversions it stands for are listed in the manifest (``aliases``).
 
-Default sweep (SPEC §2 plus issue 4): inclinations 0, 15, 30, 45 × anteversions 0:180:15 at
-230 N (40 physical cases), plus 150 N and 310 N on the anteversions 0, 90, 180 of every
-inclination (10 physical cases each): 60 cases.
+Default sweep (:class:`thrsim.config.SweepConfig`, the one place its numbers are defined):
+inclinations 0, 15, 30, 45 × anteversions 0:180:15 at 230 N (40 physical cases), plus 150 N and
+310 N on the anteversions 0, 90, 180 of every inclination (10 physical cases each): 60 cases.
 
 Default split, by orientation only (all forces and element sizes of one orientation share its
 split, so a test orientation is never seen in training):
@@ -31,11 +31,13 @@ from dataclasses import asdict, dataclass, field
 from thrsim.config import ReamingCaseConfig, SweepConfig
 from thrsim.errors import ThrsimInputError
 
-DEFAULT_INCLINATIONS = SweepConfig().inclinations_deg
-DEFAULT_ANTEVERSIONS = SweepConfig().anteversions_deg
-DEFAULT_FORCE_N = 230.0
-DEFAULT_EXTRA_FORCES_N = (150.0, 310.0)
-DEFAULT_EXTRA_FORCE_ANTEVERSIONS = (0.0, 90.0, 180.0)
+DEFAULTS = SweepConfig()
+DEFAULT_INCLINATIONS = DEFAULTS.inclinations_deg
+DEFAULT_ANTEVERSIONS = DEFAULTS.anteversions_deg
+DEFAULT_FORCES_N = DEFAULTS.forces_n
+DEFAULT_EXTRA_FORCES_N = DEFAULTS.extra_forces_n
+DEFAULT_EXTRA_FORCE_ANTEVERSIONS = DEFAULTS.extra_force_anteversions_deg
+DEFAULT_FRAMES = DEFAULTS.frames
 SPLITS = ("train", "validation", "test")
 
 
@@ -79,6 +81,18 @@ def parse_list(text: str | None, what: str, *, allow_empty: bool = False) -> tup
         else:
             values.append(_number(part, what))
     return tuple(sorted(set(values)))
+
+
+def format_list(values: tuple[float, ...]) -> str:
+    """The inverse of :func:`parse_list`: '0,15,30,45' or, for an even run of five or more, '0:180:15'."""
+    values = tuple(sorted(set(float(v) for v in values)))
+    if not values:
+        return "none"
+    if len(values) >= 5:
+        step = values[1] - values[0]
+        if step > 0 and all(math.isclose(b - a, step, abs_tol=1e-9) for a, b in zip(values, values[1:])):
+            return f"{values[0]:g}:{values[-1]:g}:{step:g}"
+    return ",".join(f"{v:g}" for v in values)
 
 
 def _key(value: float) -> float:
@@ -162,6 +176,7 @@ class SweepPlan:
     cases: list[CaseSpec]
     notes: list[str] = field(default_factory=list)
     requested: int = 0  # grid points before γ = 0 merging
+    main_forces_n: tuple[float, ...] = DEFAULT_FORCES_N  # the forces of the full grid (the rest are extra)
 
     def by_id(self) -> dict[str, CaseSpec]:
         return {c.case_id: c for c in self.cases}
@@ -171,8 +186,8 @@ def plan_sweep(
     inclinations: tuple[float, ...] = DEFAULT_INCLINATIONS,
     anteversions: tuple[float, ...] = DEFAULT_ANTEVERSIONS,
     *,
-    frames: int = 120,
-    force_n: float | tuple[float, ...] = DEFAULT_FORCE_N,
+    frames: int = DEFAULT_FRAMES,
+    force_n: float | tuple[float, ...] = DEFAULT_FORCES_N,
     extra_forces_n: tuple[float, ...] = DEFAULT_EXTRA_FORCES_N,
     extra_force_anteversions: tuple[float, ...] = DEFAULT_EXTRA_FORCE_ANTEVERSIONS,
     element_sizes_mm: tuple[float | None, ...] = (None,),
@@ -234,16 +249,16 @@ def plan_sweep(
         planned.append(spec)
     if not planned:
         raise ThrsimInputError("the sweep has no cases")
-    return SweepPlan(cases=planned, notes=notes, requested=len(wanted) * len(sizes))
+    return SweepPlan(cases=planned, notes=notes, requested=len(wanted) * len(sizes), main_forces_n=tuple(float(f) for f in main_forces))
 
 
-def coverage_order(cases: list[CaseSpec]) -> list[CaseSpec]:
+def coverage_order(cases: list[CaseSpec], main_forces_n: tuple[float, ...] = DEFAULT_FORCES_N) -> list[CaseSpec]:
     """The order cases are run in: a sweep cut short (a session's end, a kill) still covers
     every inclination, the split sets and the force axis, instead of one inclination's row.
 
     Anteversions go in a spread order (0, 180, 90, 45, 135, ...: each next one the furthest
     from those already taken), every inclination within one; the extra-force cases are
-    interleaved evenly with the main-force ones.
+    interleaved evenly with the main-force ones (``main_forces_n``: the plan's).
     """
     thetas = sorted({c.anteversion_deg for c in cases})
     spread: list[float] = []
@@ -255,8 +270,9 @@ def coverage_order(cases: list[CaseSpec]) -> list[CaseSpec]:
     def key(c: CaseSpec) -> tuple:
         return (rank[c.anteversion_deg], c.force_n, c.inclination_deg, c.element_size_mm or 0.0)
 
-    main = sorted((c for c in cases if c.force_n == DEFAULT_FORCE_N), key=key)
-    extra = sorted((c for c in cases if c.force_n != DEFAULT_FORCE_N), key=key)
+    is_main = {_key(f) for f in main_forces_n}
+    main = sorted((c for c in cases if _key(c.force_n) in is_main), key=key)
+    extra = sorted((c for c in cases if _key(c.force_n) not in is_main), key=key)
     position = {id(c): i / len(main) for i, c in enumerate(main)}
     position.update({id(c): (j + 0.5) / len(extra) for j, c in enumerate(extra)})
     return sorted(cases, key=lambda c: position[id(c)])

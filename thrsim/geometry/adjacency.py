@@ -1,7 +1,7 @@
 """Face adjacency of tetrahedra and boundary-surface extraction, built once, vectorised.
 
 Two tets are neighbours when they share a face (three nodes). This is the graph topology of
-the learned simulator (SPEC §2: static, never rebuilt per frame) and the surface the solver
+the learned simulator (static: built once per mesh, never rebuilt per frame) and the surface the solver
 and renderers draw.
 """
 

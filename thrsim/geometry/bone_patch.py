@@ -1,6 +1,6 @@
 """The default acetabular bone: a spherical-shell patch around the cavity pole, meshed by gmsh.
 
-Bone frame (SPEC §3): origin at the centre of the acetabular sphere, +z out of the acetabulum
+Bone frame: origin at the centre of the acetabular sphere, +z out of the acetabulum
 toward the surgeon, the patch around −z. The patch is the shell between the inner (articular)
 sphere and the outer sphere, cut by a cone of the given half-angle about −z, so its side faces
 are conical and meet both spheres at right angles.

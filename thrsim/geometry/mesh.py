@@ -102,7 +102,7 @@ class TetMesh:
         return TetMesh(nodes=nodes, tets=self.tets[:, [0, 2, 1, 3]], node_sets=self.node_sets, fixed_nodes=self.fixed_nodes)
 
     def summary(self) -> dict:
-        """Counts and measures the CLI reports (SPEC §4: elements, nodes, edges, volume_mm3)."""
+        """Counts and measures the CLI reports (elements, nodes, edges, volume_mm3, ...)."""
         report = self.quality()
         lo, hi = self.nodes.min(axis=0), self.nodes.max(axis=0)
         return {

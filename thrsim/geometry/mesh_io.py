@@ -2,7 +2,7 @@
 
 Exchange formats (.vtu, .msh, .inp and anything else meshio reads) carry coordinates in
 millimetres by default (``units``), as CAD and ABAQUS users expect; thrsim's HDF5 layout is SI
-(metres), the same ``/mesh`` group as a ground-truth case file (SPEC §4). Writes go to a
+(metres), the same ``/mesh`` group as a ground-truth case file (:mod:`thrsim.data.case_file`). Writes go to a
 temporary name first and are renamed only when complete.
 """
 
@@ -100,26 +100,29 @@ def _read_h5(path: Path) -> TetMesh:
         with h5py.File(path, "r") as f:
             if "mesh" not in f:
                 raise ThrsimInputError(f"{path}: HDF5 file has no /mesh group")
-            group = f["mesh"]
-            sets = {name: group["node_sets"][name][()] for name in group.get("node_sets", {})}
-            return TetMesh(
-                nodes=group["nodes"][()],
-                tets=group["tets"][()],
-                node_sets=sets,
-                fixed_nodes=group["fixed_nodes"][()] if "fixed_nodes" in group else np.zeros(0, dtype=np.int32),
-            )
+            return read_mesh_group(f["mesh"])
     except (OSError, KeyError) as error:
         raise ThrsimInputError(f"{path}: cannot read HDF5 mesh ({error})") from None
 
 
+# The /mesh group, shared by mesh files and ground-truth case files: its writer and reader.
+
+
 def write_mesh_group(group: h5py.Group, mesh: TetMesh) -> None:
-    """The SPEC §4 ``/mesh`` group (nodes m, tets int32, fixed_nodes int32) plus named node sets."""
+    """The ``/mesh`` group (nodes float64 m, tets int32, fixed_nodes int32) plus named node sets."""
     group.create_dataset("nodes", data=mesh.nodes.astype(np.float64))
     group.create_dataset("tets", data=mesh.tets.astype(np.int32))
     group.create_dataset("fixed_nodes", data=mesh.fixed_nodes.astype(np.int32))
     sets = group.create_group("node_sets")
     for name, ids in mesh.node_sets.items():
         sets.create_dataset(name, data=ids.astype(np.int32))
+
+
+def read_mesh_group(group: h5py.Group) -> TetMesh:
+    """The mesh of a ``/mesh`` group written by :func:`write_mesh_group` (KeyError if a dataset is missing)."""
+    sets = {name: group["node_sets"][name][()] for name in group.get("node_sets", {})}
+    fixed = group["fixed_nodes"][()] if "fixed_nodes" in group else np.zeros(0, dtype=np.int32)
+    return TetMesh(nodes=group["nodes"][()], tets=group["tets"][()], node_sets=sets, fixed_nodes=fixed)
 
 
 def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: dict | None = None) -> Path:

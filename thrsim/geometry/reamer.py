@@ -1,6 +1,6 @@
 """The rigid acetabular reamer: a hemispherical head carrying cutting teeth.
 
-Reamer frame: origin at the centre of the head sphere (the reamer's *position*, SPEC §3),
+Reamer frame: origin at the centre of the head sphere (the reamer's *position*, as in the case files),
 local +z along the axis D, pointing from the reamer into the bone, so the cutting dome is the
 hemisphere z ≥ 0 with its pole at (0, 0, R).
 

@@ -3,7 +3,7 @@
 Why not pyigtl (the PyPI package) on the server side: it does not verify the CRC-64, silently
 drops message types it does not know (STATUS, SENSOR, ...), blocks in ``send_message(wait=True)``
 without a peer, serves one client at a time from a polling thread and installs signal handlers
-(NOTES, Navigation and tracking). A trainer that must stay up through malformed input needs
+(pyigtl 0.3.4). A trainer that must stay up through malformed input needs
 every byte checked and nothing blocking, so the framing lives here and the asyncio server in
 :mod:`thrsim.io.server` uses it; pyigtl stays a test peer.
 
@@ -38,6 +38,7 @@ ENCODING_UTF8 = 106
 STATUS_OK = 1
 STATUS_UNKNOWN_ERROR = 2
 STATUS_BUSY = 6
+STATUS_TIMEOUT = 7
 STATUS_OVERFLOW = 8
 STATUS_CHECKSUM_ERROR = 9
 STATUS_CONFIGURATION_ERROR = 10
@@ -122,6 +123,7 @@ def parse_header(raw: bytes) -> Header:
     if not type_name:
         raise IgtlProtocolError("empty message type", fatal=True)
     # Device names are free text in practice; undecodable bytes must not cost the connection.
+    # latin-1 maps every byte to one character and back (encode_device_name): symmetric.
     device_name = device_raw.split(b"\0", 1)[0].decode("latin-1")
     return Header(version, type_name, device_name, (stamp >> 32) + (stamp & 0xFFFFFFFF) / 2**32, body_size, crc)
 
@@ -165,6 +167,18 @@ def _decode_metadata(index: bytes, values: bytes) -> dict[str, str]:
     return metadata
 
 
+def encode_device_name(name: str) -> bytes:
+    """The header's device field, the inverse of :func:`parse_header`'s decoding: latin-1, one
+    byte per character, so every name read from a peer (any bytes up to 20) goes back unchanged."""
+    try:
+        raw = name.encode("latin-1")
+    except UnicodeEncodeError:
+        raise ValueError(f"device name {name!r} has characters outside latin-1") from None
+    if len(raw) > 20:
+        raise ValueError(f"device name {name!r} is {len(raw)} bytes, more than 20")
+    return raw
+
+
 def encode_message(message: Message) -> bytes:
     """Header + body; version-2 messages carry the extended header and the metadata."""
     if message.version == 2:
@@ -180,9 +194,9 @@ def encode_message(message: Message) -> bytes:
         body = message.content
     else:
         raise ValueError(f"cannot encode header version {message.version}")
-    device = message.device_name.encode("utf-8")
-    if len(device) > 20 or len(message.type_name) > 12:
-        raise ValueError(f"type {message.type_name!r} or device {message.device_name!r} too long (12 / 20 bytes)")
+    device = encode_device_name(message.device_name)
+    if len(message.type_name) > 12:
+        raise ValueError(f"type {message.type_name!r} too long (12 bytes)")
     header = HEADER.pack(
         message.version,
         message.type_name.encode("ascii"),

@@ -1,7 +1,8 @@
 """Asyncio OpenIGTLink server: tracker poses and force in, NavigationState out.
 
 Each connection has its own task, so a stalled or hostile peer only ever costs its own
-connection. Per message:
+connection: any error while serving it (ours included) ends at that connection, with a STATUS
+reply where the stream allows one. Per message:
 
 * TRANSFORM (``ReamerToReference``, ``ReferenceToTracker``, ...; translation in mm) and SENSOR
   (force in N) update the shared :class:`~thrsim.nav.session.NavigationSession`, and the sender
@@ -9,9 +10,18 @@ connection. Per message:
 * a bad CRC-64 or unusable content gets a STATUS reply (code 9 checksum error, 10
   configuration error) and the connection goes on: its framing is intact;
 * a well-formed message of a type the trainer does not use is counted and ignored;
+* a TRANSFORM under a device name beyond the known ones and ``max_other_devices`` others gets a
+  STATUS reply (10) and is not stored: the shared session stays bounded;
 * an unsupported header version, a non-ASCII type, a body above ``max_body_bytes`` or a message
   that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
   where possible, then that connection (only) is closed.
+
+Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
+STATUS (7, time out) and is closed. When every slot is taken, a newcomer takes the slot of the
+oldest connection that has not sent one well-formed message in the ``reclaim_after_s`` since
+it connected (that one gets STATUS 7); with none such, the newcomer gets STATUS 6 (busy) and is
+closed. So idle sockets cannot lock a tracker out, and a client that has spoken keeps its slot
+until its idle timeout.
 
 Large bodies are checksummed in a worker thread and the simulator hook runs in a worker thread,
 so the event loop never waits on computation.
@@ -25,6 +35,7 @@ back to that client as a TRANSFORM named ``SimReamerToReference``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import time
@@ -66,6 +77,8 @@ class _Connection:
         self.server = server
         self.writer = writer
         self.handler_task = asyncio.current_task()
+        self.connected_at = asyncio.get_running_loop().time()
+        self.spoke = False  # has sent a well-formed message: a client, not (yet) an idle socket
         self.version = 1
         self.send_lock = asyncio.Lock()
         self.pending: tuple[np.ndarray, float | None] | None = None
@@ -91,6 +104,14 @@ class _Connection:
 
     async def send_status(self, code: int, name: str, text: str, device: str = "") -> None:
         await self.send("STATUS", device, igtl.pack_status(code, name, text[:200]))
+
+    def say_goodbye(self, code: int, name: str, text: str) -> None:
+        """A last STATUS, without waiting on a peer that may not read, then close (the transport
+        flushes what it can)."""
+        if not self.writer.is_closing():
+            with contextlib.suppress(Exception):
+                self.writer.write(igtl.encode_message(igtl.Message("STATUS", "", igtl.pack_status(code, name, text[:200]), version=self.version)))
+        self.close()
 
     def offer_to_simulator(self, pose: np.ndarray, force_n: float | None) -> None:
         self.pending = (pose, force_n)
@@ -140,7 +161,10 @@ class NavigationServer:
              "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts", "simulator_errors"),
             0,
         )  # fmt: skip
+        self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors"), 0))
         self._connections: set[_Connection] = set()
+        self._handlers: set[asyncio.Task] = set()  # every connection's task, reclaimed ones included
+        self._other_devices: set[str] = set()  # TRANSFORM names beyond config.known_devices, bounded
         self._server: asyncio.Server | None = None
 
     @property
@@ -158,7 +182,7 @@ class NavigationServer:
         if self._server is None:
             return
         self._server.close()
-        tasks = [c.handler_task for c in self._connections] + [c.simulator_task for c in self._connections if c.simulator_task]
+        tasks = list(self._handlers) + [c.simulator_task for c in self._connections if c.simulator_task]
         for connection in list(self._connections):
             connection.close()  # the handler's next read sees end of stream and returns
         if tasks:
@@ -171,14 +195,29 @@ class NavigationServer:
         """Navigation state, client count and counters, for logs."""
         return {"state": self.session.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
 
-    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        connection = _Connection(self, writer)
+    def _take_slot(self, connection: _Connection) -> bool:
+        """Admit ``connection``; when full, reclaim the slot of the oldest socket that never sent a
+        well-formed message, if it has had ``reclaim_after_s`` to do so."""
         if len(self._connections) >= self.config.max_clients:
-            self.stats["rejected_connections"] += 1
-            writer.close()
-            return
+            now = asyncio.get_running_loop().time()
+            mute = [c for c in self._connections if not c.spoke and now - c.connected_at >= self.config.reclaim_after_s]
+            if not mute:
+                self.stats["rejected_connections"] += 1
+                connection.say_goodbye(igtl.STATUS_BUSY, "ServerFull", f"all {self.config.max_clients} client slots are in use")
+                return False
+            oldest = min(mute, key=lambda c: c.connected_at)
+            self._connections.discard(oldest)
+            self.stats["reclaimed_slots"] += 1
+            oldest.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", "no message since connecting while every client slot was wanted")
         self._connections.add(connection)
         self.stats["connections"] += 1
+        return True
+
+    async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        connection = _Connection(self, writer)
+        if not self._take_slot(connection):
+            return
+        self._handlers.add(connection.handler_task)
         try:
             while await self._serve_one(reader, connection):
                 pass
@@ -186,14 +225,25 @@ class NavigationServer:
             pass  # peer went away, possibly mid-message
         except asyncio.TimeoutError:
             self.stats["timeouts"] += 1
+            connection.say_goodbye(igtl.STATUS_TIMEOUT, "Timeout", f"a message or a reply took longer than {self.config.io_timeout_s:g} s")
+        except Exception as error:  # a bug of ours or a peer we did not foresee: this connection only
+            self.stats["internal_errors"] += 1
+            log.exception("OpenIGTLink connection failed")
+            connection.say_goodbye(igtl.STATUS_UNKNOWN_ERROR, "InternalError", f"{type(error).__name__}: {error}")
         finally:
             self._connections.discard(connection)
+            self._handlers.discard(connection.handler_task)
             connection.close()
 
     async def _serve_one(self, reader: asyncio.StreamReader, connection: _Connection) -> bool:
         """Read and act on one message; False when the connection must close."""
         timeout = self.config.io_timeout_s
-        first = await reader.readexactly(1)  # an idle client may wait as long as it likes
+        try:
+            first = await asyncio.wait_for(reader.readexactly(1), self.config.idle_timeout_s)
+        except asyncio.TimeoutError:
+            self.stats["idle_timeouts"] += 1
+            connection.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", f"no message for {self.config.idle_timeout_s:g} s")
+            return False
         raw = first + await asyncio.wait_for(reader.readexactly(igtl.HEADER_SIZE - 1), timeout)
         try:
             header = igtl.parse_header(raw)
@@ -209,22 +259,50 @@ class NavigationServer:
             return False
         body = await asyncio.wait_for(reader.readexactly(header.body_size), timeout)
         self.stats["messages"] += 1
-        crc = await asyncio.to_thread(igtl.crc64, body) if len(body) > _CRC_IN_THREAD_BYTES else igtl.crc64(body)
+        # the whole message is in: the stream is still framed, so whatever goes wrong now is
+        # answered with a STATUS and the connection goes on
         try:
-            message = igtl.decode_body(header, body, crc)
-        except igtl.IgtlProtocolError as error:
-            self.stats["bad_crc" if error.status_code == igtl.STATUS_CHECKSUM_ERROR else "bad_content"] += 1
-            await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
-            return not error.fatal
-        connection.version = message.version
-        await self._dispatch(message, connection)
+            crc = await asyncio.to_thread(igtl.crc64, body) if len(body) > _CRC_IN_THREAD_BYTES else igtl.crc64(body)
+            try:
+                message = igtl.decode_body(header, body, crc)
+            except igtl.IgtlProtocolError as error:
+                self.stats["bad_crc" if error.status_code == igtl.STATUS_CHECKSUM_ERROR else "bad_content"] += 1
+                await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
+                return not error.fatal
+            connection.version = message.version
+            connection.spoke = True  # a well-formed, checksummed message: a client, not an idle socket
+            await self._dispatch(message, connection)
+        except (ConnectionError, asyncio.TimeoutError):
+            raise  # the peer is gone or not reading: the connection ends (see _handle)
+        except Exception as error:  # noqa: BLE001 - one message's failure is that message's STATUS
+            self.stats["internal_errors"] += 1
+            log.exception("serving a %s message failed", header.type_name)
+            await connection.send_status(igtl.STATUS_UNKNOWN_ERROR, "InternalError", f"{type(error).__name__}: {error}", header.device_name)
         return True
+
+    def _device_accepted(self, device: str) -> bool:
+        """A known device, one of the other names already taken, or a new one while there is room."""
+        if device in self.config.known_devices or device in self._other_devices:
+            return True
+        if len(self._other_devices) < self.config.max_other_devices:
+            self._other_devices.add(device)
+            return True
+        return False
 
     async def _dispatch(self, message: igtl.Message, connection: _Connection) -> None:
         now = self.clock()
         try:
             if message.type_name == "TRANSFORM":
-                self.session.update_pose(message.device_name, igtl.unpack_transform(message.content), now)
+                pose = igtl.unpack_transform(message.content)
+                if not self._device_accepted(message.device_name):
+                    self.stats["unknown_devices"] += 1
+                    await connection.send_status(
+                        igtl.STATUS_CONFIGURATION_ERROR, "UnknownDevice",
+                        f"device {message.device_name!r} is not one of {', '.join(self.config.known_devices)} and the "
+                        f"{self.config.max_other_devices} other name(s) allowed are taken; pose ignored", message.device_name,
+                    )  # fmt: skip
+                    return
+                self.session.update_pose(message.device_name, pose, now)
                 self.stats["transforms"] += 1
             elif message.type_name == "SENSOR":
                 values, unit = igtl.unpack_sensor(message.content)

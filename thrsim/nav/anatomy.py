@@ -12,7 +12,7 @@ The APP frame of one hip has axes (lateral, anterior, inferior):
 * anterior: normal of the APP, out of the body.
 
 In that frame the cup axis ``a`` (pointing out of the acetabulum) gives Murray's angles
-(NOTES, Navigation and tracking):
+(Murray, "The definition and measurement of acetabular orientation", JBJS Br 1993):
 
 * radiographic: RI = atan2(a_lat, a_inf), RA = asin(a_ant)  — the thesis's eq. 1–2 (projected
   vector normalised; not normalising gives the anatomic inclination instead);
@@ -217,7 +217,7 @@ def cup_angles(
     """Cup (or reamer) inclination and anteversion in degrees, in the standard APP.
 
     ``axis``: unit 3-vector, the cup axis pointing out of the acetabulum (the reamer axis D of
-    SPEC §3 points into the bone: pass −D). ``landmarks``: mapping with ``asis_right``,
+    the case files points into the bone: pass −D). ``landmarks``: mapping with ``asis_right``,
     ``asis_left``, ``pubic_right``, ``pubic_left`` (3-vectors, any consistent unit, same frame
     as ``axis``). Raises :class:`ThrsimInputError` with a one-line reason on bad input.
     """

@@ -1,6 +1,6 @@
 """Navigation state from streamed tracker poses and force readings (pure; the server feeds it).
 
-Device names follow SPEC §3: ``ReamerToReference`` (reamer in the pelvic reference frame),
+Device names: ``ReamerToReference`` (reamer in the pelvic reference frame),
 ``ReferenceToTracker`` and ``ReamerToTracker`` (both in the camera frame), ``ProbeToReference``.
 The reamer's tool frame has its local −z along the reamer axis D (from the reamer into the
 bone), so the cup axis out of the acetabulum is the tool's local +z. Landmarks are in the

@@ -62,6 +62,8 @@ class LiveSession:
         control = self.mode.parse_control(message)
         now = self.elapsed()
         self.inputs.control(now, control.model_dump())
+        if control.type == "end_session":  # the app's to act on: it saves this session
+            return control, "session ending"
         return control, self.trainer.apply_control(control, now)
 
     def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:

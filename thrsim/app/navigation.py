@@ -62,9 +62,9 @@ _TRACKER_NOISE_M = 0.25e-3
 CALIBRATION_SAMPLES = 60
 # The image target both the tracker and the display observe, on the drape beside the pelvis.
 _CALIBRATION_TARGET_MODEL = np.array([0.0, 0.12, -0.02])
-# A surgeon's forearm: a box held over the operated hip, on the camera side.
-_OCCLUDER_HALF_SIZE = np.array([0.05, 0.05, 0.05])
-_OCCLUDER_STANDOFF_M = 0.35
+# A surgeon's arm and shoulder: a box between the camera and the tools, on the camera side.
+_OCCLUDER_HALF_SIZE = np.array([0.1, 0.1, 0.1])
+_OCCLUDER_STANDOFF_M = 0.45
 
 
 def _spherical(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
@@ -199,8 +199,8 @@ class NavigationTrainer:
         if not self.occluder:
             return []
         camera = self.camera_pose[:3, 3]
-        hip = transform_points(self.model_to_reference, self.acetabulum_model[None])[0]
-        centre = hip + _OCCLUDER_STANDOFF_M * (camera - hip) / np.linalg.norm(camera - hip)
+        field_centre = np.mean([held.pose[:3, 3] for held in self.tools.values()], axis=0)
+        centre = field_centre + _OCCLUDER_STANDOFF_M * (camera - field_centre) / np.linalg.norm(camera - field_centre)
         return [Box(centre - _OCCLUDER_HALF_SIZE, centre + _OCCLUDER_HALF_SIZE)]
 
     def _set_page_reamer(self, time_s: float) -> None:

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
-import os
+import signal
 import socket
 from pathlib import Path
 from typing import Optional
@@ -11,6 +12,23 @@ from typing import Optional
 import typer
 
 from thrsim.errors import ThrsimInputError
+
+
+def _uvicorn_server(config):
+    import uvicorn
+
+    class _Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self):
+            # Ctrl-C or SIGTERM: shut down (saving live sessions) and exit 0, not re-raise the signal.
+            previous = {signum: signal.signal(signum, self.handle_exit) for signum in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                yield
+            finally:
+                for signum, handler in previous.items():
+                    signal.signal(signum, handler)
+
+    return _Server(config)
 
 
 def serve(
@@ -40,6 +58,7 @@ def serve(
         listener = socket.socket(family, socket.SOCK_STREAM)
         listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         listener.bind((host, port))
+        listener.listen(128)  # connections wait in the backlog until the app has started
     except OSError as error:
         raise ThrsimInputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
     if igtl_port != 0:
@@ -59,7 +78,6 @@ def serve(
     )
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     config = uvicorn.Config(app, log_level="warning", ws_max_size=64 * 1024, ws_ping_interval=20, ws_ping_timeout=20, lifespan="on")
-    server = uvicorn.Server(config)
-    server.run(sockets=[listener])
+    _uvicorn_server(config).run(sockets=[listener])
     if not getattr(app.state, "ready", False):
         raise ThrsimInputError(getattr(app.state, "startup_error", "the trainer did not start"))

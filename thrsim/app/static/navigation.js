@@ -76,6 +76,8 @@ function receive(message) {
     stats.states += 1;
     stats.last = message;
     state = message;
+    const look = JSON.stringify([message.tools, message.camera, message.zone, message.registration, message.occluder]);
+    if (look !== lastLook) { lastLook = look; dirty = true; }
     view.apply(message);
     if (!stats.framed) frameView();
     showState(message);
@@ -161,7 +163,9 @@ function showState(s) {
     cal.state === "done" ? `residual ${cal.result.rotation_residual_rms_deg.toFixed(2)}° / ${cal.result.translation_residual_rms_mm.toFixed(1)} mm (${cal.result.used} samples)` :
     cal.state === "refused" ? `refused: ${cal.message}` : "not calibrated";
   if (document.activeElement !== $("definition")) $("definition").value = s.definition;
-  if (s.camera.source === "page" && !draggingCamera) {
+  // Follow the server's camera (another viewer may move it), but not over this viewer's own
+  // recent edits that the server has not applied yet.
+  if (s.camera.source === "page" && !draggingCamera && performance.now() - lastCameraEdit > 1000) {
     camera = { azimuth_deg: s.camera.azimuth_deg, elevation_deg: s.camera.elevation_deg, distance_mm: s.camera.distance_mm };
     $("cam-azimuth").value = camera.azimuth_deg;
     $("cam-elevation").value = camera.elevation_deg;
@@ -182,7 +186,8 @@ function frameView() {
 // ---- controls ---------------------------------------------------------------------------------
 
 let draggingCamera = false;
-function sendCamera() { send({ type: "camera", ...camera }); }
+let lastCameraEdit = -Infinity;
+function sendCamera() { lastCameraEdit = performance.now(); send({ type: "camera", ...camera }); }
 for (const [id, key] of [["cam-azimuth", "azimuth_deg"], ["cam-elevation", "elevation_deg"], ["cam-distance", "distance_mm"]]) {
   const input = $(id);
   input.addEventListener("pointerdown", () => { draggingCamera = true; });
@@ -213,7 +218,7 @@ $("calibrate").addEventListener("click", () => { sendViewer(); send({ type: "cal
 $("end").addEventListener("click", () => send({ type: "end_session" }));
 $("definition").addEventListener("change", (e) => send({ type: "definition", value: e.target.value }));
 $("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
-$("show-volume").addEventListener("change", (e) => view.setVolumeVisible(e.target.checked));
+$("show-volume").addEventListener("change", (e) => { view.setVolumeVisible(e.target.checked); dirty = true; });
 $("occluder").addEventListener("change", (e) => send({ type: "occluder", present: e.target.checked }));
 $("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
 $("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
@@ -247,7 +252,7 @@ document.addEventListener("keydown", (e) => {
     ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
     "[": () => { camera.azimuth_deg = ((camera.azimuth_deg - 5 + 540) % 360) - 180; sendCamera(); },
     "]": () => { camera.azimuth_deg = ((camera.azimuth_deg + 5 + 540) % 360) - 180; sendCamera(); },
-    v: () => { $("show-volume").checked = !$("show-volume").checked; view.setVolumeVisible($("show-volume").checked); },
+    v: () => { $("show-volume").checked = !$("show-volume").checked; view.setVolumeVisible($("show-volume").checked); dirty = true; },
     o: () => send({ type: "occluder", present: !$("occluder").checked }),
     c: () => $("calibrate").click(),
     h: () => $("help").classList.toggle("hidden"),
@@ -255,10 +260,23 @@ document.addEventListener("keydown", (e) => {
   if (handled) { e.preventDefault(); handled(); }
 });
 
-function frame() {
-  stats.frames += 1;
-  view.animate();
-  view.render();
+// Draw only when something changed (a new pose, the view moved) or for the target's pulse
+// (~12 Hz): a browser on a busy machine then leaves the CPU to the server. ?continuous=1 draws
+// every frame (to measure drawing speed).
+const continuous = new URLSearchParams(location.search).has("continuous");
+let dirty = true;
+let lastLook = "";
+let lastPulse = 0;
+orbit.addEventListener("change", () => { dirty = true; });
+window.addEventListener("resize", () => { dirty = true; });
+function frame(now) {
+  if (continuous || dirty || now - lastPulse > 80) {
+    if (now - lastPulse > 80) lastPulse = now;
+    dirty = false;
+    stats.frames += 1;
+    view.animate();
+    view.render();
+  }
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);

@@ -177,8 +177,8 @@ function showState(s) {
 function frameView() {
   stats.framed = true;
   // Beside the table, above the hip, looking between the hip and the IR camera: both in view.
-  const focus = view.focus.clone().lerp(view.irCameraPosition(), 0.25);
-  view.camera.position.set(focus.x + 1.2, focus.y + 0.55, focus.z + 0.75);
+  const focus = view.focus.clone().lerp(view.irCameraPosition(), 0.12);
+  view.camera.position.set(focus.x + 0.75, focus.y + 0.4, focus.z + 0.5);
   orbit.target.copy(focus);
   orbit.update();
 }

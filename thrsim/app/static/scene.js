@@ -4,7 +4,7 @@
 // used as three.js's world as it is: the patient lies supine, anterior is up (three.js's +y).
 import * as THREE from "three";
 
-const BONE = new THREE.MeshStandardMaterial({ color: 0xe6d8b8, roughness: 0.8, side: THREE.DoubleSide });
+const BONE = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.DoubleSide });
 const GREEN = 0x00c850, RED = 0xdc1e1e, AMBER = 0xffb000, GREY = 0x888888, YELLOW = 0xffe14d;
 export const ZONE_COLOURS = { green: GREEN, amber: AMBER, red: RED };
 
@@ -38,7 +38,7 @@ function fan(centre, loop, material = BONE) {
 function hemisphereCup(centre, axis, radius) {
   // The acetabulum: a hemispherical socket opening along `axis`.
   const geometry = new THREE.SphereGeometry(radius, 24, 12, 0, Math.PI * 2, 0, Math.PI / 2);
-  const cup = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: 0xc9b48a, roughness: 0.9, side: THREE.DoubleSide }));
+  const cup = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide }));
   cup.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), v(axis).negate().normalize());
   cup.position.copy(v(centre));
   return cup;
@@ -77,13 +77,13 @@ function markerArray(markers, radius = 0.0065) {
   const group = new THREE.Group();
   const materials = [];
   for (const m of markers) {
-    const material = new THREE.MeshStandardMaterial({ color: GREEN, emissive: 0x000000 });
+    const material = new THREE.MeshLambertMaterial({ color: GREEN, emissive: 0x000000 });
     const ball = new THREE.Mesh(new THREE.SphereGeometry(radius, 16, 12), material);
     ball.position.copy(v(m));
     group.add(ball);
     materials.push(material);
   }
-  const plate = new THREE.Mesh(new THREE.BoxGeometry(0.07, 0.1, 0.004), new THREE.MeshStandardMaterial({ color: 0x505a66 }));
+  const plate = new THREE.Mesh(new THREE.BoxGeometry(0.07, 0.1, 0.004), new THREE.MeshLambertMaterial({ color: 0x505a66 }));
   plate.position.set(0, 0, -0.004);
   group.add(plate);
   return { group, materials };
@@ -92,7 +92,7 @@ function markerArray(markers, radius = 0.0065) {
 function rod(from, to, radius, color) {
   const a = v(from), b = v(to);
   const length = a.distanceTo(b);
-  const mesh = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius, length, 10), new THREE.MeshStandardMaterial({ color }));
+  const mesh = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius, length, 10), new THREE.MeshLambertMaterial({ color }));
   mesh.position.copy(a.clone().add(b).multiplyScalar(0.5));
   mesh.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), b.clone().sub(a).normalize());
   return mesh;
@@ -110,7 +110,7 @@ function buildTool(name, scene) {
     const radius = scene.reamer_head_diameter_m / 2;
     const head = new THREE.Mesh(
       new THREE.SphereGeometry(radius, 24, 12, 0, Math.PI * 2, 0, Math.PI / 2),
-      new THREE.MeshStandardMaterial({ color: 0xc0c6cc, metalness: 0.6, roughness: 0.35, side: THREE.DoubleSide }),
+      new THREE.MeshLambertMaterial({ color: 0xc0c6cc, side: THREE.DoubleSide }),
     );
     head.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, -1)); // dome into the bone (−z)
     head.position.copy(v(tip));
@@ -129,10 +129,10 @@ function buildCamera(volume) {
   // Camera frame: +z along the view, x right, y down; the volume is a truncated pyramid.
   const group = new THREE.Group();
   group.matrixAutoUpdate = false;
-  const body = new THREE.Mesh(new THREE.BoxGeometry(0.5, 0.07, 0.08), new THREE.MeshStandardMaterial({ color: 0x30363d }));
+  const body = new THREE.Mesh(new THREE.BoxGeometry(0.5, 0.07, 0.08), new THREE.MeshLambertMaterial({ color: 0x30363d }));
   group.add(body);
   for (const x of [-0.22, 0.22]) {
-    const lens = new THREE.Mesh(new THREE.CylinderGeometry(0.03, 0.03, 0.02, 20), new THREE.MeshStandardMaterial({ color: 0x7030a0, emissive: 0x300050 }));
+    const lens = new THREE.Mesh(new THREE.CylinderGeometry(0.03, 0.03, 0.02, 20), new THREE.MeshLambertMaterial({ color: 0x7030a0, emissive: 0x300050 }));
     lens.rotation.x = Math.PI / 2;
     lens.position.set(x, 0, 0.045);
     group.add(lens);
@@ -144,13 +144,9 @@ function buildCamera(volume) {
     [-nw, -nh, n], [nw, -nh, n], [nw, nh, n], [-nw, nh, n],
     [-fw, -fh, f], [fw, -fh, f], [fw, fh, f], [-fw, fh, f],
   ];
-  const faces = [[0, 1, 2, 3], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7]];
-  const positions = [];
-  for (const [a, b, c, d] of faces) positions.push(...corners[a], ...corners[b], ...corners[c], ...corners[a], ...corners[c], ...corners[d]);
-  const solid = new THREE.BufferGeometry();
-  solid.setAttribute("position", new THREE.Float32BufferAttribute(positions, 3));
+  // Edges only: translucent faces covering half the screen cost software renderers most of their
+  // frame time, and the edges read as the pyramid just as well.
   const volumeGroup = new THREE.Group();
-  volumeGroup.add(new THREE.Mesh(solid, new THREE.MeshBasicMaterial({ color: 0x3c8cff, transparent: true, opacity: 0.07, side: THREE.DoubleSide, depthWrite: false })));
   const edges = [[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4], [0, 4], [1, 5], [2, 6], [3, 7]];
   const lines = new THREE.BufferGeometry();
   lines.setAttribute("position", new THREE.Float32BufferAttribute(edges.flatMap(([a, b]) => [...corners[a], ...corners[b]]), 3));
@@ -196,7 +192,7 @@ export class NavigationScene {
     this.landmarks = {};
     this.pickable = [];
     for (const [name, p] of Object.entries(scene.landmarks)) {
-      const ball = new THREE.Mesh(new THREE.SphereGeometry(0.004, 14, 10), new THREE.MeshStandardMaterial({ color: GREY, emissive: 0x000000 }));
+      const ball = new THREE.Mesh(new THREE.SphereGeometry(0.004, 14, 10), new THREE.MeshLambertMaterial({ color: GREY, emissive: 0x000000 }));
       ball.position.copy(v(p));
       ball.userData.landmark = name;
       this.content.add(ball);
@@ -208,7 +204,7 @@ export class NavigationScene {
       this.content.add(hit);
       this.pickable.push(hit);
     }
-    const target = new THREE.Mesh(new THREE.PlaneGeometry(0.08, 0.08), new THREE.MeshStandardMaterial({ color: 0xf0f0f0, side: THREE.DoubleSide }));
+    const target = new THREE.Mesh(new THREE.PlaneGeometry(0.08, 0.08), new THREE.MeshLambertMaterial({ color: 0xf0f0f0, side: THREE.DoubleSide }));
     target.position.copy(v(scene.calibration_target));
     this.content.add(target);
     const pattern = new THREE.Mesh(new THREE.PlaneGeometry(0.04, 0.04), new THREE.MeshBasicMaterial({ color: 0x202020, side: THREE.DoubleSide }));
@@ -224,7 +220,7 @@ export class NavigationScene {
       this.tools[name] = tool;
       this.content.add(tool.group);
     }
-    this.occluder = new THREE.Mesh(new THREE.BoxGeometry(1, 1, 1), new THREE.MeshStandardMaterial({ color: 0xd9a07a, transparent: true, opacity: 0.85 }));
+    this.occluder = new THREE.Mesh(new THREE.BoxGeometry(1, 1, 1), new THREE.MeshLambertMaterial({ color: 0xd9a07a, transparent: true, opacity: 0.85 }));
     this.occluder.matrixAutoUpdate = false;
     this.occluder.visible = false;
     this.content.add(this.occluder);

@@ -11,7 +11,14 @@ import urllib.error
 import urllib.request
 
 import pytest
-from app_helpers import REPO, ServedTrainer, next_of_type, reamer_to_reference, send_transform, wait_for
+from app_helpers import (
+    REPO,
+    ServedTrainer,
+    next_of_type,
+    reamer_to_reference,
+    send_transform,
+    wait_for,
+)
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 

@@ -23,11 +23,11 @@ from pathlib import Path
 
 sys.path[:0] = [str(Path(__file__).parent), str(Path(__file__).resolve().parents[2])]  # this checkout first
 
-from app_helpers import ServedTrainer, read_message, reamer_to_reference  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
+from app_helpers import ServedTrainer, read_message, reamer_to_reference
+from websockets.sync.client import connect
 
-from thrsim.app.navigation import NavigationTrainer  # noqa: E402
-from thrsim.io import igtl  # noqa: E402
+from thrsim.app.navigation import NavigationTrainer
+from thrsim.io import igtl
 
 
 def rss_mb(pid: int) -> float:

@@ -8,7 +8,7 @@ session goes on. Degrees and millimetres here (the user-facing edge); the traine
 from __future__ import annotations
 
 import json
-from typing import Annotated, Literal, Optional, Union
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
@@ -43,7 +43,7 @@ class ProbeControl(_Control):
 
     type: Literal["probe"]
     action: Literal["touch", "lift"]
-    landmark: Optional[str] = Field(None, max_length=64)
+    landmark: str | None = Field(None, max_length=64)
 
 
 class RegistrationControl(_Control):
@@ -104,7 +104,7 @@ _MODELS = (
     ConfirmControl,
     EndSessionControl,
 )
-NavigationControl = Annotated[Union[_MODELS], Field(discriminator="type")]
+NavigationControl = Annotated[_MODELS, Field(discriminator="type")]
 _ADAPTER: TypeAdapter = TypeAdapter(NavigationControl)
 CONTROL_TYPES: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in _MODELS))
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 import datetime as dt
 import json
 import secrets
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -39,7 +39,7 @@ def versions() -> dict:
 
 
 def new_session_id() -> str:
-    return dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ") + "-" + secrets.token_hex(3)
+    return dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ") + "-" + secrets.token_hex(3)
 
 
 class LiveSession:
@@ -51,7 +51,7 @@ class LiveSession:
         self.trainer = mode.make_trainer(self.settings)
         self.inputs = InputLog()
         self.origin = clock()
-        self.started_utc = dt.datetime.now(dt.timezone.utc)
+        self.started_utc = dt.datetime.now(dt.UTC)
         self.last_state: dict | None = None
 
     def elapsed(self, clock_time: float | None = None) -> float:
@@ -85,7 +85,7 @@ class LiveSession:
         return state
 
     def save(self, folder: Path) -> Path:
-        ended = dt.datetime.now(dt.timezone.utc)
+        ended = dt.datetime.now(dt.UTC)
         attrs = {
             "mode": self.mode.name,
             "session_id": self.id,

@@ -9,8 +9,9 @@ app's, shared by all modes.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -24,6 +25,7 @@ class Trainer(Protocol):
     def step(self, time_s: float) -> dict: ...
     def scene(self) -> dict: ...
     def settings(self) -> dict: ...
+    def record(self) -> Any: ...
     def write(self, group: Any) -> None: ...
 
 
@@ -35,6 +37,7 @@ class Mode:
     title: str
     make_trainer: Callable[[dict], Trainer]  # from the session settings (side, seed)
     parse_control: Callable[[Any], Any]  # raises ThrsimInputError with the reason
+    read_record: Callable[[dict], Any]  # the mode's group of a session file → its record (events, trace)
 
 
 def _navigation(settings: dict) -> Trainer:
@@ -49,6 +52,12 @@ def _parse_navigation(message: Any) -> Any:
     return parse_control(message)
 
 
+def _read_navigation(group: dict) -> Any:
+    from thrsim.session.navigation import read_navigation
+
+    return read_navigation(group)
+
+
 MODES: dict[str, Mode] = {
-    "navigation": Mode("navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation),
+    "navigation": Mode("navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation, _read_navigation),
 }

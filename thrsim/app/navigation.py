@@ -19,19 +19,38 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from thrsim.app import controls as c
 from thrsim.config import SafeZone, TrackingVolumeConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.nav.anatomy import DEFINITIONS, app_frame, angles_in_frame, local_axis_from_angles
+from thrsim.nav.anatomy import (
+    DEFINITIONS,
+    angles_in_frame,
+    app_frame,
+    local_axis_from_angles,
+)
 from thrsim.nav.calibration import calibrate_frames
-from thrsim.nav.pelvis import ACETABULUM_RIM_RADIUS, acetabulum_centre, synthetic_pelvis_landmarks
+from thrsim.nav.pelvis import (
+    ACETABULUM_RIM_RADIUS,
+    acetabulum_centre,
+    synthetic_pelvis_landmarks,
+)
 from thrsim.nav.registration import LandmarkRegistration
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status
 from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.nav.tracking import (
+    PROBE,
+    REAMER,
+    REASONS,
+    REFERENCE_FRAME,
+    Box,
+    TrackingCamera,
+    Visibility,
+    look_at,
+)
 from thrsim.session.navigation import NavigationRecord, write_navigation
-from thrsim.nav.tracking import PROBE, REAMER, REASONS, REFERENCE_FRAME, Box, TrackingCamera, Visibility, look_at
 
 TOOLS = {"Reference": REFERENCE_FRAME, "Probe": PROBE, "Reamer": REAMER}
 # Tracker device → (tool, frame the pose is given in); SPEC §3 names.
@@ -49,7 +68,6 @@ TOOL_STATES: tuple[str, ...] = REASONS + ("stale", "missing")
 # that the reference array, the probe and a reamer inside the safe zone all face it (< 45°).
 DEFAULT_CAMERA = {"azimuth_deg": 50.0, "elevation_deg": -37.0, "distance_mm": 1600.0}
 DEFAULT_REAMER = {"inclination_deg": 60.0, "anteversion_deg": 10.0}  # outside the zone, in view
-_REAMER_STANDOFF_M = 0.0  # head centre at the acetabulum centre: the reamer sits in the cup
 # A hand holding a probe on a landmark: a steady offset within the acquisition tolerance, and a
 # tremor well inside the still tolerance (so a touch is acquired after the dwell).
 _HAND_OFFSET_SD_M = 1.2e-3
@@ -87,8 +105,6 @@ def _frame_with_z(z_axis: np.ndarray, hint: np.ndarray) -> np.ndarray:
 
 
 def _random_rotation_small(rng: np.random.Generator, sd_rad: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
     return Rotation.from_rotvec(rng.normal(0.0, sd_rad, 3)).as_matrix()
 
 
@@ -207,7 +223,7 @@ class NavigationTrainer:
         axis_model = self.true_app_model.to_world(
             local_axis_from_angles(self._reamer_angles["inclination_deg"], self._reamer_angles["anteversion_deg"])
         )
-        head = self.acetabulum_model + _REAMER_STANDOFF_M * axis_model
+        head = self.acetabulum_model  # the reamer sits in the acetabulum
         rotation = _frame_with_z(axis_model, np.array([0.0, 0.0, 1.0]))
         origin = head - rotation @ REAMER.tip  # the head centre is the tool's tip
         self.tools["Reamer"] = _ToolPose(self.model_to_reference @ make_pose(rotation, origin), "page", time_s)

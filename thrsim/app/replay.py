@@ -16,7 +16,6 @@ import numpy as np
 from thrsim.app.modes import MODES
 from thrsim.errors import ThrsimInputError
 from thrsim.session.file import read_session
-from thrsim.session.navigation import read_navigation
 
 
 @dataclass(frozen=True)
@@ -64,9 +63,11 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
                 trainer.apply_control(mode.parse_control(payload), time_s)
             except ThrsimInputError:
                 refused += 1  # refused live too: the same input, the same answer
-    recorded = read_navigation(session.groups[mode.name])
+    if mode.name not in session.groups:
+        raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
+    recorded = mode.read_record(session.groups[mode.name])
     replayed = trainer.record()
-    strip = lambda events: [(e["kind"], e["landmark"], round(e["time_s"], 9)) for e in events]  # noqa: E731
+    strip = lambda events: [(e["kind"], e["landmark"], round(e["time_s"], 9)) for e in events]
     same_shape = recorded.angles.shape == replayed.angles.shape
     difference = float(np.nanmax(np.abs(recorded.angles - replayed.angles), initial=0.0)) if same_shape else float("inf")
     trace_match = same_shape and bool(np.array_equal(np.isnan(recorded.angles), np.isnan(replayed.angles))) and difference <= 1e-9

@@ -22,6 +22,8 @@ import ipaddress
 import json
 import logging
 import re
+import secrets
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,6 +44,7 @@ log = logging.getLogger(__name__)
 
 TOKEN_COOKIE = "thrsim_token"
 _SESSION_ID = re.compile(r"^[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}$")
+_REPORT_LOCK = threading.Lock()  # matplotlib's pyplot is not safe for two reports at once
 
 
 def is_loopback(host: str) -> bool:
@@ -155,8 +158,6 @@ class TrainerHub:
         self.igtl_address: tuple[str, int] | None = None
 
     def _start(self, mode: Mode) -> LiveSession:
-        import secrets
-
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
         return LiveSession(mode, {"side": self.settings.side, "seed": seed}, self.clock)
 
@@ -176,11 +177,11 @@ class TrainerHub:
         for name, session in self.sessions.items():
             try:
                 state = session.tick()
+                text = json.dumps(state, allow_nan=False) if self.viewers[name] else ""
             except Exception:  # a trainer bug must not stop the other modes or lose the session
                 log.exception("%s step failed", name)
                 continue
-            if self.viewers[name]:
-                text = json.dumps(state, allow_nan=False, default=_finite)
+            if text:
                 for viewer in self.viewers[name]:
                     viewer.offer(text)
 
@@ -199,10 +200,6 @@ class TrainerHub:
     def hello(self, name: str) -> dict:
         session = self.sessions[name]
         return {"type": "hello", "mode": name, "session": session.id, "scene": session.trainer.scene(), "igtl": self.igtl_address}
-
-
-def _finite(value):
-    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
 
 
 class _ForwardingSession(NavigationSession):
@@ -318,7 +315,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
         path = _session_file(session_id)
         try:
-            html = await run_in_threadpool(build_report, path)
+            html = await run_in_threadpool(_locked_report, build_report, path)
         except ThrsimInputError as error:
             return JSONResponse({"error": str(error)}, status_code=422)
         return HTMLResponse(html)
@@ -353,6 +350,11 @@ def create_app(settings: ServeSettings) -> FastAPI:
             sender.cancel()
 
     return app
+
+
+def _locked_report(build, path: Path) -> str:
+    with _REPORT_LOCK:
+        return build(path)
 
 
 def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str, dict]]:

@@ -7,7 +7,6 @@ import logging
 import signal
 import socket
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -35,10 +34,10 @@ def serve(
     port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
     igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
-    token: Optional[str] = typer.Option(None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"),
+    token: str | None = typer.Option(None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"),
     sessions: Path = typer.Option(Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"),
     side: str = typer.Option("right", "--side", help="operated hip at start: right or left"),
-    seed: Optional[int] = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
+    seed: int | None = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
 ) -> None:
     """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
     import uvicorn

@@ -11,9 +11,9 @@ import base64
 import html
 import io
 import json
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 from thrsim.session.file import SessionFile, read_session
 

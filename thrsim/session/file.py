@@ -20,9 +20,9 @@ The file is written once, when the session ends, to a temporary name and renamed
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Iterator
 
 import h5py
 import numpy as np

@@ -8,7 +8,7 @@ session goes on. Degrees and millimetres here (the user-facing edge); the traine
 from __future__ import annotations
 
 import json
-from typing import Annotated, Literal
+from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
@@ -104,7 +104,7 @@ _MODELS = (
     ConfirmControl,
     EndSessionControl,
 )
-NavigationControl = Annotated[_MODELS, Field(discriminator="type")]
+NavigationControl = Annotated[Union[_MODELS], Field(discriminator="type")]  # noqa: UP007 (a tuple of models)
 _ADAPTER: TypeAdapter = TypeAdapter(NavigationControl)
 CONTROL_TYPES: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in _MODELS))
 

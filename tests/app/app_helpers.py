@@ -20,6 +20,15 @@ import numpy as np
 from thrsim.io import igtl
 
 REPO = Path(__file__).resolve().parents[2]
+
+
+def checkout_env(**extra: str) -> dict[str, str]:
+    """This environment with this checkout first on PYTHONPATH: a child ``python -m thrsim`` runs
+    this code whatever its working directory, even where another checkout is installed."""
+    rest = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p and Path(p).resolve() != REPO]
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), *rest]), **extra}
+
+
 _ANNOUNCE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*OpenIGTLink on 127\.0\.0\.1:(\d+)")
 
 
@@ -34,7 +43,7 @@ class ServedTrainer:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+            env=checkout_env(PYTHONUNBUFFERED="1"),
         )
         self.lines: list[str] = []
         found = threading.Event()

@@ -10,8 +10,9 @@ import sys
 from pathlib import Path
 
 import h5py
+import numpy as np
 import pytest
-from app_helpers import REPO
+from app_helpers import REPO, checkout_env
 
 from thrsim.app.live import LiveSession
 from thrsim.app.modes import MODES
@@ -74,9 +75,9 @@ def test_session_file_keeps_inputs_outputs_and_versions(saved):
     assert session.settings == {"mode": "navigation", "side": "right", "seed": 11}
     kinds = [json.loads(m)["type"] for _, _, m in session.inputs.controls]
     assert kinds.count("probe") >= 27 and "confirm_cup" in kinds and "registration" in kinds
-    assert [d for _, _, d, _ in session.inputs.poses] == ["ReamerToReference"]
-    times = [t for _, t in session.inputs.ticks]
-    assert times == sorted(times) and len(times) > 27 * 40
+    assert session.inputs.pose_devices() == ["ReamerToReference"]
+    times = session.inputs.tick_time.numpy(float)
+    assert np.all(np.diff(times) > 0) and len(times) > 27 * 40
     record = read_navigation(session.groups["navigation"])
     assert record.completed and record.retakes.sum() == 1 and len(record.confirmations) == 1
     assert record.angles.shape == (len(times), 3) and record.tool_codes.shape == (len(times), 3)
@@ -140,7 +141,7 @@ def test_garbled_missing_and_foreign_session_files_are_refused(saved, tmp_path):
 
 
 def _thrsim(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=120)
+    return subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env())
 
 
 def test_report_and_replay_commands(saved, tmp_path):
@@ -154,13 +155,7 @@ def test_report_and_replay_commands(saved, tmp_path):
 
 @pytest.mark.parametrize("args", [("report", "absent.h5", "--out", "r.html"), ("replay", "absent.h5")])
 def test_commands_refuse_a_missing_session_in_one_line(tmp_path, args):
-    done = subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=tmp_path, capture_output=True, text=True, timeout=120, env=_env())
+    done = subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=tmp_path, capture_output=True, text=True, timeout=120, env=checkout_env())
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "no such session file" in done.stderr
     assert not (tmp_path / "r.html").exists()
-
-
-def _env() -> dict:
-    import os
-
-    return {**os.environ, "PYTHONPATH": str(REPO)}

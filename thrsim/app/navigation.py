@@ -16,6 +16,7 @@ orchestrates them, steps at the server's tick and keeps what the report needs. N
 from __future__ import annotations
 
 import math
+from array import array
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -119,10 +120,11 @@ class _ToolPose:
 class NavigationLog:
     """What the report needs, appended at every step and event (plain lists until saved)."""
 
-    trace_time: list[float] = field(default_factory=list)
-    trace_angles: list[tuple[float, float, float]] = field(default_factory=list)  # RI, RA, distance (NaN unknown)
-    trace_phase: list[int] = field(default_factory=list)  # 0 registering, 1 aiming
-    trace_tools: list[tuple[int, int, int]] = field(default_factory=list)  # TOOL_STATES index per tool
+    # One entry per step, in compact buffers (a long session has tens of thousands of steps).
+    trace_time: array = field(default_factory=lambda: array("d"))
+    trace_angles: array = field(default_factory=lambda: array("d"))  # RI, RA, distance per step (NaN unknown)
+    trace_phase: array = field(default_factory=lambda: array("b"))  # 0 registering, 1 aiming
+    trace_tools: array = field(default_factory=lambda: array("B"))  # TOOL_STATES index per tool per step
     events: list[dict] = field(default_factory=list)
     calibrations: list[dict] = field(default_factory=list)
     confirmations: list[dict] = field(default_factory=list)
@@ -390,11 +392,9 @@ class NavigationTrainer:
             self._step_calibration(time_s)
 
         self.log.trace_time.append(time_s)
-        self.log.trace_angles.append(
-            (math.nan, math.nan, math.nan) if angles is None else (*angles["radiographic"], zone.distance_deg)
-        )
+        self.log.trace_angles.extend((math.nan, math.nan, math.nan) if angles is None else (*angles["radiographic"], zone.distance_deg))
         self.log.trace_phase.append(1 if self.result is not None else 0)
-        self.log.trace_tools.append(tuple(TOOL_STATES.index(visibility[t][0]) for t in TOOLS))
+        self.log.trace_tools.extend(TOOL_STATES.index(visibility[t][0]) for t in TOOLS)
         return self._state(time_s, visibility, angles, zone)
 
     def _set_page_probe_tremor(self, time_s: float) -> None:
@@ -545,7 +545,7 @@ class NavigationTrainer:
             tools=list(TOOLS),
             tool_states=list(TOOL_STATES),
             zone=self.zone.model_dump(),
-            time=np.array(self.log.trace_time),
+            time=np.array(self.log.trace_time, dtype=float),
             angles=np.array(self.log.trace_angles, dtype=float).reshape(-1, 3),
             phase=np.array(self.log.trace_phase, dtype=np.int8),
             tool_codes=np.array(self.log.trace_tools, dtype=np.uint8).reshape(-1, len(TOOLS)),

@@ -195,7 +195,7 @@ class TrainerHub:
 
     def save_all(self) -> list[Path]:
         """On shutdown: keep every session that received anything."""
-        return [self.end(name) for name, session in list(self.sessions.items()) if session.inputs.count > len(session.inputs.ticks)]
+        return [self.end(name) for name, session in list(self.sessions.items()) if session.inputs.count > session.inputs.ticks]
 
     def hello(self, name: str) -> dict:
         session = self.sessions[name]

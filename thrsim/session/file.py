@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from array import array
+from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
@@ -35,15 +36,35 @@ FORMAT_VERSION = 1
 _TEXT = h5py.string_dtype()
 
 
-@dataclass
-class InputLog:
-    """Every input of a live session, appended as it arrives (cheap: Python lists)."""
+class _Column:
+    """A growing numeric column in a compact buffer (``array``): a ten-minute session at 60 Hz
+    holds ~36,000 ticks and as many poses, which Python tuples would make several times larger."""
 
-    controls: list[tuple[int, float, str]] = field(default_factory=list)
-    poses: list[tuple[int, float, str, np.ndarray]] = field(default_factory=list)
-    forces: list[tuple[int, float, float]] = field(default_factory=list)
-    ticks: list[tuple[int, float]] = field(default_factory=list)
-    _seq: int = 0
+    def __init__(self, typecode: str, width: int = 1, values=()):
+        self.width = width
+        self.data = array(typecode, values)
+
+    def append(self, *values) -> None:
+        self.data.extend(values)
+
+    def __len__(self) -> int:
+        return len(self.data) // self.width
+
+    def numpy(self, dtype) -> np.ndarray:
+        values = np.frombuffer(self.data, dtype=np.dtype(self.data.typecode)) if len(self.data) else np.zeros(0)
+        return values.astype(dtype).reshape(-1, self.width) if self.width > 1 else values.astype(dtype)
+
+
+class InputLog:
+    """Every input of a live session, appended as it arrives; ``seq`` orders them all."""
+
+    def __init__(self) -> None:
+        self.controls: list[tuple[int, float, str]] = []
+        self.devices: list[str] = []  # pose device names, stored as indices into this list
+        self.pose_seq, self.pose_time, self.pose_device, self.pose_matrix = _Column("q"), _Column("d"), _Column("H"), _Column("d", 16)
+        self.force_seq, self.force_time, self.force_newton = _Column("q"), _Column("d"), _Column("d")
+        self.tick_seq, self.tick_time = _Column("q"), _Column("d")
+        self._seq = 0
 
     def _next(self) -> int:
         self._seq += 1
@@ -53,24 +74,40 @@ class InputLog:
         self.controls.append((self._next(), time_s, json.dumps(message, separators=(",", ":"))))
 
     def pose(self, time_s: float, device: str, matrix: np.ndarray) -> None:
-        self.poses.append((self._next(), time_s, device, np.array(matrix, dtype=float)))
+        if device not in self.devices:
+            self.devices.append(device)
+        self.pose_seq.append(self._next())
+        self.pose_time.append(time_s)
+        self.pose_device.append(self.devices.index(device))
+        self.pose_matrix.append(*np.asarray(matrix, dtype=float).ravel())
 
     def force(self, time_s: float, newton: float) -> None:
-        self.forces.append((self._next(), time_s, float(newton)))
+        self.force_seq.append(self._next())
+        self.force_time.append(time_s)
+        self.force_newton.append(float(newton))
 
     def tick(self, time_s: float) -> None:
-        self.ticks.append((self._next(), time_s))
+        self.tick_seq.append(self._next())
+        self.tick_time.append(time_s)
 
     @property
     def count(self) -> int:
         return self._seq
 
+    @property
+    def ticks(self) -> int:
+        return len(self.tick_seq)
+
+    def pose_devices(self) -> list[str]:
+        return [self.devices[i] for i in self.pose_device.data]
+
     def replay(self) -> Iterator[tuple[str, float, object]]:
         """(kind, time, payload) in lived order: kind is control, pose, force or tick."""
+        matrices = self.pose_matrix.numpy(float).reshape(-1, 4, 4)
         merged = [(s, "control", t, json.loads(m)) for s, t, m in self.controls]
-        merged += [(s, "pose", t, (d, m)) for s, t, d, m in self.poses]
-        merged += [(s, "force", t, f) for s, t, f in self.forces]
-        merged += [(s, "tick", t, None) for s, t in self.ticks]
+        merged += [(s, "pose", t, (self.devices[d], matrices[k])) for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data))]
+        merged += [(s, "force", t, f) for s, t, f in zip(self.force_seq.data, self.force_time.data, self.force_newton.data)]
+        merged += [(s, "tick", t, None) for s, t in zip(self.tick_seq.data, self.tick_time.data)]
         for _, kind, time_s, payload in sorted(merged, key=lambda item: item[0]):
             yield kind, time_s, payload
 
@@ -121,27 +158,17 @@ def write_session(
             _write_table(
                 group.create_group("poses"),
                 {
-                    "seq": np.array([p[0] for p in inputs.poses], dtype=np.int64),
-                    "time": np.array([p[1] for p in inputs.poses], dtype=float),
-                    "device": np.array([p[2] for p in inputs.poses], dtype=object).astype(_TEXT),
-                    "matrix": np.array([p[3] for p in inputs.poses], dtype=float).reshape(-1, 4, 4),
+                    "seq": inputs.pose_seq.numpy(np.int64),
+                    "time": inputs.pose_time.numpy(float),
+                    "device": np.array(inputs.pose_devices(), dtype=object).astype(_TEXT),
+                    "matrix": inputs.pose_matrix.numpy(float).reshape(-1, 4, 4),
                 },
             )
             _write_table(
                 group.create_group("forces"),
-                {
-                    "seq": np.array([f[0] for f in inputs.forces], dtype=np.int64),
-                    "time": np.array([f[1] for f in inputs.forces], dtype=float),
-                    "newton": np.array([f[2] for f in inputs.forces], dtype=float),
-                },
+                {"seq": inputs.force_seq.numpy(np.int64), "time": inputs.force_time.numpy(float), "newton": inputs.force_newton.numpy(float)},
             )
-            _write_table(
-                group.create_group("ticks"),
-                {
-                    "seq": np.array([t[0] for t in inputs.ticks], dtype=np.int64),
-                    "time": np.array([t[1] for t in inputs.ticks], dtype=float),
-                },
-            )
+            _write_table(group.create_group("ticks"), {"seq": inputs.tick_seq.numpy(np.int64), "time": inputs.tick_time.numpy(float)})
             for mode, writer in mode_writers.items():
                 writer(h5.create_group(mode))
     return path
@@ -181,13 +208,17 @@ def read_session(path: str | Path) -> SessionFile:
     if raw is None:
         raise ThrsimInputError(f"{path}: session file has no inputs group")
     try:
-        inputs = InputLog(
-            controls=list(zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"])),
-            poses=list(zip(raw["poses"]["seq"].tolist(), raw["poses"]["time"].tolist(), raw["poses"]["device"], list(raw["poses"]["matrix"]))),
-            forces=list(zip(raw["forces"]["seq"].tolist(), raw["forces"]["time"].tolist(), raw["forces"]["newton"].tolist())),
-            ticks=list(zip(raw["ticks"]["seq"].tolist(), raw["ticks"]["time"].tolist())),
-        )
-    except KeyError as error:
-        raise ThrsimInputError(f"{path}: session file lacks inputs table {error}") from None
-    inputs._seq = max((s for s, *_ in inputs.controls + inputs.poses + inputs.forces + inputs.ticks), default=0)
+        inputs = InputLog()
+        inputs.controls = list(zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"]))
+        poses = raw["poses"]
+        for seq, time_s, device, matrix in zip(poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4)):
+            inputs._seq = seq - 1
+            inputs.pose(time_s, device, matrix)
+        forces, ticks = raw["forces"], raw["ticks"]
+        inputs.force_seq, inputs.force_time, inputs.force_newton = (_Column(t, 1, forces[k].tolist()) for t, k in (("q", "seq"), ("d", "time"), ("d", "newton")))
+        inputs.tick_seq, inputs.tick_time = _Column("q", 1, ticks["seq"].tolist()), _Column("d", 1, ticks["time"].tolist())
+    except (KeyError, ValueError, TypeError) as error:
+        raise ThrsimInputError(f"{path}: session file lacks or garbles an inputs table ({error})") from None
+    every = [s for s, _, _ in inputs.controls] + list(inputs.pose_seq.data) + list(inputs.force_seq.data) + list(inputs.tick_seq.data)
+    inputs._seq = max(every, default=0)
     return SessionFile(path=path, attrs=attrs, inputs=inputs, groups=data)

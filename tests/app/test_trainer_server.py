@@ -14,6 +14,7 @@ import pytest
 from app_helpers import (
     REPO,
     ServedTrainer,
+    checkout_env,
     next_of_type,
     reamer_to_reference,
     send_transform,
@@ -155,7 +156,7 @@ def test_stopping_the_server_saves_the_live_session(tmp_path):
 def test_serve_refuses_bad_options_in_one_line(tmp_path, args, message):
     done = subprocess.run(
         [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(tmp_path), *args],
-        cwd=REPO, capture_output=True, text=True, timeout=60,
+        cwd=REPO, capture_output=True, text=True, timeout=60, env=checkout_env(),
     )  # fmt: skip
     assert done.returncode == 2 and done.stderr.count("\n") == 1 and message in done.stderr
 
@@ -163,7 +164,7 @@ def test_serve_refuses_bad_options_in_one_line(tmp_path, args, message):
 def test_serve_refuses_a_taken_port(served, tmp_path):
     done = subprocess.run(
         [sys.executable, "-m", "thrsim", "serve", "--port", str(served.port), "--igtl-port", "0", "--sessions", str(tmp_path)],
-        cwd=REPO, capture_output=True, text=True, timeout=60,
+        cwd=REPO, capture_output=True, text=True, timeout=60, env=checkout_env(),
     )  # fmt: skip
     assert done.returncode == 2 and "cannot listen" in done.stderr and done.stderr.count("\n") == 1
     assert get(served.url + "/api/health")[0] == 200  # the running trainer is untouched

@@ -11,7 +11,7 @@ orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
 const stats = { frames: 0, states: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false };
-window.trainer = { stats, send: (message) => send(message) };
+window.trainer = { stats, view, send: (message) => send(message) };
 
 let socket = null;
 let state = null;

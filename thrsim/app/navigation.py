@@ -118,7 +118,7 @@ class _ToolPose:
 
 @dataclass
 class NavigationLog:
-    """What the report needs, appended at every step and event (plain lists until saved)."""
+    """What the report needs, appended at every step and event until the session is saved."""
 
     # One entry per step, in compact buffers (a long session has tens of thousands of steps).
     trace_time: array = field(default_factory=lambda: array("d"))

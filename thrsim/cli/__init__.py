@@ -16,6 +16,7 @@ from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
+from thrsim.cli import evaluate_cmd, ream_cmd, train_cmd
 from thrsim.cli.output import command_group, format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
@@ -44,6 +45,9 @@ app.command("fem")(fem_cmd.fem)
 app.command("bench")(bench_cmd.bench)
 app.command("track")(track_cmd.track)
 app.command("verify")(verify_cmd.verify)
+app.command("train")(train_cmd.train)
+app.command("evaluate")(evaluate_cmd.evaluate)
+app.command("ream")(ream_cmd.ream)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
 

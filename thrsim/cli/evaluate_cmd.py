@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.console import Console
 from rich.table import Table
 
 from thrsim.cli.output import console, err_console, print_json
@@ -73,4 +74,5 @@ def print_comparison(report: dict) -> None:
         if g in thesis:
             cells = [("" if h not in thesis[g] else " / ".join(f"{v:.1f}" for v in thesis[g][h].values())) for h in horizons]
             table.add_row(g, "thesis Table 10", *cells, "")
-    console.print(table)
+    # wide enough for P / R / F1 cells of four horizons, also when piped to a file
+    Console(width=max(console.width, 170)).print(table)

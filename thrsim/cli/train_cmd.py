@@ -49,13 +49,19 @@ def train(
     from thrsim.learn.pipeline import train_model
 
     torch.set_num_threads(threads)
+    # the bar starts once the data are read and checked, so a refused run prints one line only
     progress = Progress(TextColumn("[bold]epoch {task.fields[epoch]}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[note]}"), TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, disable=as_json)
-    task = progress.add_task("train", total=None, epoch="-", note="")
+    task = progress.add_task("train", total=None, epoch="-", note="", start=False)
+
+    started: list[bool] = []
 
     def on_start(info: dict) -> None:
         if not as_json:
             resumed = f", resuming after epoch {info['resumed_at_epoch']}" if info["resumed_at_epoch"] is not None else ""
             err_console.print(f"{info['train_cases']} training case(s), {info['validation_cases']} validation, {info['pairs']} frame pairs, {info['elements']} elements{resumed}")
+            progress.start()
+            progress.start_task(task)
+            started.append(True)
 
     def on_batch(done: int, total: int) -> None:
         progress.update(task, total=total, completed=done)
@@ -67,8 +73,11 @@ def train(
         if not as_json:
             progress.console.print(f"epoch {report.epoch}/{report.epochs}: {note}, {report.seconds:.1f} s")
 
-    with progress:
+    try:
         card = train_model(data, out, model_settings, arch, overwrite=overwrite, on_start=on_start, on_epoch=on_epoch, on_batch=on_batch)
+    finally:
+        if started:
+            progress.stop()
     if as_json:
         print_json(card)
         return

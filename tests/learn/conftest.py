@@ -7,33 +7,11 @@ case of 6 frames; networks a few units wide. Built once per test session.
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 import torch
-
-from thrsim.learn.settings import ArchSettings, FeatureSettings, ModelSettings, TrainSettings
-
-REPO = Path(__file__).resolve().parents[2]
-
-
-def run_thrsim(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    """This checkout's thrsim, as a user runs it (``python -m thrsim``)."""
-    env = {"NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
-    import os
-
-    return subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=timeout, env={**os.environ, **env})
-
-
-def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
-    arch = ArchSettings(
-        node_encoder=(8,), node_core=(8,), node_decoder=(8,), edge_encoder=(8,), edge_core=(8,),
-        global_encoder=(4,), message_passing_steps=2, mlp_baseline=(8,),
-    )
-    options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, **train}
-    return ModelSettings(arch=arch, features=FeatureSettings(), train=TrainSettings(**options))
+from learn_helpers import run_thrsim, tiny_settings
 
 
 @pytest.fixture(autouse=True, scope="session")

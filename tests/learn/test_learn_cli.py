@@ -8,7 +8,7 @@ import meshio
 import numpy as np
 import pytest
 
-from tests.learn.conftest import run_thrsim
+from learn_helpers import run_thrsim
 from thrsim.learn.evaluation import windows
 
 

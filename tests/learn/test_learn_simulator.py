@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from tests.learn.conftest import REPO
+from learn_helpers import REPO
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator, angles_of, start_position
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tests.learn.conftest import tiny_settings
+from learn_helpers import tiny_settings
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 from thrsim.learn.graph import StaticGraph

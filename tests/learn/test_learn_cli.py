@@ -49,6 +49,7 @@ def test_evaluate_json_is_keyed_by_inclination_then_horizon(tiny_model, syntheti
             _check_scores(source[g]["end"])
     assert report["15"]["1"]["windows"] == 1
     assert report["thesis_table_10_percent"]["0"]["60"]["f1"] == 92.9
+    assert report["by_force"]["230"]["windows"] == 2  # one window in each of the two test cases
     table = run_thrsim("evaluate", "--data", str(synthetic_dataset / "cases" / "g015.0_t045.0_f230N_h1mm.h5"), "--model", str(tiny_model))
     assert table.returncode == 0, table.stderr
     assert "thesis Table 10" in table.stdout and "geometric" in table.stdout

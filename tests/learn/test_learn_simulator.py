@@ -100,6 +100,8 @@ def test_angles_and_start_position():
     nodes = np.array([[0.0, 0.0, -0.022], [0.005, 0.0, -0.0215]])
     centre = start_position(nodes, np.array([0.0, 0.0, -1.0]), 0.0229)
     assert np.isclose(np.linalg.norm(nodes - centre, axis=1).min(), 0.0229 + 5e-5, atol=1e-9)
+    with pytest.raises(ThrsimInputError, match="misses the bone"):
+        start_position(nodes, np.array([1.0, 0.0, 0.0]), 0.003)
 
 
 def test_thrsim_exports_the_simulator_lazily():

@@ -68,6 +68,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     threshold = model.threshold
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
+    by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
     steppers = _steppers(model)
     volumes = model.graph.volumes
     for index, case in enumerate(cases):
@@ -85,12 +86,22 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 pred_volume = float((final_pred & ~initial) @ volumes)
                 if true_volume > 0:
                     errors[mode][g]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                    if mode == "autonomous":
+                        by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                if mode == "autonomous":
+                    by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
                 mean_mm, max_mm = surface_distance_mm(model.graph.reamed_surface(~final_pred), model.graph.reamed_surface(~final_true))
                 errors[mode][g]["surface_mean_mm"].append(mean_mm)
                 errors[mode][g]["surface_max_mm"].append(max_mm)
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
-    return _report(counts, errors, cases)
+    report = _report(counts, errors, cases)
+    # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
+    report["by_force"] = {
+        f: {"removed_volume_error_mean": _summary([abs(v) for v in e["volume_error"]]), "removed_volume_mm3_mean": _summary(e["removed_volume_mm3"]), "windows": len(e["removed_volume_mm3"])}
+        for f, e in sorted(by_force.items(), key=lambda item: float(item[0]))
+    }
+    return report
 
 
 def _summary(values: list[float]) -> float | None:

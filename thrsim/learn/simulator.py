@@ -62,7 +62,10 @@ def start_position(nodes: np.ndarray, axis: np.ndarray, teeth_radius_m: float, g
     lo, hi = -2.0 * reach, 0.0
     if clearance(lo) <= 0:
         raise ThrsimInputError("the reamer cannot be placed clear of this bone along that axis")
+    farthest = float(np.linalg.norm(nodes, axis=1).max()) + reach
     while clearance(hi) > 0:
+        if hi > farthest:
+            raise ThrsimInputError("the reamer axis misses the bone: its teeth never reach it")
         lo, hi = hi, hi + 0.25 * reach
     for _ in range(60):
         mid = 0.5 * (lo + hi)

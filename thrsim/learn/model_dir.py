@@ -91,12 +91,16 @@ def load_network_tensors(gn: LearnedSimulator, mlp: LearnedSimulator, tensors: d
 def save_model(out: Path, card: dict, gn: LearnedSimulator, mlp: LearnedSimulator, advance: ArrayRegressor, mesh: TetMesh) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    # safetensors recreates the file it writes: give it the usual permissions back
     with atomic_path(out / NETWORK) as tmp:
         save_tensors(network_tensors(gn, mlp), str(tmp))
+        os.chmod(tmp, 0o644)
     with atomic_path(out / ADVANCE) as tmp:
         save_arrays({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, str(tmp), metadata={"kind": advance.kind})
+        os.chmod(tmp, 0o644)
     with atomic_path(out / MESH) as tmp:
         save_arrays(mesh_arrays(mesh), str(tmp))
+        os.chmod(tmp, 0o644)
     card = {**card, "format": MODEL_FORMAT, "format_version": MODEL_FORMAT_VERSION}
     card["mesh"] = {**card.get("mesh", {}), "digest": mesh_digest(mesh), "elements": mesh.n_tets, "nodes": mesh.n_nodes}
     card["advance"] = {**card.get("advance", {}), "chosen": advance.kind}

@@ -67,6 +67,7 @@ class TrainSettings(_Frozen):
     batch_size: int = Field(4, ge=1)
     learning_rate: float = Field(1e-3, gt=0)
     final_learning_rate: float = Field(1e-4, gt=0)
+    gradient_clip: float = Field(1.0, gt=0, description="largest gradient norm per step")
     alpha_noise: float = Field(0.02, ge=0, description="σ of the Gaussian noise on input α (stable rollouts)")
     position_noise_mm: float = Field(0.05, ge=0, description="σ of the noise on the reamer centre")
     seed: int = 0
@@ -85,7 +86,9 @@ class ModelSettings(_Frozen):
 def thesis_arch() -> ArchSettings:
     """The thesis's sizes [7.3.2]: node enc/dec 1×40, node core 2×300, edge enc/dec 2×20, edge core
     1×30, global enc/dec 2×11, global core 1×20, full GN block with sum aggregation, shared core,
-    a plain linear output (eq. 48); the MLP baseline is the node core alone. Only α is read out,
+    a plain linear output (eq. 48); the MLP baseline is the node core alone. Every MLP ends in a
+    LayerNorm as in the graph_nets library's encode-process-decode models the thesis builds on
+    (without it the sums over a region's nodes make the latents grow without bound). Only α is read out,
     so the edge and global decoders, which feed nothing, are not built."""
     return ArchSettings(
         node_encoder=(40,),
@@ -99,7 +102,7 @@ def thesis_arch() -> ArchSettings:
         shared_core=True,
         global_block=True,
         residual=False,
-        layer_norm=False,
+        layer_norm=True,
         residual_logit=False,
         mlp_baseline=(300, 300),
     )

@@ -135,6 +135,7 @@ class Trainer:
                 optimiser.zero_grad(set_to_none=True)
                 loss = masked_bce(model.logits(inputs), target, model.trainable_mask(inputs))
                 loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), t.gradient_clip)
                 optimiser.step()
                 totals[name] += float(loss.detach()) / batches
             if on_batch is not None:

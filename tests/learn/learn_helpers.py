@@ -24,5 +24,5 @@ def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
         node_encoder=(8,), node_core=(8,), node_decoder=(8,), edge_encoder=(8,), edge_core=(8,),
         global_encoder=(4,), message_passing_steps=2, mlp_baseline=(8,),
     )
-    options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, **train}
+    options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, "advance_trees": 5, **train}
     return ModelSettings(arch=arch, features=FeatureSettings(), train=TrainSettings(**options))

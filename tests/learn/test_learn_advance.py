@@ -18,7 +18,7 @@ def _data(n=120, seed=0):
 @pytest.mark.parametrize("kind", KINDS)
 def test_exported_arrays_predict_like_scikit_learn(kind):
     X, y = _data()
-    estimator, grid = _candidates(0)[kind]
+    estimator, _ = _candidates(0, trees=20)[kind]
     estimator.fit(X, y)
     exported = export(kind, estimator)
     assert all(isinstance(v, np.ndarray) and v.dtype != object for v in exported.arrays.values())
@@ -33,7 +33,7 @@ def test_grid_search_tables_every_kind_and_keeps_the_lowest_cross_validated_erro
     X, y = _data()
     groups = np.repeat(np.arange(6), 20)
     held_X, held_y = _data(30, seed=2)
-    regressor, table = fit_advance(X, y, groups, held_X, held_y)
+    regressor, table = fit_advance(X, y, groups, held_X, held_y, trees=10)
     assert set(table["models"]) == set(KINDS)
     best = min(table["models"], key=lambda k: table["models"][k]["cv_mse_mm2"])
     assert table["chosen"] == best == regressor.kind

@@ -100,7 +100,7 @@ def export(kind: str, estimator) -> ArrayRegressor:
     return ArrayRegressor(kind, arrays)
 
 
-def _candidates(seed: int) -> dict:
+def _candidates(seed: int, trees: int = 100) -> dict:
     from sklearn.ensemble import RandomForestRegressor
     from sklearn.linear_model import LinearRegression, Ridge
     from sklearn.pipeline import Pipeline
@@ -112,14 +112,14 @@ def _candidates(seed: int) -> dict:
 
     return {
         # depth ≤ 10 bounds the stored forest to 100 × 2,047 nodes (≤ 6 MB) whatever the data size
-        "random_forest": (RandomForestRegressor(n_estimators=100, random_state=seed, n_jobs=1), {"max_depth": [6, 10], "min_samples_leaf": [1, 5]}),
+        "random_forest": (RandomForestRegressor(n_estimators=trees, random_state=seed, n_jobs=1), {"max_depth": [6, 10], "min_samples_leaf": [1, 5]}),
         "svr": (scaled(SVR(kernel="rbf")), {"model__C": [0.1, 1.0, 10.0], "model__epsilon": [0.005, 0.05]}),
         "ridge": (scaled(Ridge()), {"model__alpha": [0.1, 1.0, 10.0]}),
         "linear": (scaled(LinearRegression()), {}),
     }
 
 
-def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0) -> tuple[ArrayRegressor, dict]:
+def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0, trees: int = 100) -> tuple[ArrayRegressor, dict]:
     """Grid-search the four kinds, keep the lowest cross-validated MSE; (regressor, error table)."""
     from sklearn.model_selection import GridSearchCV, GroupKFold, KFold
 
@@ -127,7 +127,7 @@ def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.nda
     folds = GroupKFold(n_splits=min(3, n_groups)) if n_groups >= 2 else KFold(n_splits=min(3, len(y)), shuffle=True, random_state=seed)
     table: dict[str, dict] = {}
     fitted = {}
-    for kind, (estimator, grid) in _candidates(seed).items():
+    for kind, (estimator, grid) in _candidates(seed, trees).items():
         search = GridSearchCV(estimator, grid or {}, cv=folds, scoring="neg_mean_squared_error", n_jobs=1)
         search.fit(X, y, groups=groups if n_groups >= 2 else None)
         fitted[kind] = search.best_estimator_

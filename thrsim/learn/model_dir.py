@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from pydantic import ValidationError
+from safetensors import safe_open
 from safetensors.numpy import load_file as load_arrays
 from safetensors.numpy import save_file as save_arrays
 from safetensors.torch import load_file as load_tensors
@@ -153,8 +155,6 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
     try:
         mesh = mesh_from_arrays(load_arrays(str(path / MESH)))
         tensors = load_tensors(str(path / NETWORK))
-        from safetensors import safe_open
-
         with safe_open(str(path / ADVANCE), framework="numpy") as handle:
             kind = (handle.metadata() or {}).get("kind", "")
         advance = ArrayRegressor(kind, load_arrays(str(path / ADVANCE)))
@@ -170,7 +170,7 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
         )
     try:
         settings = ModelSettings.model_validate(card["settings"])
-    except Exception as error:  # pydantic's error names the field
+    except ValidationError as error:
         raise ThrsimInputError(f"{path}: the card's settings are not valid for this thrsim ({str(error).splitlines()[0]})") from None
     threshold = float(card["labels"]["removed_threshold"])
     gn, mlp = LearnedSimulator(settings, "gn", threshold), LearnedSimulator(settings, "mlp", threshold)

@@ -75,6 +75,7 @@ class TrainSettings(_Frozen):
     normaliser_samples: int = Field(64, ge=1, description="frame pairs whose inputs fix the normalisation")
     validation_horizon: int = Field(30, ge=1, description="frames of the validation rollouts run after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
+    advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
 
 
 class ModelSettings(_Frozen):

@@ -220,7 +220,7 @@ class Trainer:
         return time.perf_counter() - started
 
 
-def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], volumes_m3: np.ndarray, threshold: float, seed: int):
+def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], volumes_m3: np.ndarray, threshold: float, seed: int, trees: int = 100):
     """Fit the advance regressor on the training cases; the table scores the held-out ones."""
     parts = [case_samples(c, volumes_m3, threshold) for c in train]
     X = np.concatenate([p[0] for p in parts])
@@ -231,4 +231,4 @@ def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], volumes_m
         held_X, held_y = np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])
     else:
         held_X = held_y = None
-    return fit_advance(X, y, groups, held_X, held_y, seed)
+    return fit_advance(X, y, groups, held_X, held_y, seed, trees)

@@ -108,3 +108,18 @@ def test_thrsim_exports_the_simulator_lazily():
     code = "import sys, thrsim; assert 'torch' not in sys.modules; from thrsim.learn.simulator import ReamingSimulator as R; assert thrsim.ReamingSimulator is R; print('ok')"
     result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
+
+
+def test_only_the_region_near_the_reamer_changes(simulator):
+    model = simulator.model
+    step = simulator._step
+    alpha = np.full(simulator.n_elements, 0.58, dtype=np.float32)
+    centre = simulator.reamer_start(AXIS) + 5e-4 * AXIS
+    region = model.graph.region(alpha >= 0.3, centre, step.reach_m, model.settings.features.front_hops)
+    assert 0 < len(region) < simulator.n_elements
+    out = step(alpha, centre, AXIS, 230.0, 5e-4, 136.0)
+    outside = np.ones(simulator.n_elements, dtype=bool)
+    outside[region] = False
+    assert np.array_equal(out[outside], alpha[outside])
+    far = step(alpha, centre - 0.05 * AXIS, AXIS, 230.0, 0.0, 136.0)
+    assert np.array_equal(far, alpha)

@@ -65,6 +65,17 @@ def test_region_is_the_active_front_near_the_reamer():
     assert len(far) == 0
 
 
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), max_size=80, unique=True), st.floats(1e-3, 6e-3))
+def test_region_front_is_the_exposed_set_within_reach(removed, reach):
+    active = np.ones(MESH.n_tets, dtype=bool)
+    active[removed] = False
+    centre = np.array([0.0, 0.0, -22e-3 + 2e-3])
+    region = GRAPH.region(active, centre, reach, hops=0)
+    close = np.linalg.norm(GRAPH.centroids - centre, axis=1) < reach
+    assert np.array_equal(region, np.flatnonzero(GRAPH.exposed(active) & close))
+
+
 def test_removing_elements_moves_the_front_inward():
     active = np.ones(MESH.n_tets, dtype=bool)
     first = GRAPH.exposed(active)

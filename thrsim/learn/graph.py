@@ -64,6 +64,7 @@ class StaticGraph:
         self._local = np.full(self.n_nodes, -1, dtype=np.int64)
         self._inner_faces = _inner_face_table(mesh)
         self._inner_tet = self._inner_faces.any(axis=1)
+        self._inner_tet_ids = np.flatnonzero(self._inner_tet)
         self._face_centres = mesh.nodes[mesh.tets][:, TET_FACES].mean(axis=2)  # (E, 4 faces, 3)
 
     @property
@@ -90,7 +91,11 @@ class StaticGraph:
         most of the bone; the front is a thin sheet of it.
         """
         active = np.asarray(active, dtype=bool)
-        front = np.flatnonzero(self.exposed(active))
+        # the exposed elements, gathered from the removed ones and the articular layer only
+        # (the same set as `exposed`, without a pass over every element's neighbours)
+        behind = self.neighbours[np.flatnonzero(~active)].ravel()
+        candidates = np.concatenate([self._inner_tet_ids, behind[behind >= 0]])
+        front = np.unique(candidates[active[candidates]])
         close = front[np.einsum("ij,ij->i", d := self.centroids[front] - centre, d) < reach_m * reach_m]
         local = self._local
         local[close] = 0

@@ -42,9 +42,7 @@ def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path):
     settings = tiny_settings(epochs=2)
     straight = _trainer(real, settings)
     straight.run(None)
-    first = _trainer(real, tiny_settings(epochs=1))
-    # the identity covers the settings, so the interrupted run is the same run cut after epoch 1
-    first.settings = settings
+    first = _trainer(real, settings)  # the same run, cut after its first epoch
     first.train_epoch()
     first.history.append({"epoch": 1, "seconds": 0.0})
     first.save_checkpoint(tmp_path / "ckpt")

@@ -1,0 +1,28 @@
+"""Helpers of the learned-simulator tests: this checkout's thrsim as a subprocess, tiny settings."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from thrsim.learn.settings import ArchSettings, FeatureSettings, ModelSettings, TrainSettings
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def run_thrsim(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    """This checkout's thrsim, as a user runs it (``python -m thrsim``), one numerical thread."""
+    env = {**os.environ, "NUMBA_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "PYTHONPATH": str(REPO)}
+    return subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
+    """Networks a few units wide, a handful of samples per epoch."""
+    arch = ArchSettings(
+        node_encoder=(8,), node_core=(8,), node_decoder=(8,), edge_encoder=(8,), edge_core=(8,),
+        global_encoder=(4,), message_passing_steps=2, mlp_baseline=(8,),
+    )
+    options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, "advance_trees": 5, **train}
+    return ModelSettings(arch=arch, features=FeatureSettings(), train=TrainSettings(**options))

@@ -1,0 +1,23 @@
+"""The learned-simulator benchmark runs end to end on a small mesh (figures only, no timing assertions)."""
+
+from __future__ import annotations
+
+from thrsim.data.synthetic import block_mesh
+from thrsim.learn.bench import _four_times_area, time_production, time_thesis_way, untrained_model
+from thrsim.learn.settings import preset
+
+
+def test_benchmark_figures_come_out_for_both_configurations():
+    mesh = block_mesh(n=4)
+    production = time_production(untrained_model(mesh, preset("production"), teeth_radius_m=3e-3), frames=2, inclination_deg=0.0)
+    assert production["elements"] == mesh.n_tets and production["frames"] == 2
+    assert production["ms_per_frame_median"] > 0 and 0 < production["region_elements_median"] <= mesh.n_tets
+    thesis = time_thesis_way(mesh, frames=1, teeth_radius_m=3e-3, inclination_deg=0.0)
+    assert thesis["ms_per_frame_median"] >= thesis["network_ms_median"] > 0
+
+
+def test_four_times_the_area_of_a_spherical_cap():
+    import numpy as np
+
+    half = _four_times_area(19.0)
+    assert np.isclose(1 - np.cos(np.radians(half)), 4 * (1 - np.cos(np.radians(19.0))))

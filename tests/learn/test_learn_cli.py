@@ -1,0 +1,110 @@
+"""``thrsim train``, ``thrsim evaluate`` and ``thrsim ream`` run as a user runs them, on tiny data."""
+
+from __future__ import annotations
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+from learn_helpers import run_thrsim
+from thrsim.learn.evaluation import windows
+
+
+def test_train_writes_a_model_directory_and_refuses_to_overwrite_it(synthetic_dataset, settings_file, tmp_path):
+    out = tmp_path / "model"
+    result = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(out), "--settings", str(settings_file), "--json")
+    assert result.returncode == 0, result.stderr
+    card = json.loads(result.stdout)
+    assert card["training"]["epochs"] == 1 and card["arch"] == "production"
+    assert sorted(p.name for p in out.iterdir()) == ["advance.safetensors", "card.json", "mesh.safetensors", "network.safetensors"]
+    again = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(out), "--settings", str(settings_file))
+    assert again.returncode == 2
+    assert again.stderr.count("\n") == 1 and "already holds a trained model" in again.stderr
+
+
+def test_train_refuses_a_folder_that_is_not_a_dataset(tmp_path):
+    result = run_thrsim("train", "--data", str(tmp_path), "--out", str(tmp_path / "model"))
+    assert result.returncode == 2 and "not a thrsim dataset" in result.stderr
+    assert not (tmp_path / "model").exists()
+
+
+def _check_scores(row: dict) -> None:
+    for key in ("precision", "recall", "f1"):
+        assert row[key] is None or 0.0 <= row[key] <= 1.0
+    assert row["windows"] >= 1
+
+
+def test_evaluate_json_is_keyed_by_inclination_then_horizon(tiny_model, synthetic_dataset):
+    result = run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--json")
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    # the test split: θ 45 at γ 15 and 30; 12 frames, so t+1 and the rollout to the end
+    for source in (report, report["mlp"], report["geometric"], report["tool_forced"]):
+        assert {"15", "30"} <= set(source)
+        for g in ("15", "30"):
+            assert set(source[g]) == {"1", "end", "longest_horizon"}
+            _check_scores(source[g]["1"])
+            _check_scores(source[g]["end"])
+    assert report["15"]["1"]["windows"] == 1
+    assert report["thesis_table_10_percent"]["0"]["60"]["f1"] == 92.9
+    assert report["by_force"]["230"]["windows"] == 2  # one window in each of the two test cases
+    table = run_thrsim("evaluate", "--data", str(synthetic_dataset / "cases" / "g015.0_t045.0_f230N_h1mm.h5"), "--model", str(tiny_model))
+    assert table.returncode == 0, table.stderr
+    assert "thesis Table 10" in table.stdout and "geometric" in table.stdout
+
+
+def test_evaluate_refuses_a_model_of_another_mesh(tiny_model, real_case):
+    result = run_thrsim("evaluate", "--data", str(real_case), "--model", str(tiny_model), "--json")
+    assert result.returncode == 2 and "another mesh" in result.stderr and result.stdout == ""
+
+
+def test_windows_cover_every_horizon_or_the_end():
+    assert windows(12, 30) == [(0, ["1", "end"], 11)]
+    assert windows(121, 30) == [(0, ["1", "30", "60"], 60), (30, ["1", "30", "60"], 60), (60, ["1", "30", "60"], 60), (90, ["1", "30", "end"], 30)]
+
+
+def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
+    out = tmp_path / "ream"
+    result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--model", str(tiny_model), "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["frames"] == 3 and len(summary["removed_per_frame"]) == 3
+    assert json.loads((out / "ream.json").read_text()) == summary
+    pvd = (out / "ream.pvd").read_text()
+    assert pvd.count("<DataSet") == 8 and 'part="1"' in pvd
+    bone = meshio.read(out / "bone_0003.vtu")
+    assert "alpha" in bone.cell_data and "removed" in bone.cell_data
+    assert len(bone.cell_data["alpha"][0]) == summary["elements"]
+    assert int(np.sum(bone.cell_data["removed"][0])) == summary["removed"]
+    reamer = meshio.read(out / "reamer_0003.vtu")
+    centre = np.array(summary["reamer_end_mm"])
+    assert np.allclose(np.linalg.norm(reamer.points - centre, axis=1), 22.9, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--force", "-5"], "non-negative"),
+        (["--side", "middle"], "unknown side"),
+        (["--inclination", "95"], "--inclination"),
+        (["--frames", "0"], "--frames"),
+    ],
+)
+def test_ream_refuses_bad_input_and_writes_nothing(tiny_model, tmp_path, args, message):
+    out = tmp_path / "ream"
+    base = {"--inclination": "15", "--anteversion": "30", "--frames": "2"}
+    for flag, value in zip(args[::2], args[1::2]):
+        base[flag] = value
+    flat = [x for kv in base.items() for x in kv]
+    result = run_thrsim("ream", *flat, "--model", str(tiny_model), "--out", str(out))
+    assert result.returncode == 2, result.stderr
+    assert message in result.stderr and result.stderr.count("\n") == 1
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_ream_refuses_a_folder_that_is_not_a_model(tmp_path):
+    result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--model", str(tmp_path), "--out", str(tmp_path / "ream"))
+    assert result.returncode == 2 and "not a thrsim model directory" in result.stderr
+    assert not (tmp_path / "ream").exists()

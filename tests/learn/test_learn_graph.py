@@ -1,0 +1,92 @@
+"""The static graph: face-sharing edges in both directions, induced subgraphs, the cutting-front region."""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from thrsim.data.synthetic import block_mesh
+from thrsim.learn.graph import StaticGraph, mesh_digest
+
+MESH = block_mesh(n=4)
+GRAPH = StaticGraph(MESH)
+
+
+def _edge_set(senders, receivers, nodes=None):
+    if nodes is not None:
+        senders, receivers = nodes[senders], nodes[receivers]
+    return set(zip(senders.tolist(), receivers.tolist()))
+
+
+def test_edges_join_tets_sharing_a_face_in_both_directions():
+    edges = _edge_set(GRAPH.senders, GRAPH.receivers)
+    assert len(edges) == GRAPH.n_edges == 2 * len(MESH.adjacency.pairs)
+    assert edges == {(r, s) for s, r in edges}
+    tets = MESH.tets
+    for s, r in list(edges)[:200]:
+        assert len(set(tets[s]) & set(tets[r])) == 3
+    # every pair of tets sharing three nodes is an edge: brute force on the small block
+    shared = {(i, j) for i in range(len(tets)) for j in range(len(tets)) if i != j and len(set(tets[i]) & set(tets[j])) == 3}
+    assert shared == edges
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), min_size=1, max_size=60, unique=True), st.integers(0, 2))
+def test_subgraph_is_the_induced_subgraph_with_the_region_first(ids, hops):
+    region = np.sort(np.array(ids))
+    sub = GRAPH.subgraph(region, hops)
+    assert np.array_equal(sub.region, region)
+    assert len(np.unique(sub.nodes)) == len(sub.nodes)
+    inside = set(sub.nodes.tolist())
+    expected = {(s, r) for s, r in _edge_set(GRAPH.senders, GRAPH.receivers) if s in inside and r in inside}
+    assert _edge_set(sub.senders, sub.receivers, sub.nodes) == expected
+    # the halo is exactly the nodes within `hops` face-hops of the region
+    reached = set(region.tolist())
+    for _ in range(hops):
+        reached |= {int(n) for i in list(reached) for n in MESH.adjacency.neighbours[i] if n >= 0}
+    assert inside == reached
+
+
+def test_region_is_the_active_front_near_the_reamer():
+    active = np.ones(MESH.n_tets, dtype=bool)
+    exposed = GRAPH.exposed(active)
+    assert exposed.any() and not exposed.all()
+    # intact block: only tets with a face on the articular (inner) side are exposed
+    inner_z = MESH.nodes[MESH.node_sets["inner"], 2].max()
+    assert np.all(MESH.nodes[MESH.tets[exposed]][:, :, 2].max(axis=1) == inner_z)
+    centre = np.array([0.0, 0.0, -22e-3 + 3e-3])
+    region = GRAPH.region(active, centre, 3.5e-3, hops=0)
+    assert len(region) > 0 and exposed[region].all()
+    assert np.all(np.linalg.norm(GRAPH.centroids[region] - centre, axis=1) < 3.5e-3)
+    grown = GRAPH.region(active, centre, 3.5e-3, hops=1)
+    assert set(region) < set(grown)
+    far = GRAPH.region(active, centre + np.array([0.0, 0.0, 0.1]), 3.5e-3, hops=1)
+    assert len(far) == 0
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), max_size=80, unique=True), st.floats(1e-3, 6e-3))
+def test_region_front_is_the_exposed_set_within_reach(removed, reach):
+    active = np.ones(MESH.n_tets, dtype=bool)
+    active[removed] = False
+    centre = np.array([0.0, 0.0, -22e-3 + 2e-3])
+    region = GRAPH.region(active, centre, reach, hops=0)
+    close = np.linalg.norm(GRAPH.centroids - centre, axis=1) < reach
+    assert np.array_equal(region, np.flatnonzero(GRAPH.exposed(active) & close))
+
+
+def test_removing_elements_moves_the_front_inward():
+    active = np.ones(MESH.n_tets, dtype=bool)
+    first = GRAPH.exposed(active)
+    active[first] = False
+    second = GRAPH.exposed(active)
+    assert not (second & first).any()
+    assert second.any()
+    assert np.all(GRAPH.open_faces(active, np.flatnonzero(second)) >= 1)
+
+
+def test_mesh_digest_tells_meshes_apart():
+    assert mesh_digest(MESH) == mesh_digest(block_mesh(n=4))
+    assert mesh_digest(MESH) != mesh_digest(block_mesh(n=3))
+    assert mesh_digest(MESH) != mesh_digest(MESH.mirrored())

@@ -1,0 +1,125 @@
+"""``thrsim.ReamingSimulator``: the interactive API, both sides, both modes, and refused input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from learn_helpers import REPO
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.simulator import ReamingSimulator, angles_of, start_position
+
+AXIS = np.array([np.sin(np.radians(15)) * np.cos(np.radians(30)), np.sin(np.radians(15)) * np.sin(np.radians(30)), -np.cos(np.radians(15))])
+
+
+@pytest.fixture(scope="module")
+def simulator(tiny_model):
+    return ReamingSimulator(tiny_model)
+
+
+def test_steps_return_the_bone_state_and_advance_along_the_axis(simulator):
+    simulator.reset("right")
+    n = simulator.n_elements
+    start = simulator.reamer_start(AXIS)
+    previous_removed = np.zeros(n, dtype=bool)
+    for frame in range(1, 6):
+        state = simulator.step(AXIS, 230.0)
+        assert state.frame == frame
+        assert state.alpha.shape == (n,) and state.alpha.dtype == np.float32
+        assert np.all((state.alpha >= 0) & (state.alpha <= 1))
+        assert np.array_equal(state.removed, state.alpha < 0.3)
+        assert np.all(state.removed[previous_removed])  # removed elements stay removed
+        assert np.array_equal(state.newly_removed, np.flatnonzero(state.removed & ~previous_removed))
+        assert np.isclose(state.removed_volume_m3, simulator.model.graph.volumes[state.removed].sum())
+        offset = state.reamer_position - start
+        assert np.allclose(offset - (offset @ AXIS) * AXIS, 0.0, atol=1e-12)  # on the axis line
+        previous_removed = state.removed
+    assert simulator.frame == 5
+
+
+def test_a_given_position_forces_the_reamer(simulator):
+    simulator.reset()
+    target = simulator.reamer_start(AXIS) + 1e-4 * AXIS
+    state = simulator.step(AXIS, 230.0, reamer_position=target)
+    assert np.array_equal(state.reamer_position, target)
+
+
+def test_left_side_is_the_mirror_of_the_right(simulator):
+    mirror = np.array([-1.0, 1.0, 1.0])
+    simulator.reset("right")
+    right = [simulator.step(AXIS, 230.0) for _ in range(3)]
+    simulator.reset("left")
+    left = [simulator.step(AXIS * mirror, 230.0) for _ in range(3)]
+    for r, l in zip(right, left):
+        assert np.array_equal(r.alpha, l.alpha)
+        assert np.allclose(l.reamer_position, r.reamer_position * mirror)
+    assert np.allclose(simulator.mesh.nodes, simulator.right_mesh.nodes * mirror)
+
+
+def test_reset_restores_the_intact_bone(simulator):
+    simulator.reset()
+    for _ in range(3):
+        simulator.step(AXIS, 230.0)
+    simulator.reset()
+    assert simulator.frame == 0 and not simulator.removed.any()
+    assert np.all(simulator.alpha == simulator.alpha[0])
+
+
+@pytest.mark.parametrize(
+    "axis, force, message",
+    [
+        ((np.nan, 0.0, -1.0), 230.0, "NaN"),
+        ((0.0, 0.0, 0.0), 230.0, "zero length"),
+        ((0.0, -1.0), 230.0, "3 components"),
+        (AXIS, -1.0, "non-negative"),
+        (AXIS, float("inf"), "finite"),
+        (AXIS, "much", "number"),
+    ],
+)
+def test_bad_input_is_refused(simulator, axis, force, message):
+    simulator.reset()
+    with pytest.raises(ThrsimInputError, match=message):
+        simulator.step(axis, force)
+    assert simulator.frame == 0
+
+
+def test_unknown_side_and_wrong_model_dir_are_refused(simulator, tmp_path):
+    with pytest.raises(ThrsimInputError, match="unknown side"):
+        simulator.reset("middle")
+    with pytest.raises(ThrsimInputError, match="not a thrsim model"):
+        ReamingSimulator(tmp_path)
+
+
+def test_angles_and_start_position():
+    gamma, theta = angles_of(AXIS)
+    assert np.isclose(gamma, 15.0) and np.isclose(theta, 30.0)
+    assert angles_of(np.array([0.0, 0.0, -1.0])) == (0.0, 0.0)
+    nodes = np.array([[0.0, 0.0, -0.022], [0.005, 0.0, -0.0215]])
+    centre = start_position(nodes, np.array([0.0, 0.0, -1.0]), 0.0229)
+    assert np.isclose(np.linalg.norm(nodes - centre, axis=1).min(), 0.0229 + 5e-5, atol=1e-9)
+    with pytest.raises(ThrsimInputError, match="misses the bone"):
+        start_position(nodes, np.array([1.0, 0.0, 0.0]), 0.003)
+
+
+def test_thrsim_exports_the_simulator_lazily():
+    code = "import sys, thrsim; assert 'torch' not in sys.modules; from thrsim.learn.simulator import ReamingSimulator as R; assert thrsim.ReamingSimulator is R; print('ok')"
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
+
+
+def test_only_the_region_near_the_reamer_changes(simulator):
+    model = simulator.model
+    step = simulator._step
+    alpha = np.full(simulator.n_elements, 0.58, dtype=np.float32)
+    centre = simulator.reamer_start(AXIS) + 5e-4 * AXIS
+    region = model.graph.region(alpha >= 0.3, centre, step.reach_m, model.settings.features.front_hops)
+    assert 0 < len(region) < simulator.n_elements
+    out = step(alpha, centre, AXIS, 230.0, 5e-4, 136.0)
+    outside = np.ones(simulator.n_elements, dtype=bool)
+    outside[region] = False
+    assert np.array_equal(out[outside], alpha[outside])
+    far = step(alpha, centre - 0.05 * AXIS, AXIS, 230.0, 0.0, 136.0)
+    assert np.array_equal(far, alpha)

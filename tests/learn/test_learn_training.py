@@ -1,0 +1,116 @@
+"""Training on real solver output, deterministic resume, and the model directory on disk."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+
+from learn_helpers import tiny_settings
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.cases import load_cases
+from thrsim.learn.graph import StaticGraph
+from thrsim.learn.model_dir import CARD, MESH, load_model
+from thrsim.learn.rollout import LearnedStep, rollout
+from thrsim.learn.training import Trainer
+
+
+def _trainer(cases, settings):
+    mesh = cases[0]
+    return Trainer(StaticGraph(mesh), cases[1], [], settings, cases[1][0].teeth_radius_m, 0.3)
+
+
+@pytest.fixture(scope="module")
+def real(real_case):
+    mesh, cases = load_cases(real_case)
+    for case in cases:
+        case.split = "train"
+    return mesh, cases
+
+
+def test_training_lowers_the_loss_on_a_real_case(real):
+    settings = tiny_settings(epochs=8, max_samples_per_epoch=None, learning_rate=1e-2, final_learning_rate=1e-3, alpha_noise=0.0, position_noise_mm=0.0)
+    trainer = _trainer(real, settings)
+    losses = [trainer.train_epoch()[0] for _ in range(settings.train.epochs)]
+    assert np.mean(losses[-2:]) < 0.9 * np.mean(losses[:2]), losses
+
+
+def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path):
+    settings = tiny_settings(epochs=2)
+    straight = _trainer(real, settings)
+    straight.run(None)
+    first = _trainer(real, settings)  # the same run, cut after its first epoch
+    first.train_epoch()
+    first.history.append({"epoch": 1, "seconds": 0.0})
+    first.save_checkpoint(tmp_path / "ckpt")
+    resumed = _trainer(real, settings)
+    assert resumed.load_checkpoint(tmp_path / "ckpt")
+    assert resumed.epoch == 1
+    resumed.run(None)
+    for (name, a), (_, b) in zip(straight.gn.state_dict().items(), resumed.gn.state_dict().items()):
+        assert torch.equal(a, b), name
+    for (name, a), (_, b) in zip(straight.mlp.state_dict().items(), resumed.mlp.state_dict().items()):
+        assert torch.equal(a, b), name
+
+
+def test_a_checkpoint_of_another_run_is_refused(real, tmp_path):
+    trainer = _trainer(real, tiny_settings(epochs=1))
+    trainer.save_checkpoint(tmp_path / "ckpt")
+    other = _trainer(real, tiny_settings(epochs=1, seed=7))
+    with pytest.raises(ThrsimInputError, match="another training run"):
+        other.load_checkpoint(tmp_path / "ckpt")
+    assert not _trainer(real, tiny_settings(epochs=1)).load_checkpoint(tmp_path / "none")
+
+
+def _rollout_alpha(model, cases):
+    step = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
+    out = []
+    for case in cases:
+        masks, centres = rollout(step, case, 0, case.frames - 1, model.threshold, model.advance, model.graph.volumes)
+        out.append((np.array(masks), centres))
+    return out
+
+
+def test_model_directory_roundtrip_predicts_bit_for_bit(tiny_model, synthetic_dataset, tmp_path):
+    model = load_model(tiny_model)
+    card = json.loads((tiny_model / CARD).read_text())
+    assert card["format"] == "thrsim-model" and card["data"]["split"]["train"]
+    assert {"settings", "metrics", "versions", "training", "advance", "mesh", "data"} <= set(card)
+    assert card["training"]["network_seconds"] > 0 and card["mesh"]["elements"] == model.mesh.n_tets
+    copy = tmp_path / "copy"
+    shutil.copytree(tiny_model, copy)
+    again = load_model(copy)
+    _, cases = load_cases(synthetic_dataset, splits=("test",))
+    for (m1, c1), (m2, c2) in zip(_rollout_alpha(model, cases), _rollout_alpha(again, cases)):
+        assert np.array_equal(m1, m2) and np.array_equal(c1, c2)
+    for name, tensor in model.gn.state_dict().items():
+        assert torch.equal(tensor, again.gn.state_dict()[name])
+
+
+def test_model_directories_that_do_not_fit_are_refused(tiny_model, real_case, tmp_path):
+    real_mesh, _ = load_cases(real_case)
+    with pytest.raises(ThrsimInputError, match="another mesh"):
+        load_model(tiny_model, expect_mesh=real_mesh)
+    with pytest.raises(ThrsimInputError, match="no such model directory"):
+        load_model(tmp_path / "missing")
+    with pytest.raises(ThrsimInputError, match="not a thrsim model directory"):
+        load_model(tmp_path)
+    old = tmp_path / "old"
+    shutil.copytree(tiny_model, old)
+    card = json.loads((old / CARD).read_text())
+    card["format_version"] = 99
+    (old / CARD).write_text(json.dumps(card))
+    with pytest.raises(ThrsimInputError, match="incompatible"):
+        load_model(old)
+    mixed = tmp_path / "mixed"
+    shutil.copytree(tiny_model, mixed)
+    from safetensors.numpy import save_file
+
+    from thrsim.learn.model_dir import mesh_arrays
+
+    save_file(mesh_arrays(real_mesh), str(mixed / MESH))
+    with pytest.raises(ThrsimInputError, match="digest"):
+        load_model(mixed)

@@ -1,0 +1,78 @@
+"""``thrsim evaluate``: Table-10-style scores of a model on a dataset's held-out split or one case file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from thrsim.cli.output import console, err_console, print_json
+from thrsim.errors import ThrsimInputError
+
+
+def _pct(value) -> str:
+    return "–" if value is None else f"{100 * value:.1f}"
+
+
+def evaluate(
+    data: Path = typer.Option(..., "--data", help="dataset directory (its test split unless --split) or one case file", metavar="DIR_OR_CASE"),
+    model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
+    split: str = typer.Option("test", "--split", help="split of a dataset directory to score: test, validation, train or all"),
+    start_stride: int = typer.Option(30, "--start-stride", help="frames between the start frames of the rollout windows", metavar="N"),
+    threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
+) -> None:
+    """Roll the model out from ground-truth frames and score newly removed elements at t+1, t+30, t+60 (and to a case's end)."""
+    if split not in ("test", "validation", "train", "all"):
+        raise ThrsimInputError(f"--split must be test, validation, train or all, got {split!r}")
+    if start_stride < 1:
+        raise ThrsimInputError(f"--start-stride must be at least 1, got {start_stride}")
+    if threads < 1:
+        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    import torch
+
+    from thrsim.learn.cases import load_cases
+    from thrsim.learn.evaluation import evaluate as run_evaluation
+    from thrsim.learn.model_dir import load_model
+
+    torch.set_num_threads(threads)
+    splits = None if split == "all" or data.is_file() else (split,)
+    mesh, cases = load_cases(data, splits=splits)
+    loaded = load_model(model, expect_mesh=mesh)
+    report = run_evaluation(loaded, cases, start_stride=start_stride, on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"))
+    report["model"] = {"path": str(loaded.path), "arch": loaded.card.get("arch"), "data_digest": loaded.card["data"]["digest"]}
+    report["data"] = {"source": str(data), "split": split if splits else "all"}
+    if as_json:
+        print_json(report)
+        return
+    print_comparison(report)
+
+
+def print_comparison(report: dict) -> None:
+    """Rows γ × model; columns P / R / F1 per horizon, beside the thesis's Table 10."""
+    table = Table(title="removed elements on held-out orientations, % (P / R / F1; n = windows)")
+    table.add_column("γ")
+    table.add_column("model")
+    horizons = ("1", "30", "60", "end")
+    for h in horizons:
+        table.add_column(f"t+{h}" if h != "end" else "to end")
+    table.add_column("surface mean mm")
+    gammas = sorted({g for g in report if g.replace(".", "", 1).isdigit()}, key=float)
+    thesis = report["thesis_table_10_percent"]
+    for g in gammas:
+        for name, source in (("GN autonomous", report), ("GN tool-forced", report["tool_forced"]), ("MLP", report["mlp"]), ("geometric", report["geometric"])):
+            row = source.get(g, {})
+            cells = []
+            for h in horizons:
+                c = row.get(h)
+                cells.append("" if c is None else f"{_pct(c['precision'])} / {_pct(c['recall'])} / {_pct(c['f1'])} (n={c['windows']})")
+            surface = row.get("longest_horizon", {}).get("surface_distance_mean_mm")
+            table.add_row(g, name, *cells, "" if surface is None else f"{surface:.3f}")
+        if g in thesis:
+            cells = [("" if h not in thesis[g] else " / ".join(f"{v:.1f}" for v in thesis[g][h].values())) for h in horizons]
+            table.add_row(g, "thesis Table 10", *cells, "")
+    # wide enough for P / R / F1 cells of four horizons, also when piped to a file
+    Console(width=max(console.width, 170)).print(table)

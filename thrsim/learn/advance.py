@@ -1,0 +1,140 @@
+"""The reamer-advance regressor [7.3.4, eq. 50]: how far the reamer moves along D in the next frame.
+
+Δposition = Φ(position, volume removed in the last frame, γ, θ, push force). Four scikit-learn
+models are compared by grid search with cross-validation grouped by case, as the thesis did
+(Random Forest of 100 trees, SVR, Ridge, linear regression); the lowest cross-validated error
+wins and every model's error on held-out cases is tabulated. The winner is stored as plain
+arrays (tree tables, support vectors, coefficients) and evaluated by :class:`ArrayRegressor`, so
+loading a model never unpickles anything.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+FEATURES = ("x_mm", "y_mm", "z_mm", "removed_volume_mm3", "inclination_deg", "anteversion_deg", "force_n")
+KINDS = ("random_forest", "svr", "ridge", "linear")
+
+
+def case_samples(case, volumes_m3: np.ndarray, threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(X, y) of one case: one row per frame t ≥ 0 with a successor; y = advance t → t+1 in mm."""
+    removed = case.alpha < threshold
+    removed_volume = (removed.astype(np.float64) @ volumes_m3) * 1e9
+    last_removed = np.concatenate([[0.0], np.diff(removed_volume)])
+    t = np.arange(case.frames - 1)
+    rows = np.column_stack([
+        case.positions[t] * 1e3,
+        last_removed[t],
+        np.full(len(t), case.inclination_deg),
+        np.full(len(t), case.anteversion_deg),
+        np.full(len(t), case.force_n),
+    ])
+    return rows, case.advances() * 1e3
+
+
+def feature_row(position_m: np.ndarray, last_removed_m3: float, inclination_deg: float, anteversion_deg: float, force_n: float) -> np.ndarray:
+    return np.array([[*(np.asarray(position_m) * 1e3), last_removed_m3 * 1e9, inclination_deg, anteversion_deg, force_n]])
+
+
+class ArrayRegressor:
+    """A fitted regressor as named arrays (``kind`` one of KINDS) with a NumPy ``predict``."""
+
+    def __init__(self, kind: str, arrays: dict[str, np.ndarray]):
+        if kind not in KINDS:
+            raise ValueError(f"unknown regressor kind {kind!r}")
+        self.kind = kind
+        self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
+
+    def predict(self, X: np.ndarray) -> np.ndarray:
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))
+        a = self.arrays
+        if self.kind == "random_forest":
+            return self._forest(X)
+        Z = (X - a["mean"]) / a["scale"]
+        if self.kind == "svr":
+            d2 = ((Z[:, None, :] - a["support_vectors"][None, :, :]) ** 2).sum(axis=2)
+            return np.exp(-float(a["gamma"]) * d2) @ a["dual_coef"] + float(a["intercept"])
+        return Z @ a["coef"] + float(a["intercept"])
+
+    def _forest(self, X: np.ndarray) -> np.ndarray:
+        a = self.arrays
+        # scikit-learn's trees compare float32 inputs against float64 thresholds
+        X = X.astype(np.float32).astype(np.float64)
+        left, right, feature, threshold, value = a["left"], a["right"], a["feature"], a["threshold"], a["value"]
+        rows = np.arange(len(X))[:, None]
+        index = np.broadcast_to(a["roots"], (len(X), len(a["roots"]))).copy()
+        while True:
+            leaf = left[index] < 0
+            if leaf.all():
+                break
+            go_left = X[rows, np.maximum(feature[index], 0)] <= threshold[index]
+            index = np.where(leaf, index, np.where(go_left, left[index], right[index]))
+        return value[index].mean(axis=1)
+
+
+def export(kind: str, estimator) -> ArrayRegressor:
+    """Plain arrays of a fitted scikit-learn estimator (a Pipeline for the scaled kinds)."""
+    if kind == "random_forest":
+        parts = {k: [] for k in ("left", "right", "feature", "threshold", "value")}
+        roots, offset = [], 0
+        for tree in estimator.estimators_:
+            t = tree.tree_
+            roots.append(offset)
+            for name, child in (("left", t.children_left), ("right", t.children_right)):
+                parts[name].append(np.where(child >= 0, child + offset, -1))
+            parts["feature"].append(t.feature)
+            parts["threshold"].append(t.threshold)
+            parts["value"].append(t.value[:, 0, 0])
+            offset += t.node_count
+        arrays = {k: np.concatenate(v) for k, v in parts.items()}
+        arrays["roots"] = np.array(roots, dtype=np.int64)
+        for k in ("left", "right", "feature"):
+            arrays[k] = arrays[k].astype(np.int32)
+        return ArrayRegressor(kind, arrays)
+    scaler, model = estimator.named_steps["scale"], estimator.named_steps["model"]
+    arrays = {"mean": scaler.mean_, "scale": scaler.scale_}
+    if kind == "svr":
+        arrays.update(support_vectors=model.support_vectors_, dual_coef=model.dual_coef_[0], intercept=np.array(model.intercept_[0]), gamma=np.array(model._gamma))
+    else:
+        arrays.update(coef=np.asarray(model.coef_, dtype=np.float64).reshape(-1), intercept=np.array(float(np.ravel(model.intercept_)[0])))
+    return ArrayRegressor(kind, arrays)
+
+
+def _candidates(seed: int, trees: int = 100) -> dict:
+    from sklearn.ensemble import RandomForestRegressor
+    from sklearn.linear_model import LinearRegression, Ridge
+    from sklearn.pipeline import Pipeline
+    from sklearn.preprocessing import StandardScaler
+    from sklearn.svm import SVR
+
+    def scaled(model):
+        return Pipeline([("scale", StandardScaler()), ("model", model)])
+
+    return {
+        # depth ≤ 10 bounds the stored forest to 100 × 2,047 nodes (≤ 6 MB) whatever the data size
+        "random_forest": (RandomForestRegressor(n_estimators=trees, random_state=seed, n_jobs=1), {"max_depth": [6, 10], "min_samples_leaf": [1, 5]}),
+        "svr": (scaled(SVR(kernel="rbf")), {"model__C": [0.1, 1.0, 10.0], "model__epsilon": [0.005, 0.05]}),
+        "ridge": (scaled(Ridge()), {"model__alpha": [0.1, 1.0, 10.0]}),
+        "linear": (scaled(LinearRegression()), {}),
+    }
+
+
+def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0, trees: int = 100) -> tuple[ArrayRegressor, dict]:
+    """Grid-search the four kinds, keep the lowest cross-validated MSE; (regressor, error table)."""
+    from sklearn.model_selection import GridSearchCV, GroupKFold, KFold
+
+    n_groups = len(np.unique(groups))
+    folds = GroupKFold(n_splits=min(3, n_groups)) if n_groups >= 2 else KFold(n_splits=min(3, len(y)), shuffle=True, random_state=seed)
+    table: dict[str, dict] = {}
+    fitted = {}
+    for kind, (estimator, grid) in _candidates(seed, trees).items():
+        search = GridSearchCV(estimator, grid or {}, cv=folds, scoring="neg_mean_squared_error", n_jobs=1)
+        search.fit(X, y, groups=groups if n_groups >= 2 else None)
+        fitted[kind] = search.best_estimator_
+        row = {"cv_mse_mm2": float(-search.best_score_), "best_params": {k.replace("model__", ""): v for k, v in search.best_params_.items()}}
+        if held_X is not None and len(held_y):
+            error = search.best_estimator_.predict(held_X) - held_y
+            row.update(held_out_mse_mm2=float(np.mean(error**2)), held_out_mae_mm=float(np.mean(np.abs(error))), held_out_samples=int(len(held_y)))
+        table[kind] = row
+    chosen = min(table, key=lambda k: table[k]["cv_mse_mm2"])
+    return export(chosen, fitted[chosen]), {"chosen": chosen, "features": list(FEATURES), "target": "advance along D per frame, mm", "models": table}

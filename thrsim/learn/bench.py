@@ -1,0 +1,132 @@
+"""Speed of the learned simulator (``thrsim bench --learned``); figures, never unit-test assertions.
+
+* ``production``: median ms per frame of :meth:`ReamingSimulator.step` (region + features +
+  network + threshold + advance) on the default mesh, the reamer pushed along γ 15°, θ 30°.
+* ``thesis_way``: the thesis's configuration run as its Algorithm 1 does: its layer sizes and
+  features, every element every frame, the graph input rebuilt from the mesh each frame.
+* ``larger_mesh``: the production step on patches of about 4× the elements at the same element
+  size: ``thicker`` (an 8 mm shell: the same articular surface, bone continuing deeper) and
+  ``wider`` (twice the half-angle: 4× the articular area). The reamer (45 mm) nearly conforms
+  to the 44 mm cavity, so at first contact the whole articular surface lies within the teeth's
+  reach: the updated region follows the reamed area, not the element count.
+
+Speed does not depend on what the weights learned, so without a model the networks are built
+with their initial weights for the mesh at hand (and a constant advance); with a model its own
+networks are timed on its mesh.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from thrsim.config import BonePatchConfig, LabelConfig, Orientation
+from thrsim.geometry.adjacency import face_adjacency
+from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.tet_metrics import centroids
+from thrsim.learn.advance import ArrayRegressor
+from thrsim.learn.features import ReamerState, batch, frame_arrays
+from thrsim.learn.graph import StaticGraph, Subgraph
+from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.model_dir import LoadedModel
+from thrsim.learn.settings import ModelSettings, preset
+from thrsim.learn.simulator import ReamingSimulator, start_position
+
+#: reamer feed per frame driven in the benchmark (m): a steady push into the bone
+FEED_M = 2e-5
+
+
+def untrained_model(mesh: TetMesh, settings: ModelSettings, teeth_radius_m: float = 22.9e-3, omega_rad_s: float = 136.0) -> LoadedModel:
+    """A model with initial weights and unit normalisers on ``mesh`` (for timing only)."""
+    torch.manual_seed(0)
+    labels = LabelConfig()
+    gn, mlp = LearnedSimulator(settings, "gn", labels.removed_threshold), LearnedSimulator(settings, "mlp", labels.removed_threshold)
+    advance = ArrayRegressor("linear", {"mean": np.zeros(7), "scale": np.ones(7), "coef": np.zeros(7), "intercept": np.array(FEED_M * 1e3)})
+    card = {"labels": labels.model_dump(), "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": omega_rad_s}, "arch": "untrained"}
+    return LoadedModel(path=None, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))
+
+
+def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
+    simulator = ReamingSimulator(model=model)
+    axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
+    centre = start_position(model.mesh.nodes, axis, model.teeth_radius_m)
+    simulator.step(axis, 230.0, centre)  # warm-up
+    times, regions = [], []
+    for k in range(1, frames + 1):
+        state = simulator.step(axis, 230.0, centre + k * FEED_M * axis)
+        times.append(state.seconds)
+        regions.append(simulator._step.last.region)
+    return {
+        "elements": model.mesh.n_tets,
+        "frames": frames,
+        "ms_per_frame_median": 1e3 * float(np.median(times)),
+        "ms_per_frame_p90": 1e3 * float(np.percentile(times, 90)),
+        "region_elements_median": int(np.median(regions)),
+        "feed_mm_per_frame": FEED_M * 1e3,
+        "case": f"inclination {inclination_deg:g} deg, anteversion {anteversion_deg:g} deg, tool-forced steady feed",
+    }
+
+
+def time_thesis_way(mesh: TetMesh, frames: int, teeth_radius_m: float = 22.9e-3, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
+    """Algorithm 1: rebuild the graph input from the mesh every frame, run the thesis's GN on all of it."""
+    settings = preset("thesis")
+    model = untrained_model(mesh, settings, teeth_radius_m)
+    axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
+    centre = start_position(mesh.nodes, axis, teeth_radius_m)
+    alpha = np.full(mesh.n_tets, 0.58, dtype=np.float32)
+    build, network = [], []
+    for k in range(frames + 1):
+        t0 = time.perf_counter()
+        adjacency = face_adjacency(mesh.tets)
+        pairs = adjacency.pairs
+        sub = Subgraph(nodes=np.arange(mesh.n_tets), n_region=mesh.n_tets, senders=np.concatenate([pairs[:, 0], pairs[:, 1]]), receivers=np.concatenate([pairs[:, 1], pairs[:, 0]]))
+        graph = model.graph
+        graph.centroids = centroids(mesh.nodes, mesh.tets)  # Algorithm 1, line 2: recomputed per frame
+        reamer = ReamerState(centre + k * FEED_M * axis, axis, 230.0, FEED_M, 136.0, teeth_radius_m)
+        inputs = batch([(sub, alpha, frame_arrays(graph, sub, alpha, reamer, "thesis", 0.3, alpha >= 0.3))])
+        t1 = time.perf_counter()
+        with torch.inference_mode():
+            alpha = model.gn.alpha_next(inputs).numpy()
+        t2 = time.perf_counter()
+        if k:  # the first frame warms up
+            build.append(t1 - t0)
+            network.append(t2 - t1)
+    total = np.array(build) + np.array(network)
+    return {
+        "elements": mesh.n_tets,
+        "frames": frames,
+        "ms_per_frame_median": 1e3 * float(np.median(total)),
+        "graph_build_ms_median": 1e3 * float(np.median(build)),
+        "network_ms_median": 1e3 * float(np.median(network)),
+        "thesis_reported_ms": {"network": 127.0, "graph_and_render": 579.11, "total": 706.0},
+    }
+
+
+def run_learned_benchmarks(model: LoadedModel | None = None, frames: int = 20, thesis_frames: int = 3, larger: bool = True, solver_seconds_per_frame: float | None = None) -> dict:
+    from thrsim.geometry.bone_patch import generate_bone_patch
+
+    if model is None:
+        model = untrained_model(generate_bone_patch(BonePatchConfig()), preset("production"))
+    result = {"threads": torch.get_num_threads(), "production": time_production(model, frames)}
+    result["thesis_way"] = time_thesis_way(model.mesh, thesis_frames, model.teeth_radius_m)
+    result["speedup_vs_thesis_way"] = result["thesis_way"]["ms_per_frame_median"] / result["production"]["ms_per_frame_median"]
+    if solver_seconds_per_frame is not None:
+        result["solver_ms_per_frame"] = solver_seconds_per_frame * 1e3
+        result["speedup_vs_solver"] = solver_seconds_per_frame * 1e3 / result["production"]["ms_per_frame_median"]
+    if larger:
+        bone = BonePatchConfig()
+        result["larger_mesh"] = {}
+        for name, config in (("thicker", BonePatchConfig(thickness_mm=4 * bone.thickness_mm)), ("wider", BonePatchConfig(half_angle_deg=_four_times_area(bone.half_angle_deg)))):
+            big = untrained_model(generate_bone_patch(config), model.settings, model.teeth_radius_m, model.omega_rad_s)
+            row = {**time_production(big, frames), "thickness_mm": config.thickness_mm, "half_angle_deg": config.half_angle_deg}
+            row["element_ratio"] = big.mesh.n_tets / model.mesh.n_tets
+            row["cost_ratio"] = row["ms_per_frame_median"] / result["production"]["ms_per_frame_median"]
+            result["larger_mesh"][name] = row
+    return result
+
+
+def _four_times_area(half_angle_deg: float) -> float:
+    """Half-angle of a spherical cap with 4× the area of one with ``half_angle_deg`` (area ∝ 1 − cos)."""
+    return float(np.degrees(np.arccos(1.0 - 4.0 * (1.0 - np.cos(np.radians(half_angle_deg))))))

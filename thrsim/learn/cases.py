@@ -1,0 +1,105 @@
+"""Ground-truth cases in memory for training and evaluation: α per frame, reamer path, settings.
+
+A dataset directory (``thrsim dataset``, with its manifest and splits) or a single case file is
+read into arrays once; every case must share one mesh, which becomes the model's mesh. Extra
+datasets a newer solver writes are ignored; only the SPEC §4 layout is read.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from thrsim.config import LabelConfig, ReamerConfig
+from thrsim.data.case_file import data_digest, read_case
+from thrsim.data.labels import alpha as alpha_label
+from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.graph import mesh_digest
+
+
+@dataclass
+class CaseArrays:
+    case_id: str
+    path: Path
+    alpha: np.ndarray  # (T, E) float32, eq. 47
+    positions: np.ndarray  # (T, 3) m, reamer centre
+    axis: np.ndarray  # (3,) unit D
+    force_n: float
+    inclination_deg: float
+    anteversion_deg: float
+    omega_rad_s: float
+    split: str | None
+    end_reason: str
+    teeth_radius_m: float
+    digest: str
+    solver_version: str
+
+    @property
+    def frames(self) -> int:
+        return int(len(self.alpha))
+
+    def advances(self) -> np.ndarray:
+        """(T − 1,) m: how far the reamer moved along D from each frame to the next."""
+        return np.diff(self.positions, axis=0) @ self.axis
+
+
+def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, labels: LabelConfig) -> tuple[TetMesh, CaseArrays]:
+    case = read_case(path)
+    frames = case.frames
+    axis = np.asarray(case.reamer_axis, dtype=np.float64).reshape(3)
+    config = case.attrs.get("config") if isinstance(case.attrs.get("config"), dict) else {}
+    reamer = {**ReamerConfig().model_dump(), **config.get("reamer", {})}
+    return case.mesh, CaseArrays(
+        case_id=case_id,
+        path=path,
+        alpha=alpha_label(frames.peeq, frames.von_mises, frames.status, labels),
+        positions=np.asarray(frames.reamer_position, dtype=np.float64),
+        axis=axis / np.linalg.norm(axis),
+        force_n=float(case.attrs.get("force_n", 230.0)),
+        inclination_deg=float(case.attrs.get("inclination_deg", 0.0)),
+        anteversion_deg=float(case.attrs.get("anteversion_deg", 0.0)),
+        omega_rad_s=float(case.attrs.get("omega_rad_s", 136.0)),
+        split=split,
+        end_reason=str(case.attrs.get("end_reason", "completed")),
+        # the teeth reach R + protrusion from the head centre (thrsim.geometry.reamer)
+        teeth_radius_m=(0.5 * float(reamer["head_diameter_mm"]) + float(reamer["tooth_protrusion_mm"])) * 1e-3,
+        digest=digest or data_digest(path),
+        solver_version=str(case.attrs.get("thrsim_version", "unknown")),
+    )
+
+
+def load_cases(source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[CaseArrays]]:
+    """The mesh and the cases of a dataset directory (optionally some splits only) or of one case file."""
+    from thrsim.data.generate import load_dataset
+
+    labels = labels or LabelConfig()
+    source = Path(source)
+    if source.is_file():
+        if not h5py.is_hdf5(source):
+            raise ThrsimInputError(f"{source}: not an HDF5 case file")
+        entries = [{"path": str(source), "case_id": source.stem, "split": None}]
+    elif source.is_dir():
+        entries = [e for e in load_dataset(source) if splits is None or e.get("split") in splits]
+    else:
+        raise ThrsimInputError(f"{source}: no such dataset directory or case file")
+    if not entries:
+        wanted = f" in split(s) {', '.join(splits)}" if splits else ""
+        raise ThrsimInputError(f"{source}: no complete cases{wanted}")
+    mesh, cases, digest = None, [], None
+    for entry in entries:
+        case_mesh, case = _read_case(Path(entry["path"]), entry["case_id"], entry.get("split"), entry.get("data_digest"), labels)
+        if mesh is None:
+            mesh, digest = case_mesh, mesh_digest(case_mesh)
+        elif mesh_digest(case_mesh) != digest:
+            raise ThrsimInputError(f"{entry['path']}: its mesh differs from the other cases' (one model learns one mesh)")
+        if case.frames < 2:
+            continue
+        cases.append(case)
+    if not cases:
+        raise ThrsimInputError(f"{source}: no case has two frames or more")
+    return mesh, cases

@@ -1,0 +1,134 @@
+"""Table-10-style evaluation [7.3.5]: precision, recall and F1 of newly removed elements after rollouts.
+
+Windows: from several start frames of every case (every ``start_stride`` frames), the model
+rolls out from the ground truth at the start; at horizons 1, 30 and 60 the elements it has
+removed since the start are compared with those the solver removed. A case that ends
+(perforated, passed through, or simply recorded fewer frames) before a start's longest horizon
+contributes that start's rollout to its last frame under "end" instead. Counts are summed
+(micro-averaged) over the windows of all cases of one inclination γ.
+
+Modes and baselines: ``autonomous`` (the regressor advances the reamer: the headline),
+``tool_forced`` (recorded reamer positions), ``mlp`` (the node-wise MLP, autonomous) and
+``geometric`` (every element entering the teeth's envelope at the recorded positions). At the
+longest horizon of each window the removed-volume error and the mean / max distance between the
+predicted and true reamed surfaces are reported too.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+
+import numpy as np
+
+from thrsim.learn.cases import CaseArrays
+from thrsim.learn.metrics import Counts, surface_distance_mm
+from thrsim.learn.model_dir import LoadedModel
+from thrsim.learn.rollout import GeometricStep, LearnedStep, rollout
+
+HORIZONS = (1, 30, 60)
+MODES = ("autonomous", "tool_forced", "mlp", "geometric")
+
+#: Table 10 of the thesis: γ → horizon → (precision, recall, F1) in %
+THESIS_TABLE_10 = {
+    "0": {"1": (75.3, 79.4, 77.3), "30": (76.2, 98.8, 86.1), "60": (90.8, 95.3, 92.9)},
+    "15": {"1": (69.3, 59.4, 64.0), "30": (92.1, 93.5, 92.8), "60": (92.2, 93.5, 92.8)},
+    "30": {"1": (69.3, 58.1, 60.6), "30": (85.2, 85.1, 85.1), "60": (85.5, 84.7, 85.1)},
+    "45": {"1": (76.7, 71.1, 73.8), "30": (86.1, 83.3, 84.7), "60": (85.2, 87.1, 86.1)},
+}
+
+
+def gamma_key(inclination_deg: float) -> str:
+    return f"{inclination_deg:g}"
+
+
+def windows(frames: int, start_stride: int, horizons: tuple[int, ...] = HORIZONS) -> list[tuple[int, list[str], int]]:
+    """(start, horizon keys, frames to roll out) for every start frame of a case of ``frames`` frames."""
+    last = frames - 1
+    out = []
+    for start in range(0, last, start_stride):
+        keys = [str(h) for h in horizons if start + h <= last]
+        if start + max(horizons) > last:
+            keys.append("end")
+        out.append((start, keys, min(last, start + max(horizons)) - start))
+    return out
+
+
+def _steppers(model: LoadedModel) -> dict:
+    learned = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
+    return {
+        "autonomous": (learned, model.advance),
+        "tool_forced": (learned, None),
+        "mlp": (LearnedStep(model.mlp, model.graph, model.settings.features, model.teeth_radius_m), model.advance),
+        "geometric": (GeometricStep(model.graph, model.teeth_radius_m), None),
+    }
+
+
+def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None) -> dict:
+    """Scores per mode, γ and horizon, plus volume and surface errors at each window's longest horizon."""
+    threshold = model.threshold
+    counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
+    errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
+    by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
+    steppers = _steppers(model)
+    volumes = model.graph.volumes
+    for index, case in enumerate(cases):
+        g = gamma_key(case.inclination_deg)
+        truth_removed = case.alpha < threshold
+        for start, keys, length in windows(case.frames, start_stride):
+            initial = truth_removed[start]
+            for mode, (step, advance) in steppers.items():
+                masks, _ = rollout(step, case, start, length, threshold, advance, volumes)
+                for key in keys:
+                    k = length if key == "end" else int(key)
+                    counts[mode][g][key].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)
+                final_pred, final_true = masks[-1], truth_removed[start + length]
+                true_volume = float((final_true & ~initial) @ volumes)
+                pred_volume = float((final_pred & ~initial) @ volumes)
+                if true_volume > 0:
+                    errors[mode][g]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                    if mode == "autonomous":
+                        by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                if mode == "autonomous":
+                    by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
+                mean_mm, max_mm = surface_distance_mm(model.graph.reamed_surface(~final_pred), model.graph.reamed_surface(~final_true))
+                errors[mode][g]["surface_mean_mm"].append(mean_mm)
+                errors[mode][g]["surface_max_mm"].append(max_mm)
+        if on_case is not None:
+            on_case(index + 1, len(cases), case.case_id)
+    report = _report(counts, errors, cases)
+    # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
+    report["by_force"] = {
+        f: {"removed_volume_error_mean": _summary([abs(v) for v in e["volume_error"]]), "removed_volume_mm3_mean": _summary(e["removed_volume_mm3"]), "windows": len(e["removed_volume_mm3"])}
+        for f, e in sorted(by_force.items(), key=lambda item: float(item[0]))
+    }
+    return report
+
+
+def _summary(values: list[float]) -> float | None:
+    values = [v for v in values if np.isfinite(v)]
+    return float(np.mean(values)) if values else None
+
+
+def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
+    def scores(mode: str) -> dict:
+        out = {}
+        for g in sorted(counts[mode], key=float):
+            row = {key: counts[mode][g][key].as_dict() for key in ("1", "30", "60", "end") if key in counts[mode][g]}
+            e = errors[mode][g]
+            row["longest_horizon"] = {
+                "removed_volume_error_mean": _summary([abs(v) for v in e["volume_error"]]),
+                "removed_volume_error_signed_mean": _summary(e["volume_error"]),
+                "surface_distance_mean_mm": _summary(e["surface_mean_mm"]),
+                "surface_distance_max_mm": float(np.nanmax(e["surface_max_mm"])) if np.isfinite(e["surface_max_mm"]).any() else None,
+            }
+            out[g] = row
+        return out
+
+    report = scores("autonomous")
+    report["mode"] = "autonomous: the advance regressor moves the reamer"
+    report["tool_forced"] = scores("tool_forced")
+    report["mlp"] = scores("mlp")
+    report["geometric"] = scores("geometric")
+    report["cases"] = [{"case_id": c.case_id, "inclination_deg": c.inclination_deg, "anteversion_deg": c.anteversion_deg, "force_n": c.force_n, "frames": c.frames, "end_reason": c.end_reason, "split": c.split} for c in cases]
+    report["thesis_table_10_percent"] = {g: {h: dict(zip(("precision", "recall", "f1"), v)) for h, v in row.items()} for g, row in THESIS_TABLE_10.items()}
+    return report

@@ -1,0 +1,52 @@
+"""Scores of removed-element predictions [7.3.5, eqs. 51–53] and reamed-surface distances."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass
+class Counts:
+    """True/false positives and false negatives summed over windows (micro-averaging)."""
+
+    tp: int = 0
+    fp: int = 0
+    fn: int = 0
+    windows: int = 0
+
+    def add(self, predicted: np.ndarray, truth: np.ndarray) -> None:
+        predicted, truth = np.asarray(predicted, bool), np.asarray(truth, bool)
+        self.tp += int((predicted & truth).sum())
+        self.fp += int((predicted & ~truth).sum())
+        self.fn += int((~predicted & truth).sum())
+        self.windows += 1
+
+    @property
+    def precision(self) -> float | None:
+        return self.tp / (self.tp + self.fp) if self.tp + self.fp else None
+
+    @property
+    def recall(self) -> float | None:
+        return self.tp / (self.tp + self.fn) if self.tp + self.fn else None
+
+    @property
+    def f1(self) -> float | None:
+        if self.tp + self.fp + self.fn == 0:
+            return None
+        return 2 * self.tp / (2 * self.tp + self.fp + self.fn)
+
+    def as_dict(self) -> dict:
+        return {"precision": self.precision, "recall": self.recall, "f1": self.f1, "windows": self.windows, "tp": self.tp, "fp": self.fp, "fn": self.fn}
+
+
+def surface_distance_mm(predicted_points: np.ndarray, true_points: np.ndarray) -> tuple[float, float]:
+    """(mean, max) symmetric nearest-point distance between two surfaces' face centres, in mm."""
+    if len(predicted_points) == 0 or len(true_points) == 0:
+        return float("nan"), float("nan")
+    a = cKDTree(true_points).query(predicted_points)[0]
+    b = cKDTree(predicted_points).query(true_points)[0]
+    both = np.concatenate([a, b])
+    return float(both.mean() * 1e3), float(both.max() * 1e3)

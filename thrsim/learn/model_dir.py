@@ -1,0 +1,181 @@
+"""A model directory on disk: weights (safetensors), the regressor's arrays, the mesh, and a JSON card.
+
+::
+
+    MODEL_DIR/card.json            format, version, data (source, digest, split), settings,
+                                   metrics, regressor table, code versions, training time
+    MODEL_DIR/network.safetensors  Graph Network ("gn.*") and MLP baseline ("mlp.*"), normalisers included
+    MODEL_DIR/advance.safetensors  the reamer-advance regressor as plain arrays
+    MODEL_DIR/mesh.safetensors     the mesh the model belongs to (nodes m, tets, fixed nodes, node sets)
+
+Nothing is pickled. Every file is written atomically and the card last, so a directory with a
+card is complete. Loading refuses a directory from another format version, files that do not
+match the card's mesh digest, or a mesh other than the one asked for.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydantic import ValidationError
+from safetensors import safe_open
+from safetensors.numpy import load_file as load_arrays
+from safetensors.numpy import save_file as save_arrays
+from safetensors.torch import load_file as load_tensors
+from safetensors.torch import save_file as save_tensors
+
+from thrsim.atomic import atomic_path
+from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.advance import ArrayRegressor
+from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.settings import ModelSettings
+
+MODEL_FORMAT = "thrsim-model"
+MODEL_FORMAT_VERSION = 1
+CARD, NETWORK, ADVANCE, MESH = "card.json", "network.safetensors", "advance.safetensors", "mesh.safetensors"
+#: where the shipped default model lives inside the package
+SHIPPED_MODEL = Path(__file__).parent / "models" / "default"
+
+
+@dataclass
+class LoadedModel:
+    path: Path
+    card: dict
+    settings: ModelSettings
+    gn: LearnedSimulator
+    mlp: LearnedSimulator
+    advance: ArrayRegressor
+    mesh: TetMesh
+    graph: StaticGraph = field(repr=False)
+
+    @property
+    def teeth_radius_m(self) -> float:
+        return float(self.card["reamer"]["teeth_radius_m"])
+
+    @property
+    def omega_rad_s(self) -> float:
+        return float(self.card["reamer"]["omega_rad_s"])
+
+    @property
+    def threshold(self) -> float:
+        return float(self.card["labels"]["removed_threshold"])
+
+
+def mesh_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:
+    arrays = {"nodes": mesh.nodes, "tets": mesh.tets, "fixed_nodes": mesh.fixed_nodes}
+    arrays.update({f"set.{name}": ids for name, ids in mesh.node_sets.items()})
+    return {k: np.ascontiguousarray(v) for k, v in arrays.items()}
+
+
+def mesh_from_arrays(arrays: dict[str, np.ndarray]) -> TetMesh:
+    sets = {k[4:]: v for k, v in arrays.items() if k.startswith("set.")}
+    return TetMesh(nodes=arrays["nodes"], tets=arrays["tets"], node_sets=sets, fixed_nodes=arrays["fixed_nodes"])
+
+
+def network_tensors(gn: LearnedSimulator, mlp: LearnedSimulator) -> dict[str, torch.Tensor]:
+    tensors = {f"gn.{k}": v.detach().contiguous() for k, v in gn.state_dict().items()}
+    tensors.update({f"mlp.{k}": v.detach().contiguous() for k, v in mlp.state_dict().items()})
+    return tensors
+
+
+def load_network_tensors(gn: LearnedSimulator, mlp: LearnedSimulator, tensors: dict[str, torch.Tensor]) -> None:
+    gn.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("gn.")})
+    mlp.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("mlp.")})
+
+
+def save_model(out: Path, card: dict, gn: LearnedSimulator, mlp: LearnedSimulator, advance: ArrayRegressor, mesh: TetMesh) -> Path:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    # safetensors recreates the file it writes: give it the usual permissions back
+    with atomic_path(out / NETWORK) as tmp:
+        save_tensors(network_tensors(gn, mlp), str(tmp))
+        os.chmod(tmp, 0o644)
+    with atomic_path(out / ADVANCE) as tmp:
+        save_arrays({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, str(tmp), metadata={"kind": advance.kind})
+        os.chmod(tmp, 0o644)
+    with atomic_path(out / MESH) as tmp:
+        save_arrays(mesh_arrays(mesh), str(tmp))
+        os.chmod(tmp, 0o644)
+    card = {**card, "format": MODEL_FORMAT, "format_version": MODEL_FORMAT_VERSION}
+    card["mesh"] = {**card.get("mesh", {}), "digest": mesh_digest(mesh), "elements": mesh.n_tets, "nodes": mesh.n_nodes}
+    card["advance"] = {**card.get("advance", {}), "chosen": advance.kind}
+    with atomic_path(out / CARD) as tmp:
+        tmp.write_text(json.dumps(card, indent=2, sort_keys=True, default=_json_default))
+    return out
+
+
+def _json_default(value):
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not JSON-serialisable: {type(value).__name__}")
+
+
+def read_card(path: str | os.PathLike) -> dict:
+    path = Path(path)
+    card_file = path / CARD
+    if not path.is_dir():
+        raise ThrsimInputError(f"{path}: no such model directory")
+    if not card_file.is_file():
+        raise ThrsimInputError(f"{path}: not a thrsim model directory (no {CARD})")
+    try:
+        card = json.loads(card_file.read_text())
+    except (ValueError, UnicodeDecodeError) as error:
+        raise ThrsimInputError(f"{card_file}: unreadable model card ({error})") from None
+    if not isinstance(card, dict) or card.get("format") != MODEL_FORMAT:
+        raise ThrsimInputError(f"{path}: not a thrsim model (card format {card.get('format') if isinstance(card, dict) else None!r})")
+    if card.get("format_version") != MODEL_FORMAT_VERSION:
+        raise ThrsimInputError(
+            f"{path}: model format version {card.get('format_version')!r} is incompatible with this thrsim "
+            f"(reads version {MODEL_FORMAT_VERSION}); retrain it with `thrsim train`"
+        )
+    return card
+
+
+def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | None = None) -> LoadedModel:
+    """Read and check a model directory (the shipped model when ``path`` is None)."""
+    if path is None:
+        path = SHIPPED_MODEL
+        if not (path / CARD).is_file():
+            raise ThrsimInputError(
+                "no shipped model in this thrsim build yet (it is trained on the 0.3.0 dataset); "
+                "train one with `thrsim train --data DIR --out MODEL_DIR` and pass --model MODEL_DIR"
+            )
+    path = Path(path)
+    card = read_card(path)
+    for name in (NETWORK, ADVANCE, MESH):
+        if not (path / name).is_file():
+            raise ThrsimInputError(f"{path}: incomplete model directory (no {name})")
+    try:
+        mesh = mesh_from_arrays(load_arrays(str(path / MESH)))
+        tensors = load_tensors(str(path / NETWORK))
+        with safe_open(str(path / ADVANCE), framework="numpy") as handle:
+            kind = (handle.metadata() or {}).get("kind", "")
+        advance = ArrayRegressor(kind, load_arrays(str(path / ADVANCE)))
+    except (OSError, ValueError, KeyError) as error:
+        raise ThrsimInputError(f"{path}: unreadable model files ({error})") from None
+    digest = mesh_digest(mesh)
+    if digest != card.get("mesh", {}).get("digest"):
+        raise ThrsimInputError(f"{path}: {MESH} does not match the card's mesh digest (mixed model files)")
+    if expect_mesh is not None and mesh_digest(expect_mesh) != digest:
+        raise ThrsimInputError(
+            f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "
+            f"({expect_mesh.n_tets} tets, digest {mesh_digest(expect_mesh)[:12]})"
+        )
+    try:
+        settings = ModelSettings.model_validate(card["settings"])
+    except ValidationError as error:
+        raise ThrsimInputError(f"{path}: the card's settings are not valid for this thrsim ({str(error).splitlines()[0]})") from None
+    threshold = float(card["labels"]["removed_threshold"])
+    gn, mlp = LearnedSimulator(settings, "gn", threshold), LearnedSimulator(settings, "mlp", threshold)
+    try:
+        load_network_tensors(gn, mlp, tensors)
+    except RuntimeError as error:
+        raise ThrsimInputError(f"{path}: weights do not fit the card's architecture ({str(error).splitlines()[0]})") from None
+    return LoadedModel(path=path, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))

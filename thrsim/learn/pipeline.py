@@ -1,0 +1,117 @@
+"""``thrsim train`` end to end: read a dataset, train, fit the regressor, write the model directory.
+
+The training split trains the networks and the regressor; the validation split drives the
+rollouts scored after every epoch; validation and test cases make the regressor's held-out
+table. The card records the data (source, per-case digests, split), every setting, the
+training history and time, and the code versions.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import time
+from collections.abc import Callable
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from thrsim.config import LabelConfig
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.cases import CaseArrays, load_cases
+from thrsim.learn.graph import StaticGraph
+from thrsim.learn.model_dir import CARD, save_model
+from thrsim.learn.settings import ModelSettings
+from thrsim.learn.training import CHECKPOINT, EpochReport, Trainer, train_advance
+from thrsim.provenance import package_versions
+
+
+def data_identity(cases: list[CaseArrays]) -> str:
+    digest = hashlib.sha256()
+    for case in sorted(cases, key=lambda c: c.case_id):
+        digest.update(f"{case.case_id}:{case.split}:{case.digest};".encode())
+    return digest.hexdigest()
+
+
+def train_model(
+    data: str | os.PathLike,
+    out: str | os.PathLike,
+    settings: ModelSettings,
+    arch_name: str = "production",
+    *,
+    overwrite: bool = False,
+    on_start: Callable[[dict], None] | None = None,
+    on_epoch: Callable[[EpochReport], None] | None = None,
+    on_batch: Callable[[int, int], None] | None = None,
+) -> dict:
+    """Train into ``out`` (resuming its checkpoint when one of the same run is there); return the card."""
+    out = Path(out)
+    if (out / CARD).exists() and not overwrite:
+        raise ThrsimInputError(f"{out}: already holds a trained model (pass --overwrite to replace it)")
+    if out.exists() and not out.is_dir():
+        raise ThrsimInputError(f"{out}: exists and is not a directory")
+    if not out.parent.is_dir():
+        raise ThrsimInputError(f"{out}: parent folder {out.parent} does not exist")
+    labels = LabelConfig()
+    mesh, cases = load_cases(data, labels=labels)
+    train = [c for c in cases if c.split == "train"]
+    validation = [c for c in cases if c.split == "validation"]
+    held_out = [c for c in cases if c.split in ("validation", "test")]
+    if not train:
+        raise ThrsimInputError(f"{data}: no complete training cases (a dataset directory from `thrsim dataset` is needed)")
+    radii = {round(c.teeth_radius_m, 9) for c in cases}
+    if len(radii) != 1:
+        raise ThrsimInputError(f"{data}: cases use different reamers ({sorted(radii)} m teeth radius); one model learns one reamer")
+    teeth_radius_m = radii.pop()
+    graph = StaticGraph(mesh)
+    trainer = Trainer(graph, train, validation, settings, teeth_radius_m, labels.removed_threshold)
+    checkpoint = out / CHECKPOINT
+    out.mkdir(exist_ok=True)
+    resumed = trainer.load_checkpoint(checkpoint)
+    previous_seconds = sum(h["seconds"] for h in trainer.history)
+    if on_start is not None:
+        on_start({"train_cases": len(train), "validation_cases": len(validation), "pairs": len(trainer.samples), "elements": mesh.n_tets, "resumed_at_epoch": trainer.epoch if resumed else None})
+    trainer.run(checkpoint, on_epoch, on_batch)
+    started = time.perf_counter()
+    advance, advance_table = train_advance(train, held_out, graph.volumes, labels.removed_threshold, settings.train.seed, settings.train.advance_trees)
+    advance_seconds = time.perf_counter() - started
+    history = trainer.history
+    card = {
+        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "thrsim_version": package_versions()["thrsim"],
+        "versions": package_versions(),
+        "arch": arch_name,
+        "settings": settings.model_dump(mode="json"),
+        "labels": labels.model_dump(mode="json"),
+        "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": float(np.median([c.omega_rad_s for c in cases]))},
+        "data": {
+            "source": str(Path(data).resolve()),
+            "digest": data_identity(cases),
+            "solver_versions": sorted({c.solver_version for c in cases}),
+            "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
+            "frame_pairs": int(len(trainer.samples)),
+        },
+        "training": {
+            "epochs": trainer.epoch,
+            "network_seconds": sum(h["seconds"] for h in history),
+            "advance_seconds": advance_seconds,
+            "resumed": resumed,
+            "seconds_before_resume": previous_seconds if resumed else 0.0,
+            "threads": torch.get_num_threads(),
+            "device": "cpu",
+            "history": history,
+        },
+        "metrics": {
+            "final_gn_loss": history[-1]["gn_loss"] if history else None,
+            "final_mlp_loss": history[-1]["mlp_loss"] if history else None,
+            "validation_f1": history[-1]["validation_f1"] if history else None,
+        },
+        "advance": advance_table,
+        "parameters": {"gn": sum(p.numel() for p in trainer.gn.parameters()), "mlp": sum(p.numel() for p in trainer.mlp.parameters())},
+    }
+    save_model(out, card, trainer.gn, trainer.mlp, advance, mesh)
+    shutil.rmtree(checkpoint, ignore_errors=True)
+    return card

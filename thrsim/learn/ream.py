@@ -1,0 +1,101 @@
+"""``thrsim ream``: a learned rollout at one orientation and force, written as a time series and a summary.
+
+The output folder is assembled under a temporary name beside its target and renamed into place
+when complete, so a failed run leaves nothing (and a rerun replaces an earlier ream output).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from thrsim.atomic import fsync_folder
+from thrsim.config import Orientation
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.simulator import ReamingSimulator, check_force
+from thrsim.learn.vtk_series import write_frame, write_pvd
+from thrsim.provenance import json_default, package_versions
+
+SUMMARY = "ream.json"
+
+
+def check_out(out: Path) -> None:
+    if out.exists() and not out.is_dir():
+        raise ThrsimInputError(f"{out}: exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not (out / SUMMARY).is_file():
+        raise ThrsimInputError(f"{out}: folder is not empty and holds no earlier ream output; choose another --out")
+    parent = out.parent if str(out.parent) else Path(".")
+    if not parent.is_dir():
+        raise ThrsimInputError(f"{out}: parent folder {parent} does not exist")
+    if not os.access(parent, os.W_OK):
+        raise ThrsimInputError(f"{out}: parent folder {parent} is not writable")
+
+
+def ream(inclination_deg: float, anteversion_deg: float, force_n: float, frames: int, side: str, out: str | os.PathLike, model_dir: str | os.PathLike | None = None) -> dict:
+    out = Path(out)
+    if frames < 1:
+        raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
+    force = check_force(force_n)
+    if side not in ("right", "left"):
+        raise ThrsimInputError(f"unknown side {side!r}: choose right or left")
+    if not (0 <= inclination_deg <= 90 and np.isfinite(inclination_deg)):
+        raise ThrsimInputError(f"--inclination must lie in [0, 90] degrees, got {inclination_deg:g}")
+    if not (0 <= anteversion_deg <= 360 and np.isfinite(anteversion_deg)):
+        raise ThrsimInputError(f"--anteversion must lie in [0, 360] degrees, got {anteversion_deg:g}")
+    check_out(out)
+    simulator = ReamingSimulator(model_dir)
+    simulator.reset(side)
+    axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
+    if side == "left":
+        axis = axis * np.array([-1.0, 1.0, 1.0])
+    mesh = simulator.mesh
+    teeth = simulator.model.teeth_radius_m
+    frame_dt = 1.0 / 60.0
+    parent = out.parent if str(out.parent) else Path(".")
+    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
+    try:
+        start = simulator.reamer_start(axis)
+        entries = [(0.0, *write_frame(staging, 0, mesh, simulator.alpha, simulator.removed, start, axis, teeth))]
+        step_ms, states = [], []
+        for k in range(1, frames + 1):
+            t0 = time.perf_counter()
+            state = simulator.step(axis, force)
+            step_ms.append((time.perf_counter() - t0) * 1e3)
+            states.append(state)
+            entries.append((k * frame_dt, *write_frame(staging, k, mesh, state.alpha, state.removed, state.reamer_position, axis, teeth)))
+        write_pvd(staging / "ream.pvd", entries)
+        summary = {
+            "inclination_deg": inclination_deg,
+            "anteversion_deg": anteversion_deg,
+            "force_n": force,
+            "side": side,
+            "frames": frames,
+            "elements": simulator.n_elements,
+            "removed": int(states[-1].removed.sum()),
+            "removed_volume_mm3": states[-1].removed_volume_m3 * 1e9,
+            "depth_mm": simulator.depth_m * 1e3,
+            "reamer_start_mm": (np.asarray(start) * 1e3).tolist(),
+            "reamer_end_mm": (states[-1].reamer_position * 1e3).tolist(),
+            "removed_per_frame": [int(s.removed.sum()) for s in states],
+            "ms_per_frame_median": float(np.median(step_ms)),
+            "ms_per_frame_max": float(np.max(step_ms)),
+            "model": {"path": str(simulator.model.path), "arch": simulator.model.card.get("arch"), "data_digest": simulator.model.card["data"]["digest"], "created_utc": simulator.model.card.get("created_utc")},
+            "series": "ream.pvd",
+            "versions": package_versions(),
+        }
+        (staging / SUMMARY).write_text(json.dumps(summary, indent=2, default=json_default))
+        os.chmod(staging, 0o755)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(staging, out)
+        fsync_folder(parent)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+    return summary

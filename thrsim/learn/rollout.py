@@ -1,0 +1,99 @@
+"""One frame after another: the learned step, the geometric baseline, and rollouts from a ground-truth frame.
+
+A step takes α at t, the reamer centre at t + 1 (given, or advanced by the regressor), the axis
+and the force, and returns α at t + 1. Only the region near the reamer is evaluated (see
+:mod:`thrsim.learn.graph`); elements outside it keep their α, since nothing reaches them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from thrsim.learn.advance import ArrayRegressor, feature_row
+from thrsim.learn.features import ReamerState, batch, frame_arrays
+from thrsim.learn.graph import StaticGraph
+from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.settings import FeatureSettings
+
+
+@dataclass
+class StepInfo:
+    region: int
+    subgraph: int
+
+
+class LearnedStep:
+    """α(t) → α(t+1) with a trained :class:`LearnedSimulator` (Graph Network or node-wise MLP)."""
+
+    def __init__(self, model: LearnedSimulator, graph: StaticGraph, features: FeatureSettings, teeth_radius_m: float):
+        self.model = model.eval()
+        self.graph = graph
+        self.features = features
+        self.teeth_radius_m = teeth_radius_m
+        self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
+        self.last = StepInfo(0, 0)
+
+    def __call__(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> np.ndarray:
+        graph = self.graph
+        active = alpha >= self.model.threshold
+        if self.features.whole_graph:
+            sub = graph.whole()
+        else:
+            sub = graph.subgraph(graph.region(active, centre, self.reach_m, self.features.front_hops), self.features.halo_hops)
+        out = np.array(alpha, dtype=np.float32, copy=True)
+        self.last = StepInfo(sub.n_region, len(sub.nodes))
+        if sub.n_region == 0:
+            return out
+        reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
+        alpha_sub = out[sub.nodes]
+        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active)
+        inputs = batch([(sub, alpha_sub, arrays)])
+        with torch.inference_mode():
+            predicted = self.model.alpha_next(inputs).numpy()
+        out[sub.region] = predicted[: sub.n_region]
+        return out
+
+
+class GeometricStep:
+    """Baseline: every element whose centroid enters the teeth's envelope (the dome in front of the
+    head centre, radius of the teeth's reach) is removed; nothing else changes."""
+
+    def __init__(self, graph: StaticGraph, teeth_radius_m: float):
+        self.graph = graph
+        self.teeth_radius_m = teeth_radius_m
+
+    def __call__(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> np.ndarray:
+        rel = self.graph.centroids - centre
+        inside = (np.einsum("ij,ij->i", rel, rel) < self.teeth_radius_m**2) & (rel @ axis >= 0.0)
+        return np.where(inside, np.float32(0.0), alpha).astype(np.float32)
+
+
+def rollout(step, case, start: int, frames: int, threshold: float, advance: ArrayRegressor | None, volumes_m3: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+    """Run ``frames`` steps from the ground truth at ``start``; (removed masks at start+1 … start+frames, centres).
+
+    With ``advance`` the reamer moves by the regressor (autonomous); without, it follows the
+    recorded positions (tool-forced).
+    """
+    alpha = case.alpha[start].copy()
+    centre = case.positions[start].copy()
+    previous_removed = (case.alpha[start - 1] < threshold) if start > 0 else (alpha < threshold)
+    last_removed_m3 = float(((alpha < threshold) & ~previous_removed) @ volumes_m3)
+    masks, centres = [], []
+    for k in range(1, frames + 1):
+        if advance is None:
+            new_centre = case.positions[start + k]
+        else:
+            row = feature_row(centre, last_removed_m3, case.inclination_deg, case.anteversion_deg, case.force_n)
+            new_centre = centre + float(advance.predict(row)[0]) * 1e-3 * case.axis
+        moved = float((new_centre - centre) @ case.axis)
+        before = alpha < threshold
+        alpha = step(alpha, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
+        removed = alpha < threshold
+        last_removed_m3 = float((removed & ~before) @ volumes_m3)
+        centre = new_centre
+        masks.append(removed)
+        centres.append(centre)
+    return masks, np.array(centres)

@@ -1,0 +1,120 @@
+"""Settings of the learned simulator: architecture, features, training; presets ``production`` and ``thesis``.
+
+Everything here is stored in the model card, so a model directory says how it was built.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+FeatureSet = Literal["full", "thesis"]
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+
+class ArchSettings(_Frozen):
+    """Encode–process–decode sizes (hidden-layer widths; every listed layer is Linear + ReLU).
+
+    ``global_block``: update a global latent each step from summed nodes and edges (the thesis's
+    full GN block); without it the force is broadcast into the node encoder (cheaper, and the
+    sum over a region of varying size carries no meaning). ``residual``: latents are updated
+    additively (MeshGraphNets); ``residual_logit``: the output logit is added to logit(α_t), so
+    an untrained network already predicts "nothing changes".
+    """
+
+    node_encoder: tuple[int, ...] = (32, 32)
+    node_core: tuple[int, ...] = (32, 32)
+    node_decoder: tuple[int, ...] = (32,)
+    edge_encoder: tuple[int, ...] = (32, 32)
+    edge_core: tuple[int, ...] = (32, 32)
+    global_encoder: tuple[int, ...] = (16,)
+    global_core: tuple[int, ...] = ()
+    message_passing_steps: int = Field(4, ge=1)
+    shared_core: bool = False
+    global_block: bool = False
+    residual: bool = True
+    layer_norm: bool = True
+    residual_logit: bool = True
+    mlp_baseline: tuple[int, ...] = (32, 32)
+
+
+class FeatureSettings(_Frozen):
+    """Per-frame inputs and the region the network updates.
+
+    ``full``: node = centroid − reamer centre, its axial and radial parts, signed distance to
+    the teeth's sphere, cutting speed ω·r, cosine between the axis and the shell normal, distance
+    from the acetabular centre (depth across the shell), α, active flag and open-face count; edge = present/broken one-hot + centroid offset and its
+    length; global = force vector along D, its magnitude and the reamer's advance this frame.
+    ``thesis`` [7.3.1]: node = centroid − reamer centre and α; edge = present/broken one-hot;
+    global = force vector.
+    """
+
+    feature_set: FeatureSet = "full"
+    reach_margin_mm: float = Field(1.0, gt=0, description="front elements whose centroid is within teeth reach + this of the reamer centre")
+    front_hops: int = Field(1, ge=0, description="face-hops the updated region grows from the front into the bone")
+    halo_hops: int = Field(0, ge=0, description="face-hops of context around the region (not updated)")
+    whole_graph: bool = Field(False, description="update every element every frame (the thesis's way)")
+
+
+class TrainSettings(_Frozen):
+    """Optimisation: Adam, exponential learning-rate decay, Gaussian noise on the input α."""
+
+    epochs: int = Field(30, ge=1)
+    batch_size: int = Field(4, ge=1)
+    learning_rate: float = Field(1e-3, gt=0)
+    final_learning_rate: float = Field(1e-4, gt=0)
+    gradient_clip: float = Field(1.0, gt=0, description="largest gradient norm per step")
+    alpha_noise: float = Field(0.02, ge=0, description="σ of the Gaussian noise on input α (stable rollouts)")
+    position_noise_mm: float = Field(0.05, ge=0, description="σ of the noise on the reamer centre")
+    seed: int = 0
+    max_samples_per_epoch: int | None = Field(None, ge=1, description="subsample the frame pairs each epoch")
+    normaliser_samples: int = Field(64, ge=1, description="frame pairs whose inputs fix the normalisation")
+    validation_horizon: int = Field(30, ge=1, description="frames of the validation rollouts run after each epoch")
+    max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
+    advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
+
+
+class ModelSettings(_Frozen):
+    arch: ArchSettings = ArchSettings()
+    features: FeatureSettings = FeatureSettings()
+    train: TrainSettings = TrainSettings()
+
+
+def thesis_arch() -> ArchSettings:
+    """The thesis's sizes [7.3.2]: node enc/dec 1×40, node core 2×300, edge enc/dec 2×20, edge core
+    1×30, global enc/dec 2×11, global core 1×20, full GN block with sum aggregation, shared core,
+    a plain linear output (eq. 48); the MLP baseline is the node core alone. Every MLP ends in a
+    LayerNorm as in the graph_nets library's encode-process-decode models the thesis builds on
+    (without it the sums over a region's nodes make the latents grow without bound). Only α is read out,
+    so the edge and global decoders, which feed nothing, are not built."""
+    return ArchSettings(
+        node_encoder=(40,),
+        node_core=(300, 300),
+        node_decoder=(40,),
+        edge_encoder=(20, 20),
+        edge_core=(30,),
+        global_encoder=(11, 11),
+        global_core=(20,),
+        message_passing_steps=10,
+        shared_core=True,
+        global_block=True,
+        residual=False,
+        layer_norm=True,
+        residual_logit=False,
+        mlp_baseline=(300, 300),
+    )
+
+
+def preset(name: str) -> ModelSettings:
+    """``production`` (sized for an interactive CPU step) or ``thesis`` (the reference)."""
+    if name == "production":
+        return ModelSettings()
+    if name == "thesis":
+        return ModelSettings(arch=thesis_arch(), features=FeatureSettings(feature_set="thesis"))
+    from thrsim.errors import ThrsimInputError
+
+    raise ThrsimInputError(f"unknown architecture {name!r}: choose production or thesis")

@@ -1,0 +1,199 @@
+"""The interactive learned simulator: ``thrsim.ReamingSimulator`` [Algorithm 1].
+
+Loads a model directory (the shipped model by default) and its mesh; each :meth:`step` takes the
+tracked reamer axis and the push force and returns the new bone state. Without a given position
+the reamer advances along its axis by the regressor (autonomous mode); a given position forces
+it (tool-forced mode, e.g. positions recorded by the solver). The left hip is the mirror of the
+right across the bone frame's x = 0 plane: the model runs on the right mesh with mirrored
+vectors, and the element ids are the same on both sides.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from thrsim.config import LabelConfig
+from thrsim.data.labels import alpha as alpha_label
+from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.advance import feature_row
+from thrsim.learn.model_dir import LoadedModel, load_model
+from thrsim.learn.rollout import LearnedStep
+
+#: the solver starts the reamer this far clear of the bone (thrsim.physics.reaming)
+INITIAL_GAP_M = 5e-5
+_MIRROR = np.array([-1.0, 1.0, 1.0])
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """One frame: α and the removed mask per element, the ids removed in this frame, the reamer centre (m)."""
+
+    frame: int
+    alpha: np.ndarray
+    removed: np.ndarray
+    newly_removed: np.ndarray
+    reamer_position: np.ndarray
+    removed_volume_m3: float
+    advance_m: float
+    seconds: float
+
+
+def angles_of(axis: np.ndarray) -> tuple[float, float]:
+    """(γ, θ) in degrees of a unit axis D = (sin γ cos θ, sin γ sin θ, −cos γ) (SPEC §3)."""
+    gamma = math.degrees(math.acos(float(np.clip(-axis[2], -1.0, 1.0))))
+    theta = math.degrees(math.atan2(axis[1], axis[0])) % 360.0 if gamma > 1e-9 else 0.0
+    return gamma, theta
+
+
+def start_position(nodes: np.ndarray, axis: np.ndarray, teeth_radius_m: float, gap_m: float = INITIAL_GAP_M) -> np.ndarray:
+    """Reamer centre s·D on its axis where the teeth clear every bone node by ``gap_m`` (as the solver starts)."""
+    reach = teeth_radius_m + gap_m
+
+    def clearance(s: float) -> float:
+        return float(np.linalg.norm(nodes - s * axis, axis=1).min()) - reach
+
+    lo, hi = -2.0 * reach, 0.0
+    if clearance(lo) <= 0:
+        raise ThrsimInputError("the reamer cannot be placed clear of this bone along that axis")
+    farthest = float(np.linalg.norm(nodes, axis=1).max()) + reach
+    while clearance(hi) > 0:
+        if hi > farthest:
+            raise ThrsimInputError("the reamer axis misses the bone: its teeth never reach it")
+        lo, hi = hi, hi + 0.25 * reach
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if clearance(mid) > 0 else (lo, mid)
+    return lo * axis
+
+
+def check_axis(reamer_axis) -> np.ndarray:
+    axis = np.asarray(reamer_axis, dtype=np.float64).reshape(-1)
+    if axis.shape != (3,):
+        raise ThrsimInputError(f"reamer axis must have 3 components, got {axis.shape[0]}")
+    if not np.isfinite(axis).all():
+        raise ThrsimInputError("reamer axis has NaN or infinite components")
+    norm = float(np.linalg.norm(axis))
+    if norm < 1e-9:
+        raise ThrsimInputError("reamer axis has zero length")
+    return axis / norm
+
+
+def check_force(force_n) -> float:
+    try:
+        force = float(force_n)
+    except (TypeError, ValueError):
+        raise ThrsimInputError(f"force must be a number of newtons, got {force_n!r}") from None
+    if not math.isfinite(force) or force < 0:
+        raise ThrsimInputError(f"force must be finite and non-negative, got {force_n!r} N")
+    return force
+
+
+class ReamingSimulator:
+    """Learned reaming, one frame (1/60 s) per :meth:`step`.
+
+    >>> sim = ReamingSimulator("MODEL_DIR")          # doctest: +SKIP
+    >>> sim.reset(side="right")                       # doctest: +SKIP
+    >>> state = sim.step((0.26, 0.15, -0.95), 230.0)  # doctest: +SKIP
+    """
+
+    def __init__(self, model_dir: str | os.PathLike | None = None, *, model: LoadedModel | None = None, threads: int | None = None):
+        if threads is not None:
+            torch.set_num_threads(threads)
+        self.model = model if model is not None else load_model(model_dir)
+        self._step = LearnedStep(self.model.gn, self.model.graph, self.model.settings.features, self.model.teeth_radius_m)
+        self._threshold = self.model.threshold
+        self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
+        self.reset()
+
+    @property
+    def right_mesh(self) -> TetMesh:
+        return self.model.mesh
+
+    @property
+    def mesh(self) -> TetMesh:
+        """The bone of the current side (the left is mirrored, same element ids)."""
+        return self.model.mesh if self.side == "right" else self.model.mesh.mirrored()
+
+    @property
+    def n_elements(self) -> int:
+        return self.model.mesh.n_tets
+
+    def reset(self, side: str = "right") -> None:
+        """Intact bone (every element at α of an unstressed element), reamer not yet placed."""
+        if side not in ("right", "left"):
+            raise ThrsimInputError(f"unknown side {side!r}: choose right or left")
+        self.side = side
+        self.frame = 0
+        self.alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
+        self._centre: np.ndarray | None = None  # right-side frame
+        self._start: np.ndarray | None = None
+        self._last_removed_m3 = 0.0
+
+    @property
+    def removed(self) -> np.ndarray:
+        return self.alpha < self._threshold
+
+    @property
+    def removed_volume_m3(self) -> float:
+        return float(self.removed @ self.model.graph.volumes)
+
+    def reamer_start(self, reamer_axis) -> np.ndarray:
+        """Where the reamer starts on this axis (teeth just clear of the bone), in this side's frame."""
+        axis = self._to_right(check_axis(reamer_axis))
+        return self._to_side(start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m))
+
+    def _to_right(self, vector: np.ndarray) -> np.ndarray:
+        return vector * _MIRROR if self.side == "left" else vector
+
+    _to_side = _to_right  # the mirror is its own inverse
+
+    def step(self, reamer_axis, force_n: float, reamer_position=None) -> StepResult:
+        """Advance one frame; returns the new state (arrays are copies, in this side's frame)."""
+        started = time.perf_counter()
+        axis = self._to_right(check_axis(reamer_axis))
+        force = check_force(force_n)
+        if reamer_position is not None:
+            given = np.asarray(reamer_position, dtype=np.float64).reshape(-1)
+            if given.shape != (3,) or not np.isfinite(given).all():
+                raise ThrsimInputError("reamer position must be 3 finite numbers (m)")
+            new_centre = self._to_right(given)
+            if self._centre is None:
+                self._centre = self._start = new_centre
+        else:
+            if self._centre is None:
+                self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
+            gamma, theta = angles_of(axis)
+            row = feature_row(self._centre, self._last_removed_m3, gamma, theta, force)
+            new_centre = self._centre + float(self.model.advance.predict(row)[0]) * 1e-3 * axis
+        advance = float((new_centre - self._centre) @ axis)
+        before = self.removed
+        self.alpha = self._step(self.alpha, new_centre, axis, force, advance, self.model.omega_rad_s)
+        after = self.removed
+        newly = np.flatnonzero(after & ~before)
+        self._last_removed_m3 = float(self.model.graph.volumes[newly].sum())
+        self._centre = new_centre
+        self.frame += 1
+        return StepResult(
+            frame=self.frame,
+            alpha=self.alpha.copy(),
+            removed=after,
+            newly_removed=newly,
+            reamer_position=self._to_side(new_centre.copy()),
+            removed_volume_m3=float(after @ self.model.graph.volumes),
+            advance_m=advance,
+            seconds=time.perf_counter() - started,
+        )
+
+    @property
+    def depth_m(self) -> float:
+        """How far the reamer has advanced along its axis since it was placed."""
+        if self._centre is None or self._start is None:
+            return 0.0
+        return float(np.linalg.norm(self._centre - self._start))

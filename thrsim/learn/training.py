@@ -1,0 +1,234 @@
+"""Training: the Graph Network and the MLP baseline on one-step pairs, then the advance regressor.
+
+Each sample is a frame pair (t, t + 1) of a training case, cut to the region near the reamer at
+t + 1 plus its halo (the same subgraph the simulator evaluates), with Gaussian noise on the
+input α of active elements and on the reamer centre (MeshGraphNets-style, for stable rollouts).
+The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49).
+Input normalisers are fitted once on the first samples of a fixed permutation, then frozen.
+
+Determinism: every epoch draws its sample order and noise from ``(seed, epoch)`` alone, so a run
+resumed from its checkpoint (written after every epoch, atomically) gives the same weights as
+one that was never interrupted. After each epoch, tool-forced rollouts on the validation cases
+score F1 of newly removed elements.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from safetensors.torch import load_file as load_tensors
+from safetensors.torch import save_file as save_tensors
+
+from thrsim.atomic import atomic_path
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.advance import case_samples, fit_advance
+from thrsim.learn.cases import CaseArrays
+from thrsim.learn.features import ReamerState, batch, frame_arrays
+from thrsim.learn.graph import StaticGraph
+from thrsim.learn.learned_simulator import LearnedSimulator, masked_bce
+from thrsim.learn.metrics import Counts
+from thrsim.learn.rollout import LearnedStep, rollout
+from thrsim.learn.settings import ModelSettings
+from thrsim.provenance import config_hash
+
+CHECKPOINT = "checkpoint"
+
+
+@dataclass
+class EpochReport:
+    epoch: int
+    epochs: int
+    gn_loss: float
+    mlp_loss: float
+    validation_f1: float | None
+    seconds: float
+
+
+class Trainer:
+    """Holds the data, both networks and their optimisers; ``run`` trains epoch by epoch."""
+
+    def __init__(self, graph: StaticGraph, train: list[CaseArrays], validation: list[CaseArrays], settings: ModelSettings, teeth_radius_m: float, threshold: float):
+        if not train:
+            raise ThrsimInputError("no training cases")
+        self.graph, self.train_cases, self.validation = graph, train, validation
+        self.settings, self.teeth_radius_m, self.threshold = settings, teeth_radius_m, threshold
+        self.reach_m = teeth_radius_m + settings.features.reach_margin_mm * 1e-3
+        self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
+        if len(self.samples) == 0:
+            raise ThrsimInputError("the training cases hold no frame pairs")
+        torch.manual_seed(settings.train.seed)
+        self.gn = LearnedSimulator(settings, "gn", threshold)
+        self.mlp = LearnedSimulator(settings, "mlp", threshold)
+        self.optimisers = {
+            "gn": torch.optim.Adam(self.gn.parameters(), lr=settings.train.learning_rate),
+            "mlp": torch.optim.Adam(self.mlp.parameters(), lr=settings.train.learning_rate),
+        }
+        self.epoch = 0
+        self.history: list[dict] = []
+        self._fit_normalisers()
+
+    def _sample(self, index: int, rng: np.random.Generator | None):
+        case_index, t = self.samples[index]
+        case = self.train_cases[case_index]
+        centre = case.positions[t + 1].copy()
+        if rng is not None and self.settings.train.position_noise_mm > 0:
+            centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
+        graph = self.graph
+        active_t = case.alpha[t] >= self.threshold
+        if self.settings.features.whole_graph:
+            sub = graph.whole()
+        else:
+            region = graph.region(active_t, centre, self.reach_m, self.settings.features.front_hops)
+            sub = graph.subgraph(region, self.settings.features.halo_hops)
+        alpha_in = case.alpha[t][sub.nodes].astype(np.float32)
+        if rng is not None and self.settings.train.alpha_noise > 0:
+            active = alpha_in >= self.threshold
+            noisy = alpha_in + rng.normal(0.0, self.settings.train.alpha_noise, len(alpha_in)).astype(np.float32)
+            alpha_in = np.where(active, np.clip(noisy, self.threshold, 1.0), alpha_in).astype(np.float32)
+        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
+        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
+        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t)
+        return (sub, alpha_in, arrays), case.alpha[t + 1][sub.nodes]
+
+    def _fit_normalisers(self) -> None:
+        rng = np.random.default_rng([self.settings.train.seed, 10**6])
+        chosen = rng.permutation(len(self.samples))[: self.settings.train.normaliser_samples]
+        parts = [self._sample(int(i), None)[0] for i in chosen]
+        inputs = batch(parts)
+        self.gn.fit_normalisers(inputs)
+        self.mlp.fit_normalisers(inputs)
+
+    def _learning_rate(self, epoch: int) -> float:
+        t = self.settings.train
+        span = max(1, t.epochs - 1)
+        return t.learning_rate * (t.final_learning_rate / t.learning_rate) ** (min(epoch, span) / span)
+
+    def train_epoch(self, on_batch: Callable[[int, int], None] | None = None) -> tuple[float, float]:
+        t = self.settings.train
+        epoch = self.epoch
+        rng = np.random.default_rng([t.seed, epoch])
+        torch.manual_seed(t.seed * 100_003 + epoch)
+        order = rng.permutation(len(self.samples))
+        if t.max_samples_per_epoch is not None:
+            order = order[: t.max_samples_per_epoch]
+        for optimiser in self.optimisers.values():
+            for group in optimiser.param_groups:
+                group["lr"] = self._learning_rate(epoch)
+        self.gn.train()
+        self.mlp.train()
+        totals = {"gn": 0.0, "mlp": 0.0}
+        batches = math.ceil(len(order) / t.batch_size)
+        for b in range(batches):
+            chosen = order[b * t.batch_size : (b + 1) * t.batch_size]
+            drawn = [self._sample(int(i), rng) for i in chosen]
+            inputs = batch([d[0] for d in drawn])
+            target = torch.from_numpy(np.concatenate([d[1] for d in drawn]).astype(np.float32))
+            for name, model in (("gn", self.gn), ("mlp", self.mlp)):
+                optimiser = self.optimisers[name]
+                optimiser.zero_grad(set_to_none=True)
+                loss = masked_bce(model.logits(inputs), target, model.trainable_mask(inputs))
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(model.parameters(), t.gradient_clip)
+                optimiser.step()
+                totals[name] += float(loss.detach()) / batches
+            if on_batch is not None:
+                on_batch(b + 1, batches)
+        self.epoch += 1
+        return totals["gn"], totals["mlp"]
+
+    def validate(self) -> float | None:
+        """Micro F1 of newly removed elements after tool-forced rollouts from frame 0 of each validation case."""
+        if not self.validation:
+            return None
+        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
+        counts = Counts()
+        for case in self.validation:
+            horizon = min(self.settings.train.validation_horizon, case.frames - 1)
+            masks, _ = rollout(step, case, 0, horizon, self.threshold, None, self.graph.volumes)
+            start = case.alpha[0] < self.threshold
+            counts.add(masks[-1] & ~start, (case.alpha[horizon] < self.threshold) & ~start)
+        self.gn.train()
+        return counts.f1
+
+    # checkpoints -------------------------------------------------------------------------
+    def identity(self) -> str:
+        return config_hash({"settings": self.settings.model_dump(mode="json"), "cases": [c.case_id for c in self.train_cases], "mesh": self.graph.digest})
+
+    def save_checkpoint(self, folder: Path) -> None:
+        folder.mkdir(parents=True, exist_ok=True)
+        tensors = {f"gn.{k}": v.detach().contiguous() for k, v in self.gn.state_dict().items()}
+        tensors.update({f"mlp.{k}": v.detach().contiguous() for k, v in self.mlp.state_dict().items()})
+        groups = {}
+        for name, optimiser in self.optimisers.items():
+            state = optimiser.state_dict()
+            for index, entry in state["state"].items():
+                for key, value in entry.items():
+                    tensors[f"opt.{name}.{index}.{key}"] = torch.as_tensor(value).detach().clone().contiguous()
+            groups[name] = state["param_groups"]
+        with atomic_path(folder / "state.safetensors") as tmp:
+            save_tensors(tensors, str(tmp))
+        progress = {"identity": self.identity(), "epoch": self.epoch, "history": self.history, "param_groups": groups}
+        with atomic_path(folder / "progress.json") as tmp:
+            tmp.write_text(json.dumps(progress, indent=1))
+
+    def load_checkpoint(self, folder: Path) -> bool:
+        """Resume from ``folder`` when it holds a checkpoint of this very run; False when there is none."""
+        progress_file, state_file = folder / "progress.json", folder / "state.safetensors"
+        if not (progress_file.is_file() and state_file.is_file()):
+            return False
+        progress = json.loads(progress_file.read_text())
+        if progress.get("identity") != self.identity():
+            raise ThrsimInputError(f"{folder}: holds a checkpoint of another training run (other data or settings); use another --out")
+        tensors = load_tensors(str(state_file))
+        self.gn.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("gn.")})
+        self.mlp.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("mlp.")})
+        for name, optimiser in self.optimisers.items():
+            state: dict = {}
+            prefix = f"opt.{name}."
+            for key, value in tensors.items():
+                if key.startswith(prefix):
+                    index, field = key[len(prefix) :].split(".", 1)
+                    state.setdefault(int(index), {})[field] = value
+            optimiser.load_state_dict({"state": state, "param_groups": progress["param_groups"][name]})
+        self.epoch = int(progress["epoch"])
+        self.history = list(progress["history"])
+        return True
+
+    def run(self, checkpoint_dir: Path | None, on_epoch: Callable[[EpochReport], None] | None = None, on_batch: Callable[[int, int], None] | None = None) -> float:
+        """Train up to the configured epochs (or the time budget); return training seconds this run."""
+        started = time.perf_counter()
+        budget = self.settings.train.max_minutes
+        while self.epoch < self.settings.train.epochs:
+            epoch_start = time.perf_counter()
+            gn_loss, mlp_loss = self.train_epoch(on_batch)
+            f1 = self.validate()
+            seconds = time.perf_counter() - epoch_start
+            self.history.append({"epoch": self.epoch, "gn_loss": gn_loss, "mlp_loss": mlp_loss, "validation_f1": f1, "seconds": seconds})
+            if checkpoint_dir is not None:
+                self.save_checkpoint(checkpoint_dir)
+            if on_epoch is not None:
+                on_epoch(EpochReport(self.epoch, self.settings.train.epochs, gn_loss, mlp_loss, f1, seconds))
+            if budget is not None and time.perf_counter() - started > budget * 60:
+                break
+        return time.perf_counter() - started
+
+
+def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], volumes_m3: np.ndarray, threshold: float, seed: int, trees: int = 100):
+    """Fit the advance regressor on the training cases; the table scores the held-out ones."""
+    parts = [case_samples(c, volumes_m3, threshold) for c in train]
+    X = np.concatenate([p[0] for p in parts])
+    y = np.concatenate([p[1] for p in parts])
+    groups = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)])
+    if held_out:
+        held = [case_samples(c, volumes_m3, threshold) for c in held_out]
+        held_X, held_y = np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])
+    else:
+        held_X = held_y = None
+    return fit_advance(X, y, groups, held_X, held_y, seed, trees)

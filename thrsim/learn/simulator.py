@@ -25,9 +25,7 @@ from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import feature_row
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import LearnedStep
-
-#: the solver starts the reamer this far clear of the bone (thrsim.physics.reaming)
-INITIAL_GAP_M = 5e-5
+from thrsim.physics.reaming import INITIAL_GAP_M  # start where the solver's cases start
 _MIRROR = np.array([-1.0, 1.0, 1.0])
 
 

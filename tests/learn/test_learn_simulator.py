@@ -8,6 +8,7 @@ import sys
 import numpy as np
 import pytest
 
+from checkout_cli import checkout_env
 from learn_helpers import REPO
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator, angles_of, start_position
@@ -106,7 +107,7 @@ def test_angles_and_start_position():
 
 def test_thrsim_exports_the_simulator_lazily():
     code = "import sys, thrsim; assert 'torch' not in sys.modules; from thrsim.learn.simulator import ReamingSimulator as R; assert thrsim.ReamingSimulator is R; print('ok')"
-    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env())
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
 
 

@@ -67,9 +67,13 @@ def test_energy_is_balanced_and_every_dissipation_grows(baseline):
     assert external[-1] > 0
     assert summary["energy_balance_error"] < 0.05
     assert np.all(np.abs(energy["balance_error"][1:]) < 0.05 * external[1:])
-    for name in ("plastic_dissipation", "damage_dissipation", "friction", "arm_damping", "debris", "push_work", "spin_work"):
+    for name in ("plastic_dissipation", "damage_dissipation", "debris"):
         assert np.all(np.diff(energy[name]) >= 0), f"{name} must never decrease"
-    assert energy["contact_damping"][-1] > 0 and energy["viscous_dissipation"][-1] > 0
+    # booked through each step's actual displacement, these may dip within round-off of a
+    # velocity reversal but grow frame after frame (the push's work follows the reamer back and
+    # forth, so it is not among them)
+    for name in ("friction", "arm_damping", "contact_damping", "viscous_dissipation", "spin_work"):
+        assert energy[name][-1] > 0 and np.all(np.diff(energy[name]) >= -1e-3 * energy[name][-1]), name
     # the contact interface closes by construction: what the reamer gives is what the bone gets
     # plus what contact dissipates and stores
     parts = simulation.balance_by_part()

@@ -1,7 +1,8 @@
 """Every fast verification check passes through the registry; slow ones under ``-m slow``.
 
-Fast total (2 cores): about 10 s in process. The slow family (reaming-dt-convergence: a short
-reaming case at Δt and Δt/2 on a coarse patch) takes minutes: ``pytest -m slow tests/verification``.
+Fast total (2 cores): about 10 s in process. The slow families (reaming-energy-balance and
+reaming-convergence: the default case over 20 and 5 × 30 frames) take tens of minutes:
+``pytest -m slow tests/verification``.
 """
 
 from __future__ import annotations

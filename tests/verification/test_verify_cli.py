@@ -60,7 +60,7 @@ def test_verify_list_json() -> None:
     result = CliRunner().invoke(app, ["verify", "--list", "--json"])
     assert result.exit_code == 0
     listed = {c["name"]: c for c in json.loads(result.output)["checks"]}
-    assert listed["reaming-dt-convergence"]["slow"] is True
+    assert listed["reaming-convergence"]["slow"] is True and listed["reaming-energy-balance"]["slow"] is True
     assert "calculix-wall-stress" in listed["calculix"]["figures"]
 
 

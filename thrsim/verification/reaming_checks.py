@@ -65,7 +65,7 @@ def reaming_energy_balance() -> list[CheckResult]:
     error = summary["energy_balance_error"]
     details = {key: summary.get(key) for key in ("elements", "frames", "removed", "external_work_j", "balance_by_part_j", "max_kinetic_to_internal")}
     record = result(
-        "reaming-energy-balance", f"|energy balance error| ÷ external work over {ENERGY_FRAMES} frames of the default case",
+        "reaming-energy-balance-error", f"|energy balance error| ÷ external work over {ENERGY_FRAMES} frames of the default case",
         value=error, reference=None, tolerance=ENERGY_TOLERANCE, details=details, seconds=watch.seconds,
     )  # fmt: skip
     record.passed = record.passed and external > 0 and summary["frames"] == ENERGY_FRAMES
@@ -101,7 +101,7 @@ def reaming_convergence() -> list[CheckResult]:
 
 CHECKS = [
     Check("reaming-energy-balance", f"default case, {ENERGY_FRAMES} frames: energy balance error ≤ {ENERGY_TOLERANCE:.0%} of the external work",
-          reaming_energy_balance, ("reaming-energy-balance",), slow=True),
+          reaming_energy_balance, ("reaming-energy-balance-error",), slow=True),
     Check("reaming-convergence", f"default case, {CONVERGENCE_FRAMES} frames: removed volume and mean advance vs half contact factor, "
           "half Δt, half and double reamer mass", reaming_convergence,
           tuple(f"reaming-convergence-{name}-{figure}" for name in VARIANTS for figure in ("removed-volume", "mean-advance")), slow=True),

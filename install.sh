@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One command installs everything thrsim needs on a fresh Debian machine:
 # the system libraries gmsh's wheel links against, CalculiX (the solver
-# cross-check), PyTorch's CPU build (pinned), and thrsim itself.
+# cross-check), PyTorch's CPU build (pinned), thrsim itself, and for the browser trainer
+# Chromium (its end-to-end tests) and three.js from the npm registry (npm ci, locked).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -11,8 +12,12 @@ if command -v apt-get >/dev/null 2>&1; then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
     libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1 libxi6 libgl1 \
-    calculix-ccx >/dev/null
+    calculix-ccx chromium >/dev/null
+  if ! command -v npm >/dev/null 2>&1; then
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq nodejs npm >/dev/null
+  fi
 fi
+(cd thrsim/app/static && npm ci --no-audit --no-fund --loglevel=error)
 
 PY="${PYTHON:-python3}"
 # torch: always the pinned CPU build; a local wheel is used when the machine has one.

@@ -1,3 +1,3 @@
 """thrsim: physically-based and learned simulation of acetabular reaming."""
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"

@@ -153,11 +153,53 @@ class ReamerConfig(_Frozen):
 
 
 class ContactConfig(_Frozen):
-    """Penalty contact between reamer and bone [5.3.1]."""
+    """Penalty contact between reamer and bone [5.3.1], its stiffness scaled to the explicit step.
+
+    Node i's penalty stiffness is k_i = β·m_i/Δt² (m_i its lumped, mass-scaled mass), so a node
+    on its contact spring has ω·Δt = √β on any mesh and time step. β = 0.4 is a tenth of the
+    single-spring stability bound (4); the node's element stiffness and the dampers use the
+    rest of the margin (see :func:`contact_stability_terms`).
+    """
 
     friction: float = Field(0.3, ge=0)
-    damping_ratio: float = Field(0.2, ge=0, description="contact damping as a fraction of critical")
-    penalty_stiffness_n_m: float = Field(1e7, gt=0)
+    damping_ratio: float = Field(0.2, ge=0, lt=1, description="contact damping as a fraction of critical")
+    penalty_factor: float = Field(0.4, gt=0, description="β in k_i = β·m_i/Δt² (node on its contact spring: ω·Δt = √β)")
+
+
+#: the contact-friction cap as a fraction of the one-step stick force (thrsim.physics.contact)
+STICK_FRACTION = 0.5
+#: share of the central-difference bound (ω·Δt)² < 4 kept in reserve for bulk viscosity
+STABILITY_RESERVE = 0.1
+
+
+def contact_stability_terms(safety_factor: float, penalty_factor: float, damping_ratio: float) -> tuple[float, float]:
+    """(ω·Δt)²-like sums of a contact node along the normal and along the surface; each must stay
+    below 4·(1 − reserve) for the explicit step to stay stable.
+
+    The node's elements run at ω_e·Δt = 2s; the contact spring adds β; a damper applied with the
+    previous half-step's velocity, c·Δt/m = a, costs 2a of the bound (central difference with
+    lagged damping is stable for (ω·Δt)² + 2a < 4).
+    """
+    elements = (2.0 * safety_factor) ** 2
+    normal = elements + penalty_factor + 2.0 * (2.0 * damping_ratio * math.sqrt(penalty_factor))
+    tangential = elements + 2.0 * STICK_FRACTION
+    return normal, tangential
+
+
+class ReamerHoldConfig(_Frozen):
+    """The hand-held reamer's axial degree of freedom: what the surgeon's push drives.
+
+    The head (0.186 kg) does not move alone: the shaft, the power driver and the part of the
+    surgeon's arm that moves with them (together 1.5–3 kg) move with it, and the arm resists
+    fast motion. The push therefore acts on an effective mass with an axial damper to ground:
+    M·s̈ = F + G − F_contact·D − c·ṡ. The damper is sized to remove the tooth-impact chatter a
+    free 0.186 kg head shows (bouncing ~14 times a frame, airborne 62 % of the steps); at
+    reaming feed rates (≈ 0.2 mm/s while seating) c·ṡ is under 1 N, a negligible share of the
+    push.
+    """
+
+    effective_mass_kg: float = Field(2.0, gt=0, description="head + shaft + driver + the arm's share")
+    axial_damping_n_s_m: float = Field(2000.0, gt=0, description="arm and driver damping along D")
 
 
 class Orientation(_Frozen):
@@ -254,7 +296,7 @@ class TrackingVolumeConfig(_Frozen):
         return self
 
 
-KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference")
+KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 
 class IgtlConfig(_Frozen):
@@ -292,7 +334,10 @@ class SolverConfig(_Frozen):
     """Explicit central-difference settings of the ground-truth solver."""
 
     target_dt_s: float = Field(4e-6, gt=0, description="time step reached by per-element mass scaling")
-    safety_factor: float = Field(0.9, gt=0, le=1, description="fraction of the Courant limit used")
+    safety_factor: float = Field(
+        0.7, gt=0, le=1,
+        description="fraction of the Courant limit the mass-scaled elements run at; 0.7 leaves the margin contact needs",
+    )  # fmt: skip
     max_kinetic_to_internal: float = Field(0.1, gt=0, description="reported target after first contact")
     energy_blowup_factor: float = Field(1e3, gt=1, description="stop when energy exceeds this × work done")
     threads: int | None = Field(None, ge=1, description="Numba threads; None = all cores")
@@ -312,7 +357,20 @@ class ReamingCaseConfig(_Frozen):
     damage: JohnsonCookDamage = JohnsonCookDamage()
     reamer: ReamerConfig = ReamerConfig()
     contact: ContactConfig = ContactConfig()
+    hold: ReamerHoldConfig = ReamerHoldConfig()
     solver: SolverConfig = SolverConfig()
+
+    @model_validator(mode="after")
+    def _contact_within_stable_step(self) -> "ReamingCaseConfig":
+        bound = 4.0 * (1.0 - STABILITY_RESERVE)
+        normal, tangential = contact_stability_terms(self.solver.safety_factor, self.contact.penalty_factor, self.contact.damping_ratio)
+        if max(normal, tangential) >= bound:
+            raise ValueError(
+                f"contact.penalty_factor {self.contact.penalty_factor:g} with damping_ratio {self.contact.damping_ratio:g} and "
+                f"solver.safety_factor {self.solver.safety_factor:g} would break the stable step "
+                f"(stability sums {normal:.2f} normal, {tangential:.2f} tangential; each must stay below {bound:.2f})"
+            )
+        return self
 
     @property
     def orientation(self) -> Orientation:

@@ -45,6 +45,12 @@ def test_fem_writes_a_valid_case(tmp_path):
         ({}, ["--frames", "0"], "frames"),
         ({}, ["--inclination", "120"], "inclination_deg"),
         ({"solver": {"target_dt_s": 0}}, [], "target_dt_s"),
+        ({}, ["--effective-mass", "0"], "effective_mass_kg"),
+        ({}, ["--axial-damping", "-5"], "axial_damping_n_s_m"),
+        ({}, ["--contact-factor", "0"], "penalty_factor"),
+        ({}, ["--contact-factor", "2.5"], "stable step"),
+        ({"solver": {"safety_factor": 0.9}}, [], "stable step"),
+        ({"contact": {"damping_ratio": -0.1}}, [], "damping_ratio"),
     ],
 )
 def test_non_physical_parameters_are_refused(tmp_path, settings, flags, needle):

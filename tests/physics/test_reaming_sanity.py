@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thrsim.config import BonePatchConfig, JohnsonCookHardening, ReamingCaseConfig
+from thrsim.config import BonePatchConfig, JohnsonCookDamage, JohnsonCookHardening, ReamingCaseConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.physics.reaming import ReamingSimulation
+from thrsim.physics.reaming import ENERGY_NAMES, STALL_FRAMES, ReamingSimulation
 
 COARSE = BonePatchConfig(element_size_mm=1.0)
-FRAMES = 4
+FRAMES = 10
+SEATING = 3  # frames after first contact before the statistics of steady reaming
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +23,7 @@ def _run(mesh, frames=FRAMES, **overrides):
     case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=frames, bone=COARSE, **overrides)
     simulation = ReamingSimulation(case, mesh)
     log, summary = simulation.run(frames)
-    return simulation, log, summary
+    return simulation, log.arrays(), summary
 
 
 @pytest.fixture(scope="module")
@@ -30,20 +31,55 @@ def baseline(coarse_mesh):
     return _run(coarse_mesh)
 
 
-def test_bone_is_removed_and_reamer_advances(baseline):
-    simulation, log, summary = baseline
+def _steady(simulation, records, summary):
+    """Within-frame axial statistics (m, relative to the start) of the frames after seating."""
+    start = summary["first_contact_frame"] + SEATING
+    return records["reamer_axial"][start:] - simulation.start_position, records["contact_fraction"][start:]
+
+
+def test_bone_is_removed_and_the_reamer_feeds_into_it(baseline):
+    simulation, records, summary = baseline
     assert summary["removed"] > 0
     assert summary["first_contact_frame"] == 1
-    axial = (np.array(log.reamer_position) - log.reamer_position[0]) @ simulation.axis
-    # the advance chatters by ±0.1 mm from frame to frame; on average it is into the bone
-    assert axial[1:].mean() > 0, "the reamer must advance along D on average"
-    assert axial.min() > -0.2e-3, "the reamer must never back off far from where it started"
+    axial, _ = _steady(simulation, records, summary)
+    frames = np.arange(len(axial))
+    # judged by the trend of within-frame means over many frames, not a frame-end sample
+    assert np.polyfit(frames, axial[:, 0], 1)[0] > 0, "the reamer must feed along D on average"
+    assert records["reamer_axial"][1:, 1].min() > simulation.start_position, "the reamer never backs off past its start"
+
+
+def test_the_hand_held_reamer_reams_quasi_statically(baseline):
+    simulation, records, summary = baseline
+    axial, contact_fraction = _steady(simulation, records, summary)
+    excursion = axial[:, 2] - axial[:, 1]
+    # a free 0.186 kg head hopped ±0.3 mm and was airborne 62 % of the steps (solver 0.2.0)
+    assert np.median(excursion) < 0.06e-3
+    assert contact_fraction.mean() > 0.85
+    # the push is carried by the contact: the within-frame mean contact force along D matches it
+    mean_force = records["contact_force_axial"][summary["first_contact_frame"] + SEATING :].mean()
+    assert mean_force == pytest.approx(simulation.force_n + simulation.gravity_load, rel=0.05)
+
+
+def test_energy_is_balanced_and_every_dissipation_grows(baseline):
+    simulation, records, summary = baseline
+    energy = dict(zip(ENERGY_NAMES, records["energy"].T))
+    external = energy["external_work"]
+    assert external[-1] > 0
+    assert summary["energy_balance_error"] < 0.05
+    assert np.all(np.abs(energy["balance_error"][1:]) < 0.05 * external[1:])
+    for name in ("plastic_dissipation", "damage_dissipation", "friction", "arm_damping", "debris", "push_work", "spin_work"):
+        assert np.all(np.diff(energy[name]) >= 0), f"{name} must never decrease"
+    assert energy["contact_damping"][-1] > 0 and energy["viscous_dissipation"][-1] > 0
+    # the contact interface closes by construction: what the reamer gives is what the bone gets
+    # plus what contact dissipates and stores
+    parts = simulation.balance_by_part()
+    assert abs(parts["interface"]) < 1e-9 * external[-1]
+    assert abs(parts["bone"]) + abs(parts["reamer"]) < 0.05 * external[-1]
 
 
 def test_removed_elements_never_reappear_and_peeq_never_decreases(baseline):
-    _, log, _ = baseline
-    status = np.array(log.status)
-    peeq = np.array(log.peeq)
+    _, records, _ = baseline
+    status, peeq = records["status"], records["peeq"]
     assert np.all(status[0] == 1), "frame 0 is the intact bone"
     assert np.all(np.diff(status.astype(int), axis=0) <= 0)
     assert np.all(np.diff(peeq, axis=0) >= 0)
@@ -51,31 +87,34 @@ def test_removed_elements_never_reappear_and_peeq_never_decreases(baseline):
 
 def test_more_push_force_removes_more(coarse_mesh, baseline):
     _, _, summary = _run(coarse_mesh, force_n=460.0)
-    assert summary["removed"] > baseline[2]["removed"]
+    assert summary["removed"] > 1.2 * baseline[2]["removed"]
 
 
 def test_stronger_bone_removes_less(coarse_mesh, baseline):
     _, _, summary = _run(coarse_mesh, hardening=JohnsonCookHardening(a_pa=150e6))
-    assert summary["removed"] < baseline[2]["removed"]
+    assert summary["removed"] < 0.8 * baseline[2]["removed"]
 
 
 def test_zero_force_after_first_contact_stops_removal(coarse_mesh):
-    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=1, bone=COARSE)
+    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=4, bone=COARSE)
     simulation = ReamingSimulation(case, coarse_mesh)
-    simulation.run(1)
+    simulation.run(4)
     simulation.force_n = 0.0
     removed = []
-    for _ in range(3 * simulation.steps_per_frame):
-        simulation.step()
+    for _ in range(3):
+        simulation.advance(simulation.steps_per_frame)
         removed.append(int((simulation.solid.active == 0).sum()))
-    # the contact reaction pushes the unloaded reamer off the bone: removal stops within a frame
-    last_frame = removed[-simulation.steps_per_frame :]
-    assert last_frame[0] == last_frame[-1]
+    # unloaded, the arm's damper and the contact reaction bring the reamer to rest: removal stops
+    assert removed[-1] == removed[-2]
 
 
 def test_perforation_ends_the_case_before_the_reamer_falls():
+    # a hard push and the text's u_f = 0.1 mm [5.2.1] break through the coarse shell in ~9 frames
     bone = BonePatchConfig(element_size_mm=1.2)
-    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, force_n=600.0, frames=40, bone=bone)
+    case = ReamingCaseConfig(
+        inclination_deg=15.0, anteversion_deg=30.0, force_n=600.0, frames=20, bone=bone,
+        damage=JohnsonCookDamage(displacement_at_failure_m=1e-4),
+    )  # fmt: skip
     simulation = ReamingSimulation(case)
     log, summary = simulation.run(case.frames)
     assert summary["end_reason"] == "perforated"
@@ -86,19 +125,27 @@ def test_perforation_ends_the_case_before_the_reamer_falls():
     assert tips.max() <= bone.outer_radius
 
 
-def test_tilted_reamer_missing_the_patch_passes_through_instead_of_perforating():
+def test_tilted_reamer_missing_the_patch_never_perforates_and_stops_when_it_can_cut_no_more():
     # γ 45° points the axis outside the 19° patch: no bone lies under the tip, so the teeth passing
-    # the outer-face radius beside the patch is no hole; the case ends when the dome has swept
-    # past every bone in its path, and that frame of free fall is not recorded
+    # the outer-face radius beside the patch is no hole. The dome sweeps through the patch until
+    # it rests on elements pressed against the held outer face, which never yield under that
+    # near-uniaxial compression: the case ends stalled (or passed_through where nothing is left)
     bone = BonePatchConfig(element_size_mm=1.2)
     case = ReamingCaseConfig(inclination_deg=45.0, anteversion_deg=0.0, frames=40, bone=bone)
     simulation = ReamingSimulation(case)
     assert simulation.tip_exit_depth is None
     log, summary = simulation.run(case.frames)
-    assert summary["end_reason"] == "passed_through"
+    assert summary["end_reason"] in ("stalled", "passed_through")
     assert summary["perforated_frame"] is None
     assert summary["frames"] < case.frames and summary["frames"] == len(log.time) - 1
-    assert not simulation.bone_in_path()
+    assert summary["removed"] > 0.5 * simulation.mesh.n_tets
+    if summary["end_reason"] == "stalled":
+        status = np.array(log.status)
+        assert (status[-1] == status[-1 - STALL_FRAMES]).all(), "a stalled case removed nothing in its last frames"
+        held = np.zeros(simulation.mesh.n_nodes, dtype=bool)
+        held[simulation.mesh.fixed_nodes] = True
+        touching = np.linalg.norm(simulation.contact.force, axis=1) > 0
+        assert touching.any() and (held[simulation.mesh.tets[status[-1] > 0]].sum(axis=1) >= 3).any()
     axial = (np.array(log.reamer_position) - log.reamer_position[0]) @ simulation.axis
     assert axial.max() < bone.thickness_mm * 1e-3 * 5, "a recorded frame must not show the reamer in free fall"
 

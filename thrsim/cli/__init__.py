@@ -17,6 +17,7 @@ from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
 from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
+from thrsim.cli import replay_cmd, report_cmd, review_cmd, serve_cmd
 from thrsim.cli.output import command_group, describe_os_error, format_validation_error
 from thrsim.errors import SimulationError, ThrsimInputError
 
@@ -45,6 +46,10 @@ app.command("fem")(fem_cmd.fem)
 app.command("bench")(bench_cmd.bench)
 app.command("track")(track_cmd.track)
 app.command("verify")(verify_cmd.verify)
+app.command("serve")(serve_cmd.serve)
+app.command("report")(report_cmd.report)
+app.command("replay")(replay_cmd.replay)
+app.command("review")(review_cmd.review)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
 

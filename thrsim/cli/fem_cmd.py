@@ -24,6 +24,9 @@ def fem(
     side: Optional[str] = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
     failure_displacement: Optional[float] = typer.Option(None, "--failure-displacement", help="damage u_f in mm (Table 8: 0.5, text: 0.1)", metavar="MM"),
     target_dt: Optional[float] = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
+    contact_factor: Optional[float] = typer.Option(None, "--contact-factor", help="contact penalty factor β (k_i = β·m_i/Δt²) [default: 0.4]"),
+    effective_mass: Optional[float] = typer.Option(None, "--effective-mass", help="hand-held reamer's effective axial mass in kg [default: 2]", metavar="KG"),
+    axial_damping: Optional[float] = typer.Option(None, "--axial-damping", help="arm and driver damping along the axis in N·s/m", metavar="NS_M"),
     threads: Optional[int] = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
     config: Optional[Path] = typer.Option(None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"),
     mesh_file: Optional[Path] = typer.Option(None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"),
@@ -47,6 +50,9 @@ def fem(
             "damage.displacement_at_failure_m": None if failure_displacement is None else failure_displacement * 1e-3,
             "solver.target_dt_s": target_dt,
             "solver.threads": threads,
+            "contact.penalty_factor": contact_factor,
+            "hold.effective_mass_kg": effective_mass,
+            "hold.axial_damping_n_s_m": axial_damping,
         },
     )
     bone = None
@@ -56,7 +62,7 @@ def fem(
         bone = read_mesh(mesh_file)
         if len(bone.fixed_nodes) == 0:
             raise ThrsimInputError(f"{mesh_file}: the mesh has no fixed nodes (a node set named 'fixed')")
-    from thrsim.physics.reaming import run_case  # Numba: loaded only when a case runs
+    from thrsim.data.ground_truth import run_case  # Numba: loaded only when a case runs
 
     columns = (TextColumn("reaming"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=as_json) as bar:

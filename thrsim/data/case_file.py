@@ -14,7 +14,11 @@ Layout::
     /frames/reamer_position (T,3) float64 m
     /frames/reamer_axis (3,) float64
     /frames/energy (T,k) float64 J, attr names = kinetic, internal, ...
-    /frames/contact_force (T,3) float64 N (optional)
+    /frames/contact_force (T,3) float64 N, within-frame mean of the contact force on the bone (optional)
+    /frames/reamer_axial (T,3) float64 m, within-frame mean, min and max of the reamer's axial
+        coordinate s along D (optional, solver ≥ 0.3.0)
+    /frames/contact_force_axial (T,) float64 N, within-frame mean of the contact force along D (optional)
+    /frames/contact_fraction (T,) float64, fraction of the frame's steps with contact (optional)
 
 Per-element datasets are chunked one frame per chunk and gzip-compressed (level 1), so a
 reader streams frames without loading the whole case. Frame 0 is the intact bone before
@@ -45,6 +49,8 @@ CASE_FORMAT = "thrsim-case"
 CASE_VERSION = 1
 REQUIRED_ENERGIES = ("kinetic", "internal")
 PER_ELEMENT = ("status", "peeq", "von_mises")
+#: per-frame datasets a case may carry (older solvers wrote fewer), with their trailing shape
+OPTIONAL_PER_FRAME = {"contact_force": (3,), "reamer_axial": (3,), "contact_force_axial": (), "contact_fraction": ()}
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 
 
@@ -60,6 +66,9 @@ class CaseFrames:
     energy: np.ndarray  # (T,k) float64 J
     energy_names: tuple[str, ...]  # at least "kinetic" and "internal"
     contact_force: np.ndarray | None = None  # (T,3) N
+    reamer_axial: np.ndarray | None = None  # (T,3) m: within-frame mean, min, max of s
+    contact_force_axial: np.ndarray | None = None  # (T,) N
+    contact_fraction: np.ndarray | None = None  # (T,)
 
     @property
     def n_frames(self) -> int:
@@ -116,8 +125,10 @@ def _check_frames(frames: CaseFrames, mesh: TetMesh, where: str) -> None:
     missing = [n for n in REQUIRED_ENERGIES if n not in frames.energy_names]
     if missing:
         raise ThrsimInputError(f"{where}: energy names lack {', '.join(missing)}")
-    if frames.contact_force is not None and np.shape(frames.contact_force) != (t, 3):
-        raise ThrsimInputError(f"{where}: frames.contact_force has shape {np.shape(frames.contact_force)}, expected ({t}, 3)")
+    for name, trailing in OPTIONAL_PER_FRAME.items():
+        data = getattr(frames, name)
+        if data is not None and np.shape(data) != (t, *trailing):
+            raise ThrsimInputError(f"{where}: frames.{name} has shape {np.shape(data)}, expected {(t, *trailing)}")
 
 
 def _per_frame_dataset(group: h5py.Group, name: str, data: np.ndarray, dtype) -> None:
@@ -186,8 +197,9 @@ def write_case(
             g.create_dataset("reamer_axis", data=axis)
             energy = g.create_dataset("energy", data=np.asarray(frames.energy, dtype=np.float64))
             energy.attrs["names"] = [str(n) for n in frames.energy_names]
-            if frames.contact_force is not None:
-                g.create_dataset("contact_force", data=np.asarray(frames.contact_force, dtype=np.float64))
+            for name in OPTIONAL_PER_FRAME:
+                if getattr(frames, name) is not None:
+                    g.create_dataset(name, data=np.asarray(getattr(frames, name), dtype=np.float64))
     return path
 
 
@@ -237,7 +249,7 @@ def read_case(path: str | os.PathLike) -> Case:
                 reamer_position=g["reamer_position"][()],
                 energy=g["energy"][()],
                 energy_names=_energy_names(g["energy"]),
-                contact_force=g["contact_force"][()] if "contact_force" in g else None,
+                **{name: g[name][()] if name in g else None for name in OPTIONAL_PER_FRAME},
             )
             return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=_decode_attrs(f.attrs))
         except KeyError as error:
@@ -261,6 +273,7 @@ class CaseReader:
         self.energy = g["energy"][()]
         self.energy_names = _energy_names(g["energy"])
         self.contact_force = g["contact_force"][()] if "contact_force" in g else None
+        self.reamer_axial = g["reamer_axial"][()] if "reamer_axial" in g else None
         self._mesh: TetMesh | None = None
 
     @property
@@ -405,8 +418,7 @@ def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, .
         "reamer_position": (n_frames, 3),
         "reamer_axis": (3,),
     }
-    if "contact_force" in g:
-        expected["contact_force"] = (n_frames, 3)
+    expected.update({name: (n_frames, *trailing) for name, trailing in OPTIONAL_PER_FRAME.items() if name in g})
     for name, shape in expected.items():
         if g[name].shape != shape:
             raise ThrsimInputError(f"{path}: /frames/{name} has shape {g[name].shape}, expected {shape} (T={n_frames}, E={n_el})")
@@ -427,8 +439,8 @@ def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, .
     fixed_v = fixed[()]
     if len(fixed_v) and (fixed_v.min() < 0 or fixed_v.max() >= n_nodes):
         raise ThrsimInputError(f"{path}: /mesh/fixed_nodes refers to nodes that do not exist")
-    for name in ("mesh/nodes", "frames/time", "frames/reamer_position", "frames/reamer_axis", "frames/energy") + (
-        ("frames/contact_force",) if "contact_force" in g else ()
+    for name in ("mesh/nodes", "frames/time", "frames/reamer_position", "frames/reamer_axis", "frames/energy") + tuple(
+        f"frames/{name}" for name in OPTIONAL_PER_FRAME if name in g
     ):
         values = f[name][()]
         if not np.isfinite(values).all():

@@ -52,7 +52,7 @@ CASES_DIR = "cases"
 LOCK = ".lock"
 MAX_ATTEMPTS = 3
 SOLVERS = {
-    "fem": "thrsim.physics.reaming:run_case",
+    "fem": "thrsim.data.ground_truth:run_case",
     "synthetic": "thrsim.data.synthetic:synthetic_run_case",
 }
 # the per-case axes; everything else of ReamingCaseConfig is the dataset's fixed template

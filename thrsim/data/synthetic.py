@@ -1,4 +1,4 @@
-"""A small deterministic stand-in for the FEM solver, with :func:`thrsim.physics.reaming.run_case`'s signature.
+"""A small deterministic stand-in for the FEM solver, with :func:`thrsim.data.ground_truth.run_case`'s signature.
 
 It exists for tests and demonstrations of the data pipeline (sweeps, executors, resume, labels,
 readers) without the cost of the explicit solver: a structured tet block under the reamer, a

@@ -101,11 +101,13 @@ def frame_rotation(axis: np.ndarray, spin_angle: float = 0.0) -> np.ndarray:
     Local +z maps to the unit ``axis`` D; the local x axis is the bone-frame direction
     orthogonal to D closest to +x (or +y when D ∥ x), then turned by ``spin_angle`` about D.
     """
+    # elementwise sums rather than BLAS dot products: the frame feeds the solver, which must
+    # give the same bits on every x86-64 machine
     d = np.asarray(axis, dtype=float)
-    d = d / np.linalg.norm(d)
+    d = d / math.sqrt(float((d * d).sum()))
     helper = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = helper - d * (helper @ d)
-    e1 /= np.linalg.norm(e1)
+    e1 = helper - d * float((helper * d).sum())
+    e1 /= math.sqrt(float((e1 * e1).sum()))
     e2 = np.cross(d, e1)
     c, s = math.cos(spin_angle), math.sin(spin_angle)
     return np.stack([c * e1 + s * e2, -s * e1 + c * e2, d], axis=1)

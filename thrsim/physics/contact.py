@@ -10,114 +10,242 @@ basis (e1, e2, D) turned to the current spin angle:
   between polar angles φ_start and φ_end; the closest arc point is found by clamping the
   node's polar angle in that half-plane, and g = r_edge − distance.
 
-The deepest of these contacts acts. Normal force f_n = k·g + 2ξ√(k·m)·(−v_rel·n), never
-pulling (f_n ≥ 0); Coulomb friction μ·f_n against the relative sliding velocity, regularised
-below ``SLIP_REGULARISATION_M_S`` so a sticking node feels a viscous rather than a chattering
-force. The relative velocity uses the reamer surface velocity ω D × (p − c) + ṡ D.
+The deepest of these contacts acts.
+
+Stiffness scaled to the explicit step (as ABAQUS/Explicit's penalty method scales its penalty
+to the underlying element stiffness): node i gets k_i = β·m_i/Δt², with m_i its current
+(scaled) lumped mass. A single node on that spring oscillates at ω_i·Δt = √β whatever the mesh
+size, the time step or how many elements the node has left, so contact can never drive the
+central-difference step past its stability limit (ω·Δt < 2, i.e. β < 4 for the spring alone).
+A fixed stiffness does: 1e7 N/m put intact nodes of the 0.45 mm mesh at ω·Δt ≈ 1.6 and nodes
+left with one element at 2.3–3.3, and made removal depend on k. The default β = 0.4 is one tenth
+of the single-spring bound and leaves room for the element stiffness the node also carries.
+At 230 N spread over the ~100 nodes under the teeth the penetration is ≈ 0.5 µm, a thousandth of
+an element.
+
+Normal force f_n = k_i·g + 2ξ√(k_i·m_i)·(−v_rel·n), never pulling (f_n ≥ 0), ξ the contact
+damping ratio [5.3.1]. Friction opposes the relative sliding velocity v_t with
+f_t = min(μ·f_n, a·m_i·|v_t|/Δt), a = ``STICK_FRACTION``: Coulomb while slipping, and never more
+than the force that takes the node half way to the reamer's surface speed within one step. A
+smooth regularisation instead (viscous below a slip speed) has a viscous coefficient μ·f_n/v_reg
+far above the stable m_i/Δt, so sticking nodes overshoot and ring at the step frequency. The
+relative velocity uses the reamer surface velocity w = ω D × (p − c) + ṡ D.
+
+Stability with the element stiffness: a node whose elements run at ω_e·Δt = 2s (s the Courant
+safety factor) and that also carries the contact spring and the velocity-lagged dampers of
+the explicit step (normal: a_n = c·Δt/m = 2ξ√β; tangential: a) is stable while
+(2s)² + β + 2·a_n < 4 along the normal and (2s)² + 2·a < 4 along the surface; the
+configuration refuses settings outside these bounds with a 10 % reserve for bulk viscosity
+(:class:`thrsim.config.ReamingCaseConfig`). With s = 0.9 the normal bound is broken
+((1.8)² + 0.4 + 0.5 = 4.14): a node in the rim of the contact grew a period-two oscillation to
+18 m/s within ten steps. The reaming case therefore runs at s = 0.7.
+
+Energy (for the balance of :mod:`thrsim.physics.reaming`): per node, the kernel also writes the
+reamer surface velocity w, the contact normal n and the elastic energy ½ k_i g² stored in the
+penalty spring, so the caller can book the work of each force through the displacement it
+actually acts over. Totals are summed sequentially by :func:`contact_totals`, never across
+threads (a parallel floating-point reduction would make results depend on the thread count).
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
+import numpy as np
 from numba import njit, prange
 
-SLIP_REGULARISATION_M_S = 1e-3
+from thrsim.config import STICK_FRACTION
 
 
-@njit(parallel=True, cache=True)
-def reamer_contact(
-    nodes, displacement, velocity, inverse_mass, nodal_mass, centre, e1, e2, axis, axial_speed, omega,
-    head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
-    stiffness, damping_ratio, friction, force,
-):  # fmt: skip
-    """Write each node's contact force into ``force`` (N, 3); return how many nodes are in contact.
 
-    Totals (the force on the bone, the power of the contact forces) are left to the caller to
-    sum over ``force`` in a fixed order: a floating-point reduction across threads would make
-    results depend on the thread count.
-    """
-    reach = edge_axis_radius + edge_radius
-    tooth_shell = edge_axis_radius - edge_radius
-    contacts = 0
-    for node in prange(len(inverse_mass)):
-        force[node, 0] = 0.0
-        force[node, 1] = 0.0
-        force[node, 2] = 0.0
-        if inverse_mass[node] == 0.0:  # orphaned: every element at this node is gone
-            continue
-        qx = nodes[node, 0] + displacement[node, 0] - centre[0]
-        qy = nodes[node, 1] + displacement[node, 1] - centre[1]
-        qz = nodes[node, 2] + displacement[node, 2] - centre[2]
-        r = math.sqrt(qx * qx + qy * qy + qz * qz)
-        if r >= reach or r == 0.0:
-            continue
-        depth = head_radius - r
-        nx, ny, nz = qx / r, qy / r, qz / r
-        if r > tooth_shell:
-            # node in the teeth's shell: express it in the spinning reamer frame
-            lx = qx * e1[0] + qy * e1[1] + qz * e1[2]
-            ly = qx * e2[0] + qy * e2[1] + qz * e2[2]
-            lz = qx * axis[0] + qy * axis[1] + qz * axis[2]
-            for k in range(len(tooth_cos)):
-                across = -lx * tooth_sin[k] + ly * tooth_cos[k]
-                if abs(across) >= edge_radius:
-                    continue
-                along = lx * tooth_cos[k] + ly * tooth_sin[k]
-                polar = math.atan2(along, lz)
-                polar = min(max(polar, tooth_start[k]), tooth_end[k])
-                a_along = edge_axis_radius * math.sin(polar)
-                a_z = edge_axis_radius * math.cos(polar)
-                d_along = along - a_along
-                d_z = lz - a_z
-                distance = math.sqrt(d_along * d_along + across * across + d_z * d_z)
-                tooth_depth = edge_radius - distance
-                if tooth_depth > depth and distance > 0.0:
-                    depth = tooth_depth
-                    # normal back in the bone frame: (d_along·e_ψ + across·e_⊥ + d_z·D)/distance
-                    ux = (d_along * tooth_cos[k] - across * tooth_sin[k]) / distance
-                    uy = (d_along * tooth_sin[k] + across * tooth_cos[k]) / distance
-                    uz = d_z / distance
-                    nx = ux * e1[0] + uy * e2[0] + uz * axis[0]
-                    ny = ux * e1[1] + uy * e2[1] + uz * axis[1]
-                    nz = ux * e1[2] + uy * e2[2] + uz * axis[2]
-        if depth <= 0.0:
-            continue
-        # reamer surface velocity at the node: ω D × (p − c) + ṡ D
-        wx = omega * (axis[1] * qz - axis[2] * qy) + axial_speed * axis[0]
-        wy = omega * (axis[2] * qx - axis[0] * qz) + axial_speed * axis[1]
-        wz = omega * (axis[0] * qy - axis[1] * qx) + axial_speed * axis[2]
-        rx = velocity[node, 0] - wx
-        ry = velocity[node, 1] - wy
-        rz = velocity[node, 2] - wz
-        normal_speed = rx * nx + ry * ny + rz * nz
-        fn = stiffness * depth - 2.0 * damping_ratio * math.sqrt(stiffness * nodal_mass[node]) * normal_speed
-        if fn <= 0.0:
-            continue
-        tx = rx - normal_speed * nx
-        ty = ry - normal_speed * ny
-        tz = rz - normal_speed * nz
-        slip = math.sqrt(tx * tx + ty * ty + tz * tz)
-        ft = friction * fn * min(1.0, slip / SLIP_REGULARISATION_M_S) / slip if slip > 0.0 else 0.0
-        fx = fn * nx - ft * tx
-        fy = fn * ny - ft * ty
-        fz = fn * nz - ft * tz
-        force[node, 0] = fx
-        force[node, 1] = fy
-        force[node, 2] = fz
-        contacts += 1
-    return contacts
+class ReamerTeeth(NamedTuple):
+    """Rigid reamer geometry in its own frame (m, rad)."""
 
+    head_radius: float
+    edge_axis_radius: float
+    edge_radius: float
+    tooth_cos: np.ndarray  # cos ψ_k
+    tooth_sin: np.ndarray
+    tooth_start: np.ndarray  # polar angle where each edge starts
+    tooth_end: np.ndarray
+
+
+class ContactLaw(NamedTuple):
+    penalty_factor: float  # β: k_i = β·m_i/Δt²
+    damping_ratio: float  # ξ, fraction of critical for the node on its contact spring
+    friction: float  # Coulomb μ
+    dt: float
+
+
+class ReamerPose(NamedTuple):
+    """Where the reamer is this step: centre, spun basis, axis, axial speed, spin rate."""
+
+    centre: np.ndarray  # (3,)
+    e1: np.ndarray
+    e2: np.ndarray
+    axis: np.ndarray  # D
+    axial_speed: float
+    omega: float
+
+
+class ContactArrays(NamedTuple):
+    """Per-node contact output of one step."""
+
+    force: np.ndarray  # (N, 3) on the bone, N
+    surface_velocity: np.ndarray  # (N, 3) reamer surface velocity where the node touches
+    normal: np.ndarray  # (N, 3) contact normal, from the reamer into the bone
+    penalty_energy: np.ndarray  # (N,) ½ k g², J
+
+    @classmethod
+    def zeros(cls, n_nodes: int) -> "ContactArrays":
+        return cls(np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros(n_nodes))
 
 
 @njit(cache=True)
-def contact_totals(force, velocity):
-    """Total force on the bone and the power of the contact forces, summed in node order
-    (deterministic whatever the thread count)."""
-    fx = fy = fz = power = 0.0
-    for node in range(len(force)):
-        fx += force[node, 0]
-        fy += force[node, 1]
-        fz += force[node, 2]
-        power += force[node, 0] * velocity[node, 0] + force[node, 1] * velocity[node, 1] + force[node, 2] * velocity[node, 2]
-    return fx, fy, fz, power
+def deepest_contact(qx, qy, qz, e1, e2, axis, teeth):
+    """Penetration and outward normal of the deepest contact at p − c = (qx, qy, qz); depth ≤ 0
+    when the point is clear of the head and every tooth."""
+    r = math.sqrt(qx * qx + qy * qy + qz * qz)
+    if r >= teeth.edge_axis_radius + teeth.edge_radius or r == 0.0:
+        return 0.0, 0.0, 0.0, 0.0
+    depth = teeth.head_radius - r
+    nx, ny, nz = qx / r, qy / r, qz / r
+    if r > teeth.edge_axis_radius - teeth.edge_radius:
+        # the point is in the teeth's shell: express it in the spinning reamer frame
+        lx = qx * e1[0] + qy * e1[1] + qz * e1[2]
+        ly = qx * e2[0] + qy * e2[1] + qz * e2[2]
+        lz = qx * axis[0] + qy * axis[1] + qz * axis[2]
+        for k in range(len(teeth.tooth_cos)):
+            across = -lx * teeth.tooth_sin[k] + ly * teeth.tooth_cos[k]
+            if abs(across) >= teeth.edge_radius:
+                continue
+            along = lx * teeth.tooth_cos[k] + ly * teeth.tooth_sin[k]
+            polar = min(max(math.atan2(along, lz), teeth.tooth_start[k]), teeth.tooth_end[k])
+            d_along = along - teeth.edge_axis_radius * math.sin(polar)
+            d_z = lz - teeth.edge_axis_radius * math.cos(polar)
+            distance = math.sqrt(d_along * d_along + across * across + d_z * d_z)
+            tooth_depth = teeth.edge_radius - distance
+            if tooth_depth > depth and distance > 0.0:
+                depth = tooth_depth
+                # normal back in the bone frame: (d_along·e_ψ + across·e_⊥ + d_z·D)/distance
+                ux = (d_along * teeth.tooth_cos[k] - across * teeth.tooth_sin[k]) / distance
+                uy = (d_along * teeth.tooth_sin[k] + across * teeth.tooth_cos[k]) / distance
+                uz = d_z / distance
+                nx = ux * e1[0] + uy * e2[0] + uz * axis[0]
+                ny = ux * e1[1] + uy * e2[1] + uz * axis[1]
+                nz = ux * e1[2] + uy * e2[2] + uz * axis[2]
+    return depth, nx, ny, nz
+
+
+@njit(parallel=True, cache=True)
+def reamer_contact(nodes, solid, pose, teeth, law, out):
+    """Write each node's contact force and energy terms into ``out``; return how many nodes touch.
+
+    ``nodes`` are the reference positions, ``solid`` a :class:`~thrsim.physics.explicit.SolidArrays`
+    (displacement, velocity, masses), ``pose`` a :class:`ReamerPose`, ``teeth`` a
+    :class:`ReamerTeeth`, ``law`` a :class:`ContactLaw`, ``out`` a :class:`ContactArrays`.
+    """
+    centre, e1, e2, axis = pose.centre, pose.e1, pose.e2, pose.axis
+    omega, axial_speed = pose.omega, pose.axial_speed
+    stiffness_per_mass = law.penalty_factor / (law.dt * law.dt)
+    # arrays taken out of the tuples before the parallel loop, one per statement: Numba 0.68's
+    # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
+    # array bound by a multiple assignment (a, b = t.a, t.b)
+    force = out.force
+    surface_velocity = out.surface_velocity
+    normal = out.normal
+    penalty_energy = out.penalty_energy
+    displacement = solid.displacement
+    velocity = solid.velocity
+    nodal_mass = solid.nodal_mass
+    inverse_mass = solid.inverse_mass
+    contacts = 0
+    for node in prange(len(inverse_mass)):
+        fx = fy = fz = wx = wy = wz = nx = ny = nz = stored = 0.0
+        touching = 0
+        if inverse_mass[node] > 0.0:  # orphaned nodes (every element gone) are skipped
+            qx = nodes[node, 0] + displacement[node, 0] - centre[0]
+            qy = nodes[node, 1] + displacement[node, 1] - centre[1]
+            qz = nodes[node, 2] + displacement[node, 2] - centre[2]
+            depth, nx, ny, nz = deepest_contact(qx, qy, qz, e1, e2, axis, teeth)
+            if depth > 0.0:
+                mass = nodal_mass[node]
+                stiffness = stiffness_per_mass * mass
+                damping = 2.0 * law.damping_ratio * math.sqrt(stiffness * mass)
+                # reamer surface velocity at the node: ω D × (p − c) + ṡ D
+                wx = omega * (axis[1] * qz - axis[2] * qy) + axial_speed * axis[0]
+                wy = omega * (axis[2] * qx - axis[0] * qz) + axial_speed * axis[1]
+                wz = omega * (axis[0] * qy - axis[1] * qx) + axial_speed * axis[2]
+                rx = velocity[node, 0] - wx
+                ry = velocity[node, 1] - wy
+                rz = velocity[node, 2] - wz
+                normal_speed = rx * nx + ry * ny + rz * nz
+                fn = stiffness * depth - damping * normal_speed
+                if fn > 0.0:
+                    tx = rx - normal_speed * nx
+                    ty = ry - normal_speed * ny
+                    tz = rz - normal_speed * nz
+                    slip = math.sqrt(tx * tx + ty * ty + tz * tz)
+                    # force per unit slip speed: Coulomb, capped at a fraction of the one-step stick force
+                    ft = min(law.friction * fn / slip, STICK_FRACTION * mass / law.dt) if slip > 0.0 else 0.0
+                    fx = fn * nx - ft * tx
+                    fy = fn * ny - ft * ty
+                    fz = fn * nz - ft * tz
+                    stored = 0.5 * stiffness * depth * depth
+                    touching = 1
+        if touching == 0:
+            wx = wy = wz = nx = ny = nz = 0.0
+        force[node, 0] = fx
+        force[node, 1] = fy
+        force[node, 2] = fz
+        surface_velocity[node, 0] = wx
+        surface_velocity[node, 1] = wy
+        surface_velocity[node, 2] = wz
+        normal[node, 0] = nx
+        normal[node, 1] = ny
+        normal[node, 2] = nz
+        penalty_energy[node] = stored
+        contacts += touching
+    return contacts
+
+
+@njit(cache=True)
+def contact_totals(out, totals):
+    """Force on the bone (3) and the penalty energy, summed in node order into ``totals``."""
+    for i in range(4):
+        totals[i] = 0.0
+    for node in range(len(out.penalty_energy)):
+        totals[0] += out.force[node, 0]
+        totals[1] += out.force[node, 1]
+        totals[2] += out.force[node, 2]
+        totals[3] += out.penalty_energy[node]
+
+
+@njit(cache=True)
+def contact_step_work(out, du, axis, axial_speed, advance, dt, work):
+    """Work of the step's contact forces, each through the displacement it acted over.
+
+    The reamer surface at a node moved by (ω D × (p − c))·Δt + D·Δs (spin, then the reamer's
+    actual axial step Δs), the node by Δu (v(n+½)·Δt). Adds to ``work``: [0] the motor's spin
+    work Σ f·(ω D × (p − c))·Δt, [1] the work on the bone Σ f·Δu, [2] friction, the tangential
+    force through the relative slip, [3] the normal force through the relative approach
+    (penalty energy stored plus contact damping dissipated). Summed in node order.
+    """
+    for node in range(len(out.penalty_energy)):
+        fx, fy, fz = out.force[node, 0], out.force[node, 1], out.force[node, 2]
+        if fx == 0.0 and fy == 0.0 and fz == 0.0:
+            continue
+        sx = (out.surface_velocity[node, 0] - axial_speed * axis[0]) * dt
+        sy = (out.surface_velocity[node, 1] - axial_speed * axis[1]) * dt
+        sz = (out.surface_velocity[node, 2] - axial_speed * axis[2]) * dt
+        work[0] += fx * sx + fy * sy + fz * sz
+        work[1] += fx * du[node, 0] + fy * du[node, 1] + fz * du[node, 2]
+        rx = sx + advance * axis[0] - du[node, 0]
+        ry = sy + advance * axis[1] - du[node, 1]
+        rz = sz + advance * axis[2] - du[node, 2]
+        nx, ny, nz = out.normal[node, 0], out.normal[node, 1], out.normal[node, 2]
+        fn = fx * nx + fy * ny + fz * nz
+        approach = rx * nx + ry * ny + rz * nz
+        work[3] += fn * approach
+        work[2] += fx * rx + fy * ry + fz * rz - fn * approach

@@ -19,6 +19,7 @@ adds the reamer's contact forces as external forces every step). Stress is store
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
@@ -35,21 +36,93 @@ from thrsim.physics.tet_kinematics import MassScaling, lumped_nodal_mass, mass_s
 LINEAR_BULK_VISCOSITY = 0.06
 
 
+class SolidArrays(NamedTuple):
+    """Every array the step kernels read or write, by name (Numba takes it as one typed tuple).
+
+    Static: mesh, gradients, volumes, lengths, masses, node→element CSR, supports. State: the
+    rest, updated in place. Add a field here and in :meth:`ExplicitSolid.arrays`, nowhere else.
+    """
+
+    tets: np.ndarray  # (E, 4) int64
+    grads: np.ndarray  # (E, 4, 3) ∂N/∂x
+    volume: np.ndarray  # (E,)
+    char_length: np.ndarray  # (E,) damage length L_e
+    bulk_viscosity: np.ndarray  # (E,) b1·ρ·c_d·h coefficient
+    element_mass: np.ndarray  # (E,) scaled
+    offsets: np.ndarray  # (N + 1,) node → element CSR
+    entries: np.ndarray  # element·4 + local index
+    support_stiffness: np.ndarray  # (N,) foundation springs
+    held: np.ndarray  # (N,) bool, encastre
+    active: np.ndarray  # (E,) uint8
+    accounted: np.ndarray  # (E,) bool: deletion booked
+    stress: np.ndarray  # (E, 6) effective σ̄, Voigt
+    peeq: np.ndarray
+    damage: np.ndarray
+    initiation: np.ndarray
+    plastic_work: np.ndarray  # (E,) J
+    damage_work: np.ndarray  # (E,) J
+    viscous_work: np.ndarray  # (E,) J, bulk viscosity
+    viscous_pressure: np.ndarray  # (E,) Pa, the bulk-viscosity pressure applied in the last step
+    element_force: np.ndarray  # (E, 4, 3)
+    nodal_mass: np.ndarray  # (N,)
+    inverse_mass: np.ndarray  # (N,), 0 for orphaned nodes
+    elements_at_node: np.ndarray  # (N,)
+    velocity: np.ndarray  # (N, 3), v(n+½) after a step
+    displacement: np.ndarray  # (N, 3)
+    du: np.ndarray  # (N, 3) last step's increment
+    external_force: np.ndarray  # (N, 3), e.g. contact
+    debris: np.ndarray  # (7,) what deleted elements took: mass, momentum (3), kinetic, count, elastic
+
+
+class MaterialConstants(NamedTuple):
+    """The step and the material's scalars, SI."""
+
+    dt: float
+    lam: float
+    mu: float
+    a: float
+    b: float
+    n: float
+    c: float
+    rate0: float
+    d1: float
+    d2: float
+    d3: float
+    d4: float
+    u_f: float
+
+
 @njit(parallel=True, cache=True)
-def element_update(
-    tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
-    lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
-):  # fmt: skip
+def element_update(s, m):
     """Advance every active element's stress by one step and write its nodal forces.
 
-    Returns the number of elements deleted during this step (their ``active`` flag is cleared
-    and their forces zeroed).
+    ``s`` is a :class:`SolidArrays`, ``m`` a :class:`MaterialConstants`. Returns the number of
+    elements deleted during this step (their ``active`` flag is cleared and their forces zeroed).
     """
-    n_elements = len(volume)
+    n_elements = len(s.volume)
     deleted = 0
+    lam, mu, dt = m.lam, m.mu, m.dt
     poisson = lam / (2.0 * (lam + mu))
     youngs = mu * (3.0 * lam + 2.0 * mu) / (lam + mu)
+    # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
+    # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
+    # array bound by a multiple assignment (a, b = t.a, t.b)
+    tets = s.tets
+    grads = s.grads
+    volume = s.volume
+    char_length = s.char_length
+    du = s.du
+    bulk_viscosity = s.bulk_viscosity
+    active = s.active
+    stress = s.stress
+    peeq = s.peeq
+    damage = s.damage
+    initiation = s.initiation
+    plastic_work = s.plastic_work
+    damage_work = s.damage_work
+    viscous_work = s.viscous_work
+    element_force = s.element_force
+    viscous_pressure = s.viscous_pressure
     for e in prange(n_elements):
         if active[e] == 0:
             continue
@@ -82,7 +155,7 @@ def element_update(
         pressure = (sxx + syy + szz) / 3.0
         dxx, dyy, dzz = sxx - pressure, syy - pressure, szz - pressure
         q_trial = math.sqrt(1.5 * (dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (sxy * sxy + syz * syz + szx * szx)))
-        dpeeq = jc_radial_return(q_trial, peeq[e], dt, mu, a, b, n, c, rate0) if q_trial > 0.0 else 0.0
+        dpeeq = jc_radial_return(q_trial, peeq[e], dt, mu, m.a, m.b, m.n, m.c, m.rate0) if q_trial > 0.0 else 0.0
         if dpeeq > 0.0:
             factor = 1.0 - 3.0 * mu * dpeeq / q_trial
             dxx *= factor
@@ -96,15 +169,12 @@ def element_update(
             peeq[e] += dpeeq
             plastic_work[e] += (1.0 - damage[e]) * q_new * dpeeq * volume[e]
             if initiation[e] < 1.0:
-                initiation[e] += damage_initiation_increment(dpeeq, pressure / q_new, dpeeq / dt, d1, d2, d3, d4, rate0)
+                initiation[e] += damage_initiation_increment(dpeeq, pressure / q_new, dpeeq / dt, m.d1, m.d2, m.d3, m.d4, m.rate0)
             else:
-                grown = min(1.0, damage[e] + char_length[e] * dpeeq / u_f) - damage[e]
+                grown = min(1.0, damage[e] + char_length[e] * dpeeq / m.u_f) - damage[e]
                 damage[e] += grown
                 # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V
-                contracted = sxx * sxx + syy * syy + szz * szz + 2.0 * (sxy * sxy + syz * syz + szx * szx)
-                trace_s = sxx + syy + szz
-                energy_density = ((1.0 + poisson) * contracted - poisson * trace_s * trace_s) / (2.0 * youngs)
-                damage_work[e] += grown * energy_density * volume[e]
+                damage_work[e] += grown * strain_energy_density(sxx, syy, szz, sxy, syz, szx, youngs, poisson) * volume[e]
         stress[e, 0] = sxx
         stress[e, 1] = syy
         stress[e, 2] = szz
@@ -119,12 +189,15 @@ def element_update(
                     element_force[e, k, i] = 0.0
             continue
         keep = 1.0 - damage[e]
+        v = volume[e]
+        # the pressure applied last step worked through the strain increment it produced
+        viscous_work[e] += viscous_pressure[e] * trace * v
         viscous = bulk_viscosity[e] * trace / dt
+        viscous_pressure[e] = viscous
         txx = keep * sxx + viscous
         tyy = keep * syy + viscous
         tzz = keep * szz + viscous
         txy, tyz, tzx = keep * sxy, keep * syz, keep * szx
-        v = volume[e]
         for k in range(4):
             gx, gy, gz = grads[e, k, 0], grads[e, k, 1], grads[e, k, 2]
             element_force[e, k, 0] = -v * (txx * gx + txy * gy + tzx * gz)
@@ -133,13 +206,31 @@ def element_update(
     return deleted
 
 
+@njit(cache=True, inline="always")
+def strain_energy_density(sxx, syy, szz, sxy, syz, szx, youngs, poisson):
+    """½ σ:C⁻¹:σ of an isotropic elastic stress (J/m³)."""
+    contracted = sxx * sxx + syy * syy + szz * szz + 2.0 * (sxy * sxy + syz * syz + szx * szx)
+    trace = sxx + syy + szz
+    return ((1.0 + poisson) * contracted - poisson * trace * trace) / (2.0 * youngs)
+
+
 @njit(parallel=True, cache=True)
-def node_update(offsets, entries, element_force, external_force, support_stiffness, inverse_mass, held, velocity, displacement, du, dt):
+def node_update(s, dt):
     """Central difference: v(n+½) = v(n−½) + Δt·M⁻¹(f_ext − f_int − k·u), u(n+1) = u(n) + Δt·v(n+½).
 
     ``held`` nodes (the encastre) and orphaned nodes (inverse mass 0) do not move;
     ``support_stiffness`` ties nodes elastically to their rest positions (0: no spring).
     """
+    held = s.held
+    inverse_mass = s.inverse_mass
+    velocity = s.velocity
+    displacement = s.displacement
+    du = s.du
+    support_stiffness = s.support_stiffness
+    external_force = s.external_force
+    offsets = s.offsets
+    entries = s.entries
+    element_force = s.element_force
     for node in prange(len(inverse_mass)):
         if held[node] or inverse_mass[node] == 0.0:
             for i in range(3):
@@ -165,54 +256,45 @@ def node_update(offsets, entries, element_force, external_force, support_stiffne
 
 
 @njit(cache=True)
-def account_deletions(active, accounted, tets, element_mass, velocity, nodal_mass, inverse_mass, elements_at_node, debris):
+def account_deletions(s):
     """Take newly deleted elements' mass off their nodes; freeze nodes left with no element.
 
     The debris carries its share of the nodes' momentum and kinetic energy out of the model:
-    ``debris`` accumulates [mass, px, py, pz, kinetic energy, count] so momentum and energy
-    can be balanced across deletion.
+    ``debris`` accumulates [mass, px, py, pz, kinetic energy, count, elastic energy] so momentum
+    and energy can be balanced across deletion (the elastic part is booked by the caller that
+    deletes elements still carrying stress).
     """
-    for e in range(len(active)):
-        if active[e] != 0 or accounted[e]:
+    for e in range(len(s.active)):
+        if s.active[e] != 0 or s.accounted[e]:
             continue
-        accounted[e] = True
-        share = element_mass[e] / 4.0
-        debris[5] += 1.0
+        s.accounted[e] = True
+        share = s.element_mass[e] / 4.0
+        s.debris[5] += 1.0
         for k in range(4):
-            node = tets[e, k]
-            vx, vy, vz = velocity[node, 0], velocity[node, 1], velocity[node, 2]
-            debris[0] += share
-            debris[1] += share * vx
-            debris[2] += share * vy
-            debris[3] += share * vz
-            debris[4] += 0.5 * share * (vx * vx + vy * vy + vz * vz)
-            nodal_mass[node] -= share
-            elements_at_node[node] -= 1
-            if elements_at_node[node] == 0:
-                nodal_mass[node] = 0.0
-                velocity[node, 0] = 0.0
-                velocity[node, 1] = 0.0
-                velocity[node, 2] = 0.0
-            inverse_mass[node] = 1.0 / nodal_mass[node] if nodal_mass[node] > 0.0 else 0.0
+            node = s.tets[e, k]
+            vx, vy, vz = s.velocity[node, 0], s.velocity[node, 1], s.velocity[node, 2]
+            s.debris[0] += share
+            s.debris[1] += share * vx
+            s.debris[2] += share * vy
+            s.debris[3] += share * vz
+            s.debris[4] += 0.5 * share * (vx * vx + vy * vy + vz * vz)
+            s.nodal_mass[node] -= share
+            s.elements_at_node[node] -= 1
+            if s.elements_at_node[node] == 0:
+                s.nodal_mass[node] = 0.0
+                s.velocity[node, 0] = 0.0
+                s.velocity[node, 1] = 0.0
+                s.velocity[node, 2] = 0.0
+            s.inverse_mass[node] = 1.0 / s.nodal_mass[node] if s.nodal_mass[node] > 0.0 else 0.0
 
 
 @njit(cache=True)
-def solid_step(
-    tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
-    lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
-    accounted, element_mass, nodal_mass, elements_at_node, debris,
-    offsets, entries, external_force, support_stiffness, inverse_mass, held, velocity, displacement,
-):  # fmt: skip
+def solid_step(s, m):
     """One central-difference step of the solid: stresses, deletions, then nodes. Returns deletions."""
-    deleted = element_update(
-        tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-        stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
-        lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
-    )  # fmt: skip
+    deleted = element_update(s, m)
     if deleted > 0:
-        account_deletions(active, accounted, tets, element_mass, velocity, nodal_mass, inverse_mass, elements_at_node, debris)
-    node_update(offsets, entries, element_force, external_force, support_stiffness, inverse_mass, held, velocity, displacement, du, dt)
+        account_deletions(s)
+    node_update(s, m.dt)
     return deleted
 
 
@@ -284,36 +366,39 @@ class ExplicitSolid:
         self.plastic_work = np.zeros(n_el)
         self.damage_work = np.zeros(n_el)
         self.active = np.ones(n_el, dtype=np.uint8)
+        self.viscous_work = np.zeros(n_el)
+        self.viscous_pressure = np.zeros(n_el)
+        self.active = np.ones(n_el, dtype=np.uint8)
         self.element_force = np.zeros((n_el, 4, 3))
         self.external_force = np.zeros((n_nodes, 3))
-        # what deleted elements took with them: [mass, momentum (3), kinetic energy, count]
-        self.debris = np.zeros(6)
+        # what deleted elements took with them: [mass, momentum (3), kinetic energy, count, elastic energy]
+        self.debris = np.zeros(7)
         self.detached_count = 0
         self._accounted = np.zeros(n_el, dtype=np.bool_)
+        j, d = hardening, damage
+        self.constants = MaterialConstants(
+            dt=self.dt, lam=self.lam, mu=self.mu, a=j.a_pa, b=j.b_pa, n=j.n, c=j.c, rate0=j.reference_strain_rate_s,
+            d1=d.d1, d2=d.d2, d3=d.d3, d4=d.d4, u_f=d.displacement_at_failure_m,
+        )  # fmt: skip
+        self.arrays = SolidArrays(
+            tets=self.tets, grads=self.grads, volume=self.volume, char_length=self.char_length,
+            bulk_viscosity=self.bulk_viscosity_coefficient, element_mass=self.element_mass,
+            offsets=self.offsets, entries=self.entries, support_stiffness=self.support_stiffness, held=self.held,
+            active=self.active, accounted=self._accounted, stress=self.stress, peeq=self.peeq, damage=self.damage,
+            initiation=self.initiation, plastic_work=self.plastic_work, damage_work=self.damage_work,
+            viscous_work=self.viscous_work, viscous_pressure=self.viscous_pressure, element_force=self.element_force, nodal_mass=self.nodal_mass,
+            inverse_mass=self.inverse_mass, elements_at_node=self.elements_at_node, velocity=self.velocity,
+            displacement=self.displacement, du=self.du, external_force=self.external_force, debris=self.debris,
+        )  # fmt: skip
 
     @property
     def alive_nodes(self) -> np.ndarray:
         """Nodes still attached to at least one active element."""
         return self.inverse_mass > 0.0
 
-    def kernel_arguments(self) -> tuple:
-        """The solid's arrays and constants in :func:`solid_step`'s order, external force last-but-six."""
-        j, d = self.hardening, self.damage_law
-        return (
-            self.tets, self.grads, self.volume, self.char_length, self.bulk_viscosity_coefficient, self.active, self.du, self.dt,
-            self.stress, self.peeq, self.damage, self.initiation, self.plastic_work, self.damage_work, self.element_force,
-            self.lam, self.mu, j.a_pa, j.b_pa, j.n, j.c, j.reference_strain_rate_s,
-            d.d1, d.d2, d.d3, d.d4, d.displacement_at_failure_m,
-            self._accounted, self.element_mass, self.nodal_mass, self.elements_at_node, self.debris,
-            self.offsets, self.entries,
-        )  # fmt: skip
-
-    def step(self, external_force: np.ndarray | None = None) -> int:
-        """One central-difference step; returns how many elements were deleted in it."""
-        force = self.external_force if external_force is None else external_force
-        deleted = solid_step(
-            *self.kernel_arguments(), force, self.support_stiffness, self.inverse_mass, self.held, self.velocity, self.displacement
-        )
+    def step(self) -> int:
+        """One central-difference step under ``external_force`` (set it in place); returns deletions."""
+        deleted = solid_step(self.arrays, self.constants)
         self.time += self.dt
         return deleted
 
@@ -332,6 +417,14 @@ class ExplicitSolid:
     @property
     def deleted_count(self) -> int:
         return int(self.debris[5])
+
+    @property
+    def deleted_elastic_energy(self) -> float:
+        """Strain energy of detached chips, deleted while still stressed."""
+        return float(self.debris[6])
+
+    def viscous_dissipation(self) -> float:
+        return float(self.viscous_work.sum())
 
     def delete_detached(self) -> int:
         """Delete active elements no longer face-connected, through active elements, to supported bone.
@@ -352,13 +445,11 @@ class ExplicitSolid:
         detached = (self.active > 0) & ~anchored[label]
         count = int(detached.sum())
         if count:
+            self.debris[6] += float(self.element_elastic_energy()[detached].sum())
             self.active[detached] = 0
             self.damage[detached] = 1.0
             self.detached_count += count
-            account_deletions(
-                self.active, self._accounted, self.tets, self.element_mass, self.velocity,
-                self.nodal_mass, self.inverse_mass, self.elements_at_node, self.debris,
-            )  # fmt: skip
+            account_deletions(self.arrays)
         return count
 
     def von_mises(self) -> np.ndarray:
@@ -371,15 +462,18 @@ class ExplicitSolid:
     def momentum(self) -> np.ndarray:
         return (self.nodal_mass[:, None] * self.velocity).sum(axis=0)
 
+    def element_elastic_energy(self) -> np.ndarray:
+        """(1 − D)·½ σ̄:C⁻¹:σ̄·V of each element (J), 0 for deleted ones."""
+        e, nu = self.material.youngs_modulus_pa, self.material.poisson_ratio
+        st = self.stress
+        contracted = (st[:, :3] ** 2).sum(axis=1) + 2.0 * (st[:, 3:] ** 2).sum(axis=1)
+        density = ((1 + nu) * contracted - nu * st[:, :3].sum(axis=1) ** 2) / (2.0 * e)
+        return np.where(self.active > 0, 1.0 - self.damage, 0.0) * density * self.volume
+
     def elastic_energy(self) -> float:
         """Σ (1 − D)·½ σ̄:C⁻¹:σ̄·V over active elements, plus the support springs' ½ k u²."""
-        e, nu = self.material.youngs_modulus_pa, self.material.poisson_ratio
-        s = self.stress
-        contracted = (s[:, :3] ** 2).sum(axis=1) + 2.0 * (s[:, 3:] ** 2).sum(axis=1)
-        density = ((1 + nu) * contracted - nu * s[:, :3].sum(axis=1) ** 2) / (2.0 * e)
-        keep = np.where(self.active > 0, 1.0 - self.damage, 0.0)
         springs = 0.5 * (self.support_stiffness * (self.displacement**2).sum(axis=1))[self.alive_nodes].sum()
-        return float((keep * density * self.volume).sum() + springs)
+        return float(self.element_elastic_energy().sum() + springs)
 
     def plastic_dissipation(self) -> float:
         return float(self.plastic_work.sum())

@@ -3,10 +3,21 @@
 Set-up [5.3]: the bone patch's fixed nodes are held (encastre); the reamer spins at ω about its
 axis D, has one translational degree of freedom s along D (its centre is c = s·D in the bone
 frame), and is pushed by the surgeon's force along D plus gravity. Gravity acts along −z of
-the bone frame (patient in lateral decubitus: the acetabulum opens upward), so only its
-component m·g·(−z·D) along the axis matters. The reamer's axial motion is integrated with the
-same central-difference step from push, gravity and the contact reaction, so it advances as
-bone is removed.
+the bone frame (patient in lateral decubitus: the acetabulum opens upward) on the head's own
+mass, so only its component m·g·(−z·D) along the axis matters (the surgeon carries the driver's
+weight). The reamer is hand-held (:class:`thrsim.config.ReamerHoldConfig`): the push drives an
+effective mass M with an axial damper c, M·s̈ = F + G − F_contact·D − c·ṡ, integrated with the
+same central-difference step as the bone, so it advances as bone is removed.
+
+Energy balance (ABAQUS's ETOTAL), booked every step and recorded per frame:
+
+    push + gravity + spin = bone kinetic + internal (elastic + plastic + damage) + viscous
+                            + debris (kinetic and elastic energy of deleted elements)
+                            + reamer kinetic + arm damping + contact damping + friction
+                            + penalty (elastic energy in the contact springs) + balance error
+
+"spin" is the motor's work, Σ f·(ω D × (p − c))·Δt over the contact forces f on the bone;
+the contact work on the bone is Σ f·Δu with Δu the step's displacement (v(n+½)·Δt).
 
 Start: the reamer sits on its axis, backed off until its teeth clear every bone node by
 ``INITIAL_GAP_M``; frame 0 records the intact bone at t = 0. A case of N frames simulates
@@ -23,6 +34,11 @@ End reasons, checked at the end of every frame after first contact:
 * ``passed_through``: no bone is left in the reamer's path (no attached node in front of the
   head's equatorial plane within the teeth's reach of the axis): a tilted reamer has swept
   through the patch and falls freely.
+* ``stalled``: for ``STALL_FRAMES`` frames nothing was removed and the reamer's within-frame
+  mean position moved less than ``STALL_MOTION_M``: it rests on bone it cannot cut, in practice
+  elements pressed against the held (encastre) outer face, which are loaded in near-uniaxial
+  compression and so never yield (von Mises plasticity ignores pressure). Those frames are
+  recorded; nothing later would differ.
 * ``completed``: all requested frames.
 
 The ending frame is not recorded (a reamer falling freely teaches the learned simulator
@@ -35,7 +51,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -47,24 +63,56 @@ from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
 from thrsim.geometry.tet_metrics import rms_edge_lengths
-from thrsim.physics.contact import contact_totals, reamer_contact
-from thrsim.physics.explicit import solid_step
-from thrsim.physics.explicit import ExplicitSolid
+from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
+from thrsim.physics.explicit import ExplicitSolid, solid_step
 from thrsim.physics.support import foundation_stiffness
 
 INITIAL_GAP_M = 5e-5
+#: frames after first contact spent seating the reamer, left out of the steady-reaming statistics
+SEATING_FRAMES = 5
+#: a case whose reamer neither removes bone nor moves for this many frames has stalled
+STALL_FRAMES = 10
+STALL_MOTION_M = 1e-6
+
+# reamer state: [axial position s (m), axial speed ṡ (m/s)]
+POSITION, SPEED = 0, 1
+# cumulative energy ledger (J), updated every step
+SPIN, CONTACT_ON_BONE, FRICTION, CONTACT_NORMAL, PUSH, GRAVITY, ARM_DAMPING, AXIAL_REACTION = range(8)
+LEDGER_SIZE = 8
+# within-frame statistics, reset every frame
+SUM_POSITION, MIN_POSITION, MAX_POSITION, SUM_AXIAL_FORCE, CONTACT_STEPS, SUM_FX, SUM_FY, SUM_FZ = range(8)
+FRAME_STATS_SIZE = 8
+
 ENERGY_NAMES = (
     "kinetic",
     "internal",
     "elastic",
     "plastic_dissipation",
     "damage_dissipation",
-    "contact_work",
-    "push_work",
+    "viscous_dissipation",
+    "debris",
     "reamer_kinetic",
-    "debris_kinetic",
+    "arm_damping",
+    "contact_damping",
+    "friction",
+    "penalty",
+    "push_work",
+    "gravity_work",
+    "spin_work",
+    "external_work",
+    "contact_work",
+    "balance_error",
 )
 GRAVITY_DIRECTION = np.array([0.0, 0.0, -1.0])
+
+
+class ReamerDrive(NamedTuple):
+    """The hand-held reamer's axial loads: M·s̈ = push + gravity − F_contact·D − damping·ṡ."""
+
+    mass: float
+    damping: float
+    push: float
+    gravity: float
 
 
 @dataclass
@@ -76,65 +124,82 @@ class FrameLog:
     peeq: list = field(default_factory=list)
     von_mises: list = field(default_factory=list)
     reamer_position: list = field(default_factory=list)
+    reamer_axial: list = field(default_factory=list)  # within-frame mean, min, max of s (m)
+    contact_force_axial: list = field(default_factory=list)  # within-frame mean of F_contact·D (N)
+    contact_fraction: list = field(default_factory=list)  # steps of the frame with any contact
     energy: list = field(default_factory=list)
     contact_force: list = field(default_factory=list)
 
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The records as arrays, in the case file's dtypes."""
+        return {
+            "time": np.array(self.time),
+            "status": np.array(self.status, dtype=np.uint8),
+            "peeq": np.array(self.peeq, dtype=np.float32),
+            "von_mises": np.array(self.von_mises, dtype=np.float32),
+            "reamer_position": np.array(self.reamer_position),
+            "reamer_axial": np.array(self.reamer_axial),
+            "contact_force_axial": np.array(self.contact_force_axial),
+            "contact_fraction": np.array(self.contact_fraction),
+            "energy": np.array(self.energy),
+            "contact_force": np.array(self.contact_force),
+        }
+
 
 @njit(cache=True)
-def advance_reaming(
-    steps, time, nodes, rotation, axis, omega, head_radius, edge_axis_radius, edge_radius,
-    tooth_cos, tooth_sin, tooth_start, tooth_end, stiffness, damping_ratio, friction,
-    mass, force_n, gravity_load, reamer_state, totals,
-    tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-    stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
-    lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
-    accounted, element_mass, nodal_mass, elements_at_node, debris, offsets, entries,
-    contact_force, support_stiffness, inverse_mass, held, velocity, displacement,
-):  # fmt: skip
-    """The reaming loop, compiled: contact, solid step and the reamer's axial motion per step.
+def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth, law, contact, drive, reamer, ledger, stats, totals):
+    """The reaming loop, compiled: contact, solid step and the reamer's axial motion, ``steps`` times.
 
-    Reamer: m·s̈ = push + gravity·D − (contact force on the bone)·D, integrated with the same
-    central-difference step as the bone. Returns the time reached.
+    ``solid``/``constants``: :class:`~thrsim.physics.explicit.SolidArrays` and
+    :class:`~thrsim.physics.explicit.MaterialConstants`; ``teeth``/``law``/``contact``: see
+    :mod:`thrsim.physics.contact` (``contact.force`` is the solid's external force);
+    ``drive``: :class:`ReamerDrive`; ``reamer``: [s, ṡ]; ``ledger`` and ``stats`` are updated
+    at the indices named in this module; ``totals`` is scratch. Returns the time reached.
     """
+    dt = constants.dt
+    axis = np.empty(3)
     centre = np.empty(3)
     e1 = np.empty(3)
     e2 = np.empty(3)
+    for i in range(3):
+        axis[i] = rotation[i, 2]
     for _ in range(steps):
         spin_cos, spin_sin = math.cos(omega * time), math.sin(omega * time)
+        position, speed = reamer[POSITION], reamer[SPEED]
         for i in range(3):
-            centre[i] = reamer_state[0] * axis[i]
+            centre[i] = position * axis[i]
             e1[i] = spin_cos * rotation[i, 0] + spin_sin * rotation[i, 1]
             e2[i] = -spin_sin * rotation[i, 0] + spin_cos * rotation[i, 1]
-        contacts = reamer_contact(
-            nodes, displacement, velocity, inverse_mass, nodal_mass, centre, e1, e2, axis, reamer_state[1], omega,
-            head_radius, edge_axis_radius, edge_radius, tooth_cos, tooth_sin, tooth_start, tooth_end,
-            stiffness, damping_ratio, friction, contact_force,
-        )  # fmt: skip
-        fx, fy, fz, power = contact_totals(contact_force, velocity)
-        solid_step(
-            tets, grads, volume, char_length, bulk_viscosity, active, du, dt,
-            stress, peeq, damage, initiation, plastic_work, damage_work, element_force,
-            lam, mu, a, b, n, c, rate0, d1, d2, d3, d4, u_f,
-            accounted, element_mass, nodal_mass, elements_at_node, debris,
-            offsets, entries, contact_force, support_stiffness, inverse_mass, held, velocity, displacement,
-        )  # fmt: skip
-        acceleration = (force_n + gravity_load - (fx * axis[0] + fy * axis[1] + fz * axis[2])) / mass
-        reamer_state[1] += dt * acceleration
-        advance = dt * reamer_state[1]
-        reamer_state[0] += advance
-        reamer_state[2] += power * dt
-        reamer_state[3] += force_n * advance
-        totals[0] += fx
-        totals[1] += fy
-        totals[2] += fz
+        pose = ReamerPose(centre, e1, e2, axis, speed, omega)
+        contacts = reamer_contact(nodes, solid, pose, teeth, law, contact)
+        contact_totals(contact, totals)
+        axial_force = totals[0] * axis[0] + totals[1] * axis[1] + totals[2] * axis[2]
+        solid_step(solid, constants)
+        # reamer: M·s̈ = push + gravity − F_contact·D − c·ṡ, same central difference as the bone
+        damper = drive.damping * speed
+        reamer[SPEED] = speed + dt * (drive.push + drive.gravity - axial_force - damper) / drive.mass
+        advance = dt * reamer[SPEED]
+        reamer[POSITION] = position + advance
+        ledger[PUSH] += drive.push * advance
+        ledger[GRAVITY] += drive.gravity * advance
+        ledger[ARM_DAMPING] += damper * advance
+        ledger[AXIAL_REACTION] += axial_force * advance
+        contact_step_work(contact, solid.du, axis, speed, advance, dt, ledger)
+        stats[SUM_POSITION] += reamer[POSITION]
+        stats[MIN_POSITION] = min(stats[MIN_POSITION], reamer[POSITION])
+        stats[MAX_POSITION] = max(stats[MAX_POSITION], reamer[POSITION])
+        stats[SUM_AXIAL_FORCE] += axial_force
+        stats[SUM_FX] += totals[0]
+        stats[SUM_FY] += totals[1]
+        stats[SUM_FZ] += totals[2]
         if contacts > 0:
-            totals[3] += 1.0
+            stats[CONTACT_STEPS] += 1.0
         time += dt
     return time
 
 
 class ReamingSimulation:
-    """Bone solid + rigid reamer, advanced frame by frame."""
+    """Bone solid + rigid hand-held reamer, advanced frame by frame (physics only: no files)."""
 
     def __init__(self, case: ReamingCaseConfig, mesh: TetMesh | None = None) -> None:
         if case.solver.threads:
@@ -155,19 +220,35 @@ class ReamingSimulation:
         self.axis = np.array(case.orientation.reamer_axis)
         self.rotation = frame_rotation(self.axis)
         self.omega = case.reamer.omega_rad_s
-        self.tooth_cos = np.cos(self.reamer.tooth_azimuth)
-        self.tooth_sin = np.sin(self.reamer.tooth_azimuth)
-        self.mass = self.reamer.mass_kg
+        self.teeth = ReamerTeeth(
+            head_radius=self.reamer.head_radius, edge_axis_radius=self.reamer.edge_axis_radius,
+            edge_radius=self.reamer.edge_radius, tooth_cos=np.cos(self.reamer.tooth_azimuth),
+            tooth_sin=np.sin(self.reamer.tooth_azimuth), tooth_start=self.reamer.tooth_polar_start,
+            tooth_end=self.reamer.tooth_polar_end,
+        )  # fmt: skip
+        self.contact_law = ContactLaw(case.contact.penalty_factor, case.contact.damping_ratio, case.contact.friction, self.solid.dt)
+        self.contact = ContactArrays(self.solid.external_force, *ContactArrays.zeros(self.mesh.n_nodes)[1:])
+        self.mass = case.hold.effective_mass_kg
         self.force_n = case.force_n  # the surgeon's push; may change during a run
-        self.gravity_load = self.mass * case.reamer.gravity_m_s2 * float(GRAVITY_DIRECTION @ self.axis)
+        self.gravity_load = self.reamer.mass_kg * case.reamer.gravity_m_s2 * float(_along(GRAVITY_DIRECTION, self.axis))
         self.start_position = self._initial_position()
-        # [axial position s, axial speed ṡ, work of contact forces on the bone, work of the push]
-        self.reamer_state = np.array([self.start_position, 0.0, 0.0, 0.0])
-        self.contact_force = np.zeros((self.mesh.n_nodes, 3))
+        self.state = np.array([self.start_position, 0.0])
+        self.ledger = np.zeros(LEDGER_SIZE)
+        self.frame_stats = np.zeros(FRAME_STATS_SIZE)
+        self._scratch = np.zeros(4)
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
         self.tip_exit_depth = self._tip_exit_depth()
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
+
+    @property
+    def drive(self) -> ReamerDrive:
+        return ReamerDrive(self.mass, self.case.hold.axial_damping_n_s_m, float(self.force_n), self.gravity_load)
+
+    @property
+    def contact_omega_dt(self) -> float:
+        """ω·Δt of any node on its contact spring: √β by construction (k_i = β·m_i/Δt²)."""
+        return math.sqrt(self.contact_law.penalty_factor)
 
     def _tip_exit_depth(self) -> float | None:
         """How far along D the outer face lies under the teeth's tip; None when no bone is under it.
@@ -179,7 +260,7 @@ class ReamingSimulation:
         if len(outer) == 0:
             return None
         points = self.mesh.nodes[outer]
-        along = points @ self.axis
+        along = _along(points, self.axis)
         lateral = np.linalg.norm(points - along[:, None] * self.axis, axis=1)
         under_tip = lateral <= float(rms_edge_lengths(self.mesh.nodes, self.mesh.tets).mean())
         return float(along[under_tip].max()) if under_tip.any() else None
@@ -211,58 +292,88 @@ class ReamingSimulation:
     @property
     def position(self) -> float:
         """Axial coordinate s of the reamer centre along D (m)."""
-        return float(self.reamer_state[0])
+        return float(self.state[POSITION])
 
     @property
     def speed(self) -> float:
-        return float(self.reamer_state[1])
+        return float(self.state[SPEED])
 
-    @property
-    def contact_work(self) -> float:
-        return float(self.reamer_state[2])
-
-    @property
-    def push_work(self) -> float:
-        return float(self.reamer_state[3])
-
-    def advance(self, steps: int) -> tuple[np.ndarray, int]:
-        """Run ``steps`` steps of bone and reamer in one compiled loop.
-
-        Returns the sum over those steps of the contact force on the bone, and how many of the
-        steps had any contact.
-        """
-        solid = self.solid
-        contact = self.case.contact
-        totals = np.zeros(4)  # Σ force on bone (3), steps with contact
-        solid.time = advance_reaming(
-            steps, solid.time, self.mesh.nodes, self.rotation, self.axis, self.omega,
-            self.reamer.head_radius, self.reamer.edge_axis_radius, self.reamer.edge_radius,
-            self.tooth_cos, self.tooth_sin, self.reamer.tooth_polar_start, self.reamer.tooth_polar_end,
-            contact.penalty_stiffness_n_m, contact.damping_ratio, contact.friction,
-            self.mass, self.force_n, self.gravity_load, self.reamer_state, totals,
-            *solid.kernel_arguments(), self.contact_force, solid.support_stiffness, solid.inverse_mass,
-            solid.held, solid.velocity, solid.displacement,
+    def advance(self, steps: int) -> None:
+        """Run ``steps`` steps of bone and reamer in one compiled loop (statistics accumulate in
+        ``frame_stats`` until :meth:`start_frame_statistics` resets them)."""
+        self.solid.time = advance_reaming(
+            steps, self.solid.time, self.mesh.nodes, self.rotation, self.omega, self.solid.arrays, self.solid.constants,
+            self.teeth, self.contact_law, self.contact, self.drive, self.state, self.ledger, self.frame_stats, self._scratch,
         )  # fmt: skip
-        return totals[:3], int(totals[3])
 
-    def step(self) -> tuple[np.ndarray, int]:
-        """One step of bone and reamer; returns the contact force on the bone and whether it touched."""
-        return self.advance(1)
+    def start_frame_statistics(self) -> None:
+        self.frame_stats[:] = 0.0
+        self.frame_stats[MIN_POSITION] = np.inf
+        self.frame_stats[MAX_POSITION] = -np.inf
 
-    def record(self, log: FrameLog, mean_force: np.ndarray) -> None:
-        solid = self.solid
-        kinetic, elastic = solid.kinetic_energy(), solid.elastic_energy()
-        plastic, damage = solid.plastic_dissipation(), solid.damage_dissipation()
+    def step(self) -> None:
+        """One step of bone and reamer."""
+        self.advance(1)
+
+    def energies(self) -> dict[str, float]:
+        """The energy ledger now, by name (J); see the module's balance."""
+        solid, ledger = self.solid, self.ledger
+        elastic, plastic, damage = solid.elastic_energy(), solid.plastic_dissipation(), solid.damage_dissipation()
+        terms = {
+            "kinetic": solid.kinetic_energy(),
+            "internal": elastic + plastic + damage,
+            "elastic": elastic,
+            "plastic_dissipation": plastic,
+            "damage_dissipation": damage,
+            "viscous_dissipation": solid.viscous_dissipation(),
+            "debris": solid.deleted_kinetic_energy + solid.deleted_elastic_energy,
+            "reamer_kinetic": 0.5 * self.mass * self.speed**2,
+            "arm_damping": float(ledger[ARM_DAMPING]),
+            "contact_damping": float(ledger[CONTACT_NORMAL]) - float(self._scratch[3]),
+            "friction": float(ledger[FRICTION]),
+            "penalty": float(self._scratch[3]),
+            "push_work": float(ledger[PUSH]),
+            "gravity_work": float(ledger[GRAVITY]),
+            "spin_work": float(ledger[SPIN]),
+        }
+        terms["external_work"] = terms["push_work"] + terms["gravity_work"] + terms["spin_work"]
+        terms["contact_work"] = float(ledger[CONTACT_ON_BONE])
+        stored = ("kinetic", "internal", "viscous_dissipation", "debris", "reamer_kinetic", "arm_damping", "contact_damping", "friction", "penalty")
+        terms["balance_error"] = terms["external_work"] - sum(terms[name] for name in stored)
+        return terms
+
+    def balance_by_part(self) -> dict[str, float]:
+        """The balance error split where it arises (J): the bone (contact work on it against what
+        it holds and lost), the reamer (push and gravity against its motion, the arm and the
+        contact reaction) and the contact interface (closed by construction, ~round-off)."""
+        e = self.energies()
+        reaction = float(self.ledger[AXIAL_REACTION])
+        return {
+            "bone": e["contact_work"] - (e["kinetic"] + e["internal"] + e["viscous_dissipation"] + e["debris"]),
+            "reamer": e["push_work"] + e["gravity_work"] - reaction - e["arm_damping"] - e["reamer_kinetic"],
+            "interface": e["spin_work"] + reaction - e["contact_work"] - e["friction"] - e["contact_damping"] - e["penalty"],
+        }
+
+    def record(self, log: FrameLog) -> None:
+        solid, stats = self.solid, self.frame_stats
         log.time.append(solid.time)
         log.status.append(solid.active.copy())
         log.peeq.append(solid.peeq.astype(np.float32))
         log.von_mises.append(solid.von_mises().astype(np.float32))
         log.reamer_position.append(self.centre.copy())
-        log.contact_force.append(mean_force.copy())
-        log.energy.append(
-            [kinetic, elastic + plastic + damage, elastic, plastic, damage, self.contact_work, self.push_work,
-             0.5 * self.mass * self.speed**2, solid.deleted_kinetic_energy]
-        )  # fmt: skip
+        energies = self.energies()
+        log.energy.append([energies[name] for name in ENERGY_NAMES])
+        if not log.reamer_axial:  # frame 0: the reamer at rest where it starts
+            log.reamer_axial.append([self.position] * 3)
+            log.contact_force_axial.append(0.0)
+            log.contact_fraction.append(0.0)
+            log.contact_force.append(np.zeros(3))
+            return
+        steps = self.steps_per_frame
+        log.reamer_axial.append([stats[SUM_POSITION] / steps, stats[MIN_POSITION], stats[MAX_POSITION]])
+        log.contact_force_axial.append(stats[SUM_AXIAL_FORCE] / steps)
+        log.contact_fraction.append(stats[CONTACT_STEPS] / steps)
+        log.contact_force.append(np.array([stats[SUM_FX], stats[SUM_FY], stats[SUM_FZ]]) / steps)
 
     def _check(self, frame: int) -> None:
         solid = self.solid
@@ -271,7 +382,7 @@ class ReamingSimulation:
         kinetic = solid.kinetic_energy()
         if not math.isfinite(kinetic):
             raise SimulationError(f"frame {frame}: non-finite kinetic energy (the step is unstable)")
-        budget = abs(self.contact_work) + abs(self.push_work) + 1e-9
+        budget = abs(self.ledger[PUSH]) + abs(self.ledger[SPIN]) + 1e-9
         if kinetic > self.case.solver.energy_blowup_factor * budget:
             raise SimulationError(
                 f"frame {frame}: energy explosion (bone kinetic energy {kinetic:.3g} J against {budget:.3g} J of work done)"
@@ -287,17 +398,18 @@ class ReamingSimulation:
         """Whether any attached node lies where the advancing dome can still meet it."""
         alive = self.solid.alive_nodes
         relative = self.mesh.nodes[alive] + self.solid.displacement[alive] - self.centre
-        along = relative @ self.axis
-        lateral_sq = np.einsum("ij,ij->i", relative, relative) - along**2
+        along = _along(relative, self.axis)
+        lateral_sq = (relative * relative).sum(axis=1) - along**2
         return bool(np.any((along > 0.0) & (lateral_sq < self.reamer.outer_radius**2)))
 
     def run(self, frames: int, progress: Callable[[int, int], None] | None = None) -> tuple[FrameLog, dict]:
         log = FrameLog()
-        self.record(log, np.zeros(3))
+        self.record(log)
         end_reason = "completed"
         started = time.perf_counter()
         for frame in range(1, frames + 1):
-            force_sum, contact_steps = self.advance(self.steps_per_frame)
+            self.start_frame_statistics()
+            self.advance(self.steps_per_frame)
             self._check(frame)
             if self.first_contact_frame is not None:
                 # a frame of free fall, through a hole or past the bone, is not recorded
@@ -309,67 +421,93 @@ class ReamingSimulation:
                     end_reason = "passed_through"
                     break
             self.solid.delete_detached()
-            if contact_steps and self.first_contact_frame is None:
+            if self.frame_stats[CONTACT_STEPS] > 0 and self.first_contact_frame is None:
                 self.first_contact_frame = frame
-            self.record(log, force_sum / self.steps_per_frame)
+            self.record(log)
             if progress:
                 progress(frame, frames)
+            if self.first_contact_frame is not None and _stalled(log):
+                end_reason = "stalled"
+                break
         elapsed = time.perf_counter() - started
         return log, self._summary(log, end_reason, elapsed)
 
     def _summary(self, log: FrameLog, end_reason: str, elapsed: float) -> dict:
-        energy = np.array(log.energy)
-        kinetic, internal = energy[:, 0], energy[:, 1]
+        records = log.arrays()
+        energy = records["energy"]
+        names = {name: i for i, name in enumerate(ENERGY_NAMES)}
+        kinetic, internal = energy[:, names["kinetic"]], energy[:, names["internal"]]
         after = slice(self.first_contact_frame + 1, None) if self.first_contact_frame is not None else slice(0, 0)
         ratio = kinetic[after] / np.maximum(internal[after], 1e-300)
-        status = np.array(log.status)
-        removed = int((status[-1] == 0).sum())
+        status = records["status"]
+        removed_now = status[-1] == 0
         simulated = len(log.time) - 1
-        axial = (np.array(log.reamer_position) @ self.axis) - self.start_position
-        return {
+        axial = _along(records["reamer_position"], self.axis) - self.start_position
+        external = energy[-1, names["external_work"]]
+        summary = {
             "frames": simulated,
             "requested_frames": self.case.frames,
             "end_reason": end_reason,
             "perforated_frame": self.perforated_frame,
             "first_contact_frame": self.first_contact_frame,
             "elements": self.mesh.n_tets,
-            "removed": removed,
+            "removed": int(removed_now.sum()),
             "detached": self.solid.detached_count,
-            "removed_volume_mm3": float(self.solid.volume[status[-1] == 0].sum() * 1e9),
-            "mean_peeq_active": float(self.solid.peeq[status[-1] > 0].mean()) if (status[-1] > 0).any() else None,
+            "removed_volume_mm3": float(self.solid.volume[removed_now].sum() * 1e9),
+            "mean_peeq_active": float(self.solid.peeq[~removed_now].mean()) if (~removed_now).any() else None,
             "reamer_advance_mm": float(axial[-1] * 1e3),
             "seconds_per_frame": elapsed / max(simulated, 1),
             "steps_per_frame": self.steps_per_frame,
             "dt_s": self.solid.dt,
             "max_kinetic_to_internal": float(ratio.max()) if ratio.size else None,
             "kinetic_to_internal_target": self.case.solver.max_kinetic_to_internal,
-            "reamer_mass_kg": self.mass,
+            "contact_omega_dt": self.contact_omega_dt,
+            "reamer_effective_mass_kg": self.mass,
+            "reamer_axial_damping_n_s_m": self.case.hold.axial_damping_n_s_m,
+            "external_work_j": float(external),
+            "energy_balance_error": float(abs(energy[-1, names["balance_error"]]) / external) if external > 0 else None,
+            **steady_reaming_statistics(records, self.first_contact_frame, self.case.frame_dt_s, self.solid.volume),
             **self.solid.scaling.as_dict(),
         }
+        return summary
 
 
-def run_case(case: ReamingCaseConfig, out: Path | None, progress: Callable[[int, int], None] | None = None, mesh: TetMesh | None = None) -> dict:
-    """Simulate one case and write its HDF5 file (SPEC §4) atomically; return the JSON summary."""
-    simulation = ReamingSimulation(case, mesh)
-    log, summary = simulation.run(case.frames, progress)
-    if out is not None:
-        from thrsim.data.case_file import CaseFrames, write_case
+def steady_reaming_statistics(records: dict[str, np.ndarray], first_contact_frame: int | None, frame_dt_s: float, volume: np.ndarray) -> dict:
+    """Within-frame excursion, contact fraction, feed and removal rates over the frames after seating.
 
-        frames = CaseFrames(
-            time=np.array(log.time),
-            status=np.array(log.status, dtype=np.uint8),
-            peeq=np.array(log.peeq, dtype=np.float32),
-            von_mises=np.array(log.von_mises, dtype=np.float32),
-            reamer_position=np.array(log.reamer_position),
-            energy=np.array(log.energy),
-            energy_names=ENERGY_NAMES,
-            contact_force=np.array(log.contact_force),
-        )
-        write_case(
-            out, simulation.mesh, frames, simulation.axis,
-            inclination_deg=case.inclination_deg, anteversion_deg=case.anteversion_deg, force_n=case.force_n,
-            omega_rad_s=case.reamer.omega_rad_s, frame_dt_s=case.frame_dt_s, config=case.model_dump(mode="json"),
-            extra_attrs=summary,
-        )  # fmt: skip
-        summary["out"] = str(out)
-    return summary
+    Steady frames are those from ``SEATING_FRAMES`` after first contact to the end; the rates
+    are least-squares slopes over them (robust to the frame-to-frame scatter of a chaotic cut).
+    """
+    empty = {"steady_frames": 0, "excursion_median_mm": None, "excursion_p95_mm": None, "contact_fraction_mean": None,
+             "feed_rate_mm_s": None, "removal_rate_mm3_s": None}  # fmt: skip
+    if first_contact_frame is None:
+        return empty
+    start = first_contact_frame + SEATING_FRAMES
+    axial = records["reamer_axial"][start:]
+    if len(axial) < 2:
+        return empty
+    excursion = (axial[:, 2] - axial[:, 1]) * 1e3
+    frames = np.arange(len(axial)) * frame_dt_s
+    removed_volume = ((records["status"][start:] == 0) * volume).sum(axis=1) * 1e9
+    return {
+        "steady_frames": int(len(axial)),
+        "excursion_median_mm": float(np.median(excursion)),
+        "excursion_p95_mm": float(np.percentile(excursion, 95)),
+        "contact_fraction_mean": float(records["contact_fraction"][start:].mean()),
+        "feed_rate_mm_s": float(np.polyfit(frames, axial[:, 0] * 1e3, 1)[0]),
+        "removal_rate_mm3_s": float(np.polyfit(frames, removed_volume, 1)[0]),
+    }
+
+
+def _stalled(log: FrameLog) -> bool:
+    """No element removed and the mean axial position still over the last ``STALL_FRAMES`` frames."""
+    if len(log.status) <= STALL_FRAMES:
+        return False
+    removed_then, removed_now = (log.status[-1 - STALL_FRAMES] == 0).sum(), (log.status[-1] == 0).sum()
+    moved = abs(log.reamer_axial[-1][0] - log.reamer_axial[-1 - STALL_FRAMES][0])
+    return bool(removed_now == removed_then and moved < STALL_MOTION_M)
+
+
+def _along(points: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """points·axis written elementwise: no BLAS in anything that feeds the solver's decisions."""
+    return points[..., 0] * axis[0] + points[..., 1] * axis[1] + points[..., 2] * axis[2]

@@ -22,14 +22,31 @@ from thrsim.geometry.tet_metrics import minimum_altitudes, signed_volumes
 
 
 def shape_gradients(nodes: np.ndarray, tets: np.ndarray) -> np.ndarray:
-    """∂N_a/∂x of the four linear shape functions of every tet, (E, 4, 3)."""
+    """∂N_a/∂x of the four linear shape functions of every tet, (E, 4, 3).
+
+    With the edge vectors e1, e2, e3 from node 0, ∇N_1 = (e2 × e3)/det, ∇N_2 = (e3 × e1)/det,
+    ∇N_3 = (e1 × e2)/det, det = e1·(e2 × e3): a closed form in elementwise arithmetic, so the
+    gradients are bit-identical on every x86-64 machine (a LAPACK inverse differs by an ulp
+    between BLAS CPU kernels, enough to change a reaming trajectory).
+    """
     x = nodes[tets]  # (E, 4, 3)
-    jacobian = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=1)  # rows: edges
-    inverse = np.linalg.inv(jacobian)  # columns: gradients of N1..N3
+    e1, e2, e3 = x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]
+    c23, c31, c12 = _cross(e2, e3), _cross(e3, e1), _cross(e1, e2)
+    det = e1[:, 0] * c23[:, 0] + e1[:, 1] * c23[:, 1] + e1[:, 2] * c23[:, 2]
     grads = np.empty((len(tets), 4, 3))
-    grads[:, 1:] = np.transpose(inverse, (0, 2, 1))
-    grads[:, 0] = -grads[:, 1:].sum(axis=1)
+    grads[:, 1] = c23 / det[:, None]
+    grads[:, 2] = c31 / det[:, None]
+    grads[:, 3] = c12 / det[:, None]
+    grads[:, 0] = -(grads[:, 1] + grads[:, 2] + grads[:, 3])
     return grads
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise a × b written out (elementwise products only)."""
+    return np.stack(
+        [a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2], a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]],
+        axis=1,
+    )
 
 
 @dataclass(frozen=True)

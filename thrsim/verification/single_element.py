@@ -17,7 +17,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
-from thrsim.physics.explicit import element_update
+from thrsim.physics.explicit import MaterialConstants, SolidArrays, element_update
+from thrsim.geometry.tet_metrics import signed_volumes
 from thrsim.physics.material import characteristic_length
 from thrsim.physics.tet_kinematics import shape_gradients
 
@@ -32,8 +33,7 @@ class SingleTet:
         self.nodes = np.asarray(nodes, dtype=float)
         self.tets = np.array([[0, 1, 2, 3]], dtype=np.int64)
         self.grads = shape_gradients(self.nodes, self.tets)
-        edges = self.nodes[1:] - self.nodes[0]
-        self.volume = np.array([abs(np.linalg.det(edges)) / 6.0])
+        self.volume = np.abs(signed_volumes(self.nodes, self.tets))
         self.char_length = characteristic_length(self.volume)
         self.material, self.hardening, self.damage_law = material, hardening, damage
         self.lam, self.mu = material.lame_lambda_pa, material.shear_modulus_pa
@@ -53,14 +53,22 @@ class SingleTet:
         state = self._state() if commit else tuple(a.copy() for a in self._state())
         stress, peeq, damage, initiation, work, active = state
         du = self.nodes @ np.asarray(deps, dtype=float).T  # Δu_a = Δε·X_a (Δε symmetric)
-        force = np.zeros((1, 4, 3))
         j, d = self.hardening, self.damage_law
-        element_update(
-            self.tets, self.grads, self.volume, self.char_length, np.zeros(1), active, du, dt,
-            stress, peeq, damage, initiation, work, np.zeros(1), force,
-            self.lam, self.mu, j.a_pa, j.b_pa, j.n, j.c, j.reference_strain_rate_s,
-            d.d1, d.d2, d.d3, d.d4, d.displacement_at_failure_m,
+        one, nodes4 = np.zeros(1), np.zeros((4, 3))
+        arrays = SolidArrays(
+            tets=self.tets, grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
+            element_mass=one.copy(), offsets=np.zeros(5, dtype=np.int64), entries=np.zeros(4, dtype=np.int64),
+            support_stiffness=np.zeros(4), held=np.zeros(4, dtype=np.bool_), active=active,
+            accounted=np.zeros(1, dtype=np.bool_), stress=stress, peeq=peeq, damage=damage, initiation=initiation,
+            plastic_work=work, damage_work=one.copy(), viscous_work=one.copy(), viscous_pressure=one.copy(), element_force=np.zeros((1, 4, 3)),
+            nodal_mass=np.zeros(4), inverse_mass=np.zeros(4), elements_at_node=np.ones(4, dtype=np.int64),
+            velocity=nodes4.copy(), displacement=nodes4.copy(), du=du, external_force=nodes4.copy(), debris=np.zeros(7),
         )  # fmt: skip
+        constants = MaterialConstants(
+            dt=dt, lam=self.lam, mu=self.mu, a=j.a_pa, b=j.b_pa, n=j.n, c=j.c, rate0=j.reference_strain_rate_s,
+            d1=d.d1, d2=d.d2, d3=d.d3, d4=d.d4, u_f=d.displacement_at_failure_m,
+        )  # fmt: skip
+        element_update(arrays, constants)
         if commit:
             self.strain = self.strain + deps
         return stress[0].copy(), float(peeq[0]), float(damage[0]), bool(active[0])

@@ -1,0 +1,156 @@
+"""Trainer performance figures (not a test: run it by hand; it prints one JSON object).
+
+    python3 tests/app/trainer_benchmark.py [--viewers 10] [--seconds 20] [--browser] [--soak 600]
+
+A real ``thrsim serve`` child process; N WebSocket viewers count the states they receive
+(updates per second, longest gap); a tracker streams ReamerToReference at 60 Hz over
+OpenIGTLink; the server's resident memory is read from /proc at the start and the end;
+``--browser`` measures drawing speed in headless Chromium (``?continuous=1`` draws every
+frame) and the states the page applies; ``--soak S`` runs the whole load for S seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import socket
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+sys.path[:0] = [str(Path(__file__).parent), str(Path(__file__).resolve().parents[2])]  # this checkout first
+
+from app_helpers import ServedTrainer, read_message, reamer_to_reference
+from websockets.sync.client import connect
+
+from thrsim.app.navigation import NavigationTrainer
+from thrsim.io import igtl
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+class Viewer(threading.Thread):
+    def __init__(self, url: str, stop: threading.Event):
+        super().__init__(daemon=True)
+        self.url, self.stop = url, stop
+        self.states, self.max_gap_s, self.dropped, self.error = 0, 0.0, False, ""
+        self.counting = False
+
+    def run(self) -> None:
+        try:
+            with connect(self.url, open_timeout=20, max_size=2**20) as ws:
+                last = time.monotonic()
+                while not self.stop.is_set():
+                    message = ws.recv(timeout=5)
+                    now = time.monotonic()
+                    if '"type": "state"' in message[:40] or '"type":"state"' in message[:40]:
+                        if self.counting:
+                            self.states += 1
+                            self.max_gap_s = max(self.max_gap_s, now - last)
+                        last = now
+        except Exception as error:  # a dropped connection is a result here, not a crash
+            if not self.stop.is_set():
+                self.dropped, self.error = True, repr(error)
+
+
+class Tracker(threading.Thread):
+    """ReamerToReference at 60 Hz, slowly sweeping the aim; reads every reply."""
+
+    def __init__(self, port: int, stop: threading.Event):
+        super().__init__(daemon=True)
+        self.port, self.stop, self.sent, self.error = port, stop, 0, ""
+
+    def run(self) -> None:
+        targets = NavigationTrainer(side="right").targets
+        try:
+            with socket.create_connection(("127.0.0.1", self.port), timeout=10) as sock:
+                start = time.monotonic()
+                while not self.stop.is_set():
+                    t = time.monotonic() - start
+                    pose = reamer_to_reference(targets, 40 + 15 * math.sin(t / 3), 15 + 10 * math.cos(t / 4))
+                    sock.sendall(igtl.encode_message(igtl.Message("TRANSFORM", "ReamerToReference", igtl.pack_transform(pose))))
+                    read_message(sock)
+                    self.sent += 1
+                    time.sleep(max(0.0, start + self.sent / 60 - time.monotonic()))
+        except Exception as error:
+            self.error = repr(error)
+
+
+def browser_figures(url: str, seconds: float) -> dict:
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path="/usr/bin/chromium", args=["--no-sandbox", "--headless", "--disable-gpu", "--enable-unsafe-swiftshader"]
+        )
+        page = browser.new_page(viewport={"width": 1280, "height": 720})
+        page.goto(url + "/?continuous=1")
+        page.wait_for_function("window.trainer && trainer.stats.states > 10", timeout=60_000)
+        page.wait_for_timeout(2000)
+        first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        page.wait_for_timeout(seconds * 1000)
+        last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        browser.close()
+    elapsed = (last[0] - first[0]) / 1000
+    return {"fps": (last[1] - first[1]) / elapsed, "page_states_per_s": (last[2] - first[2]) / elapsed, "viewport": "1280x720"}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--viewers", type=int, default=10)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--soak", type=float, default=0.0, help="run the load this long instead of --seconds")
+    parser.add_argument("--browser", action="store_true")
+    args = parser.parse_args()
+    with tempfile.TemporaryDirectory() as folder:
+        served = ServedTrainer(Path(folder))
+        try:
+            results: dict = {}
+            if args.browser:
+                results["browser"] = browser_figures(served.url, 5.0)
+            stop = threading.Event()
+            viewers = [Viewer(f"ws://127.0.0.1:{served.port}/ws/navigation", stop) for _ in range(args.viewers)]
+            tracker = Tracker(served.igtl_port, stop)
+            for thread in viewers + [tracker]:
+                thread.start()
+            time.sleep(5)  # warm up: connections open, caches filled
+            memory_start = rss_mb(served.process.pid)
+            for viewer in viewers:
+                viewer.counting = True
+            start = time.monotonic()
+            duration = args.soak or args.seconds
+            while time.monotonic() - start < duration:
+                time.sleep(1)
+            elapsed = time.monotonic() - start
+            rates = [v.states / elapsed for v in viewers]
+            results.update(
+                viewers=args.viewers,
+                seconds=round(elapsed, 1),
+                states_per_s_min=round(min(rates), 1),
+                states_per_s_mean=round(sum(rates) / len(rates), 1),
+                longest_gap_s=round(max(v.max_gap_s for v in viewers), 3),
+                dropped_connections=sum(v.dropped for v in viewers),
+                errors=[v.error for v in viewers if v.error] + ([tracker.error] if tracker.error else []),
+                tracker_poses_per_s=round(tracker.sent / (elapsed + 5), 1),
+                server_rss_mb_start=round(memory_start, 1),
+                server_rss_mb_end=round(rss_mb(served.process.pid), 1),
+            )
+            results["server_rss_growth_percent"] = round(100 * (results["server_rss_mb_end"] / memory_start - 1), 1)
+            stop.set()
+            for thread in viewers + [tracker]:
+                thread.join(10)
+        finally:
+            served.stop()
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""Contact stiffness scaled to the step, the friction cap, and BLAS-free tet gradients."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from thrsim.config import ReamingCaseConfig, contact_stability_terms
+from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, reamer_contact
+from thrsim.physics.explicit import SolidArrays
+from thrsim.physics.tet_kinematics import shape_gradients
+
+HEAD_RADIUS = 0.0225
+
+
+def _one_node(mass: float, position: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> SolidArrays:
+    """The arrays the contact kernel reads, for a single free node."""
+    one, node3 = np.zeros(1), np.zeros((1, 3))
+    return SolidArrays(
+        tets=np.zeros((0, 4), dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
+        bulk_viscosity=np.zeros(0), element_mass=np.zeros(0), offsets=np.zeros(2, dtype=np.int64),
+        entries=np.zeros(0, dtype=np.int64), support_stiffness=one.copy(), held=np.zeros(1, dtype=np.bool_),
+        active=np.zeros(0, dtype=np.uint8), accounted=np.zeros(0, dtype=np.bool_), stress=np.zeros((0, 6)),
+        peeq=np.zeros(0), damage=np.zeros(0), initiation=np.zeros(0), plastic_work=np.zeros(0), damage_work=np.zeros(0),
+        viscous_work=np.zeros(0), viscous_pressure=np.zeros(0), element_force=np.zeros((0, 4, 3)),
+        nodal_mass=np.array([mass]), inverse_mass=np.array([1.0 / mass]), elements_at_node=np.ones(1, dtype=np.int64),
+        velocity=np.array([velocity], dtype=float), displacement=node3.copy(), du=node3.copy(),
+        external_force=node3.copy(), debris=np.zeros(7),
+    )  # fmt: skip
+
+
+def _contact(mass: float, depth: float, dt: float, penalty_factor: float, velocity=(0.0, 0.0, 0.0), omega=0.0, friction=0.3):
+    """Force on a node ``depth`` inside a toothless head centred at the origin, on its equator (+x),
+    where a spin ω about +z moves the surface along +y at ω·R."""
+    teeth = ReamerTeeth(HEAD_RADIUS, HEAD_RADIUS, 1e-4, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+    pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, omega)
+    law = ContactLaw(penalty_factor, 0.0, friction, dt)
+    out = ContactArrays.zeros(1)
+    touching = reamer_contact(np.array([[HEAD_RADIUS - depth, 0.0, 0.0]]), _one_node(mass, None, velocity), pose, teeth, law, out)
+    return touching, out
+
+
+@pytest.mark.parametrize("mass, dt", [(1e-4, 4e-6), (6e-4, 4e-6), (6e-4, 2e-6), (2e-5, 1e-6)])
+def test_penalty_gives_the_same_omega_dt_whatever_the_node_mass_and_step(mass, dt):
+    beta = 0.4
+    touching, out = _contact(mass, 1e-6, dt, beta)
+    assert touching == 1
+    stiffness = np.linalg.norm(out.force[0]) / 1e-6
+    assert stiffness == pytest.approx(beta * mass / dt**2, rel=1e-9)
+    assert math.sqrt(stiffness / mass) * dt == pytest.approx(math.sqrt(beta), rel=1e-9)
+    np.testing.assert_allclose(out.normal[0], [1.0, 0.0, 0.0], atol=1e-12)
+    assert out.penalty_energy[0] == pytest.approx(0.5 * stiffness * 1e-12, rel=1e-9)
+
+
+def test_friction_is_coulomb_while_slipping_and_capped_below_the_one_step_stick_force():
+    mass, dt, depth, beta = 6e-4, 4e-6, 1e-6, 0.4
+    normal_force = beta * mass / dt**2 * depth
+    # a fast spinning head: the slip is large, friction is μ·f_n
+    _, out = _contact(mass, depth, dt, beta, omega=100.0)
+    assert out.force[0, 1] == pytest.approx(0.3 * normal_force, rel=1e-6)  # dragged along the spin
+    assert out.force[0, 0] == pytest.approx(normal_force, rel=1e-6)
+    # a slow slip: Coulomb would reverse it within a step; the cap allows half the stopping force
+    slip = 1e-4
+    _, out = _contact(mass, depth, dt, beta, velocity=(0.0, 0.0, slip))
+    stick_cap = 0.5 * mass * slip / dt
+    assert stick_cap < 0.3 * normal_force
+    assert -out.force[0, 2] == pytest.approx(stick_cap, rel=1e-9)
+
+
+def test_contact_settings_that_break_the_stable_step_are_refused():
+    normal, tangential = contact_stability_terms(0.7, 0.4, 0.2)
+    assert max(normal, tangential) < 3.6
+    with pytest.raises(ValueError, match="stable step"):
+        ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, solver={"safety_factor": 0.9})
+    with pytest.raises(ValueError, match="stable step"):
+        ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, contact={"penalty_factor": 1.5})
+    for bad in ({"hold": {"effective_mass_kg": 0}}, {"hold": {"axial_damping_n_s_m": 0}}, {"contact": {"penalty_factor": -1}}):
+        with pytest.raises(ValueError):
+            ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, **bad)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.integers(min_value=0, max_value=10_000))
+def test_closed_form_gradients_match_the_inverse_jacobian_and_reproduce_linear_fields(seed):
+    rng = np.random.default_rng(seed)
+    nodes = rng.normal(size=(4, 3)) * 1e-3
+    tets = np.array([[0, 1, 2, 3]])
+    edges = nodes[1:] - nodes[0]
+    if abs(np.linalg.det(edges)) < 1e-12:  # a degenerate draw (volume below 1e-12 mm³·6)
+        return
+    grads = shape_gradients(nodes, tets)[0]
+    reference = np.linalg.inv(edges).T
+    np.testing.assert_allclose(grads[1:], reference, rtol=1e-9, atol=1e-9 * np.abs(reference).max())
+    np.testing.assert_allclose(grads.sum(axis=0), 0.0, atol=1e-9 * np.abs(grads).max())
+    # a linear field u = A x is differentiated exactly: Σ_a u_a ⊗ ∇N_a = A
+    a = rng.normal(size=(3, 3))
+    np.testing.assert_allclose((nodes @ a.T).T @ grads, a, rtol=1e-9, atol=1e-9)

@@ -1,0 +1,130 @@
+"""The page's control messages, validated before anything acts on them.
+
+Each WebSocket message is one JSON object whose ``type`` picks the model; a field out of its
+range, an unknown type or a message that is not JSON is refused with a one-line reason and the
+session goes on. Degrees and millimetres here (the user-facing edge); the trainer converts.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+
+from thrsim.errors import ThrsimInputError
+
+MAX_MESSAGE_BYTES = 16 * 1024
+
+
+class _Control(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+class CameraControl(_Control):
+    """Where the IR camera stands, in spherical coordinates around the operated acetabulum."""
+
+    type: Literal["camera"]
+    azimuth_deg: float = Field(..., ge=-180, le=180)
+    elevation_deg: float = Field(..., ge=-89, le=89)
+    distance_mm: float = Field(..., ge=300, le=3500)
+
+
+class ReamerControl(_Control):
+    """Steer the reamer (no tracker): radiographic angles in the patient's true APP."""
+
+    type: Literal["reamer"]
+    inclination_deg: float = Field(..., ge=0, le=90)
+    anteversion_deg: float = Field(..., ge=-90, le=90)
+
+
+class ProbeControl(_Control):
+    """Put the probe tip on a landmark (the current target when none is named), or lift it."""
+
+    type: Literal["probe"]
+    action: Literal["touch", "lift"]
+    landmark: str | None = Field(None, max_length=64)
+
+
+class RegistrationControl(_Control):
+    type: Literal["registration"]
+    action: Literal["retake", "restart"]
+
+
+class DefinitionControl(_Control):
+    type: Literal["definition"]
+    value: Literal["radiographic", "operative", "anatomic"]
+
+
+class SideControl(_Control):
+    type: Literal["side"]
+    value: Literal["right", "left"]
+
+
+class OccluderControl(_Control):
+    """A surgeon's arm between the camera and the pelvis (to practise occlusions)."""
+
+    type: Literal["occluder"]
+    present: bool
+
+
+class ViewerControl(_Control):
+    """The display's own pose in the scene (model frame, metres, 16 numbers row-major)."""
+
+    type: Literal["viewer"]
+    pose: list[float] = Field(..., min_length=16, max_length=16)
+
+
+class CalibrationControl(_Control):
+    type: Literal["calibration"]
+    action: Literal["start"]
+
+
+class ConfirmControl(_Control):
+    """Lock the current reamer orientation as the planned cup orientation."""
+
+    type: Literal["confirm_cup"]
+
+
+class EndSessionControl(_Control):
+    type: Literal["end_session"]
+
+
+
+_MODELS = (
+    CameraControl,
+    ReamerControl,
+    ProbeControl,
+    RegistrationControl,
+    DefinitionControl,
+    SideControl,
+    OccluderControl,
+    ViewerControl,
+    CalibrationControl,
+    ConfirmControl,
+    EndSessionControl,
+)
+NavigationControl = Annotated[Union[_MODELS], Field(discriminator="type")]  # noqa: UP007 (a tuple of models)
+_ADAPTER: TypeAdapter = TypeAdapter(NavigationControl)
+CONTROL_TYPES: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in _MODELS))
+
+
+def parse_control(text: str | bytes | dict) -> _Control:
+    """One control from a WebSocket text frame (or an already decoded object); ThrsimInputError says why not."""
+    if isinstance(text, (str, bytes)):
+        if len(text) > MAX_MESSAGE_BYTES:
+            raise ThrsimInputError(f"control message of {len(text)} bytes exceeds {MAX_MESSAGE_BYTES}")
+        try:
+            text = json.loads(text)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            raise ThrsimInputError("control message is not JSON") from None
+    if not isinstance(text, dict):
+        raise ThrsimInputError("control message must be a JSON object with a 'type'")
+    if text.get("type") not in CONTROL_TYPES:
+        raise ThrsimInputError(f"unknown control type {text.get('type')!r}; known: {', '.join(CONTROL_TYPES)}")
+    try:
+        return _ADAPTER.validate_python(text)
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = ".".join(str(p) for p in first.get("loc", ())[1:]) or "message"
+        raise ThrsimInputError(f"{text['type']} control refused: {where}: {first.get('msg', 'invalid')}") from None

@@ -1,0 +1,98 @@
+"""A live session: one mode's trainer, every input it received with its time, and the save.
+
+Times given to the trainer are seconds since the session started; inputs are logged before the
+trainer acts on them (a refused control is an input too), so a replay lives the same session.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import secrets
+from collections.abc import Callable
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from thrsim.app.modes import Mode
+from thrsim.provenance import package_versions
+from thrsim.session.file import InputLog, write_session
+
+STATIC = Path(__file__).parent / "static"
+THREE_DIR = STATIC / "node_modules" / "three"
+
+
+def versions() -> dict:
+    """Versions that shape a session: thrsim, numerics, the web stack and the page's three.js."""
+    found = package_versions()
+    for name in ("fastapi", "starlette", "uvicorn", "websockets", "pydantic"):
+        try:
+            found[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            found[name] = "absent"
+    try:
+        found["three.js"] = json.loads((THREE_DIR / "package.json").read_text())["version"]
+    except (OSError, ValueError, KeyError):
+        found["three.js"] = "absent"
+    return found
+
+
+def new_session_id() -> str:
+    return dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ") + "-" + secrets.token_hex(3)
+
+
+class LiveSession:
+    def __init__(self, mode: Mode, settings: dict, clock: Callable[[], float]):
+        self.mode = mode
+        self.settings = dict(settings)
+        self.clock = clock
+        self.id = new_session_id()
+        self.trainer = mode.make_trainer(self.settings)
+        self.inputs = InputLog()
+        self.origin = clock()
+        self.started_utc = dt.datetime.now(dt.UTC)
+        self.last_state: dict | None = None
+
+    def elapsed(self, clock_time: float | None = None) -> float:
+        return (self.clock() if clock_time is None else clock_time) - self.origin
+
+    def control(self, message: object) -> tuple[object, str]:
+        """Validate, log and apply one control; ThrsimInputError (logged first) when refused."""
+        control = self.mode.parse_control(message)
+        now = self.elapsed()
+        self.inputs.control(now, control.model_dump())
+        if control.type == "end_session":  # the app's to act on: it saves this session
+            return control, "session ending"
+        return control, self.trainer.apply_control(control, now)
+
+    def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:
+        now = self.elapsed(clock_time)
+        self.inputs.pose(now, device, pose)
+        self.trainer.apply_pose(device, pose, now)
+
+    def force(self, newton: float, clock_time: float) -> None:
+        now = self.elapsed(clock_time)
+        self.inputs.force(now, newton)
+        self.trainer.apply_force(newton, now)
+
+    def tick(self) -> dict:
+        now = self.elapsed()
+        self.inputs.tick(now)
+        state = self.trainer.step(now)
+        state["session"] = {"id": self.id, "elapsed_s": now}
+        self.last_state = state
+        return state
+
+    def save(self, folder: Path) -> Path:
+        ended = dt.datetime.now(dt.UTC)
+        attrs = {
+            "mode": self.mode.name,
+            "session_id": self.id,
+            "started_utc": self.started_utc.isoformat(),
+            "ended_utc": ended.isoformat(),
+            "duration_s": self.elapsed(),
+            "settings": json.dumps({"mode": self.mode.name, **self.settings}),  # as started: a replay starts here
+            "versions": json.dumps(versions()),
+        }
+        return write_session(folder / f"{self.id}.h5", attrs, self.inputs, {self.mode.name: self.trainer.write})

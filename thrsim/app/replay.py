@@ -1,0 +1,82 @@
+"""Replay a recorded session: feed its inputs, in lived order and with their times, to a fresh
+trainer of the same mode and settings, and compare what it produces with what was recorded.
+
+The trainers are deterministic given their inputs and seed, so a replay of an unchanged thrsim
+reproduces the session's events and orientation trace exactly; a difference means the trainer's
+behaviour changed since the session was recorded (the file keeps the versions that made it).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from thrsim.app.modes import MODES
+from thrsim.errors import ThrsimInputError
+from thrsim.session.file import read_session
+
+
+@dataclass(frozen=True)
+class ReplayOutcome:
+    mode: str
+    inputs: int
+    refused_controls: int
+    events: int
+    events_match: bool
+    trace_match: bool
+    max_angle_difference_deg: float
+
+    @property
+    def reproduced(self) -> bool:
+        return self.events_match and self.trace_match
+
+    def as_dict(self) -> dict:
+        return {**self.__dict__, "reproduced": self.reproduced}
+
+
+def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
+    """Re-live the session at ``path``; ``on_state(state)`` sees every step's state (e.g. to draw it)."""
+    session = read_session(path)
+    settings = session.settings
+    mode = MODES.get(settings.get("mode", ""))
+    if mode is None:
+        raise ThrsimInputError(f"{path}: recorded in mode {settings.get('mode')!r}, which this thrsim does not have")
+    trainer = mode.make_trainer(settings)
+    refused = 0
+    for kind, time_s, payload in session.inputs.replay():
+        if kind == "tick":
+            state = trainer.step(time_s)
+            if on_state is not None:
+                on_state(state)
+        elif kind == "pose":
+            device, matrix = payload
+            try:
+                trainer.apply_pose(device, np.asarray(matrix), time_s)
+            except ThrsimInputError:
+                refused += 1
+        elif kind == "force":
+            trainer.apply_force(payload, time_s)
+        elif payload.get("type") != "end_session":
+            try:
+                trainer.apply_control(mode.parse_control(payload), time_s)
+            except ThrsimInputError:
+                refused += 1  # refused live too: the same input, the same answer
+    if mode.name not in session.groups:
+        raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
+    recorded = mode.read_record(session.groups[mode.name])
+    replayed = trainer.record()
+    strip = lambda events: [(e["kind"], e["landmark"], round(e["time_s"], 9)) for e in events]
+    same_shape = recorded.angles.shape == replayed.angles.shape
+    difference = float(np.nanmax(np.abs(recorded.angles - replayed.angles), initial=0.0)) if same_shape else float("inf")
+    trace_match = same_shape and bool(np.array_equal(np.isnan(recorded.angles), np.isnan(replayed.angles))) and difference <= 1e-9
+    return ReplayOutcome(
+        mode=mode.name,
+        inputs=session.inputs.count,
+        refused_controls=refused,
+        events=len(replayed.events),
+        events_match=strip(recorded.events) == strip(replayed.events),
+        trace_match=trace_match,
+        max_angle_difference_deg=difference,
+    )

@@ -1,0 +1,388 @@
+"""The trainer's web app: pages, a WebSocket per mode, the OpenIGTLink listener, the ticker.
+
+One process serves everything. Every ``1/tick_hz`` s the ticker steps each mode's live session
+and hands the state to each viewer's sender; a viewer's queue holds only the newest state, so a
+slow viewer skips frames instead of slowing the others or growing memory. Tracker poses reach
+the live sessions through the OpenIGTLink server's session object (its public ``session=``
+hook). A session ends when a viewer asks (or the server stops): it is written atomically to
+``sessions_dir`` and a fresh one starts at once.
+
+Access: on a loopback address no token is needed unless one is given; on any other address a
+token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
+a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``). WebSocket
+handshakes from another site's page (a foreign ``Origin``) are refused as well.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import hmac
+import ipaddress
+import json
+import logging
+import re
+import secrets
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from urllib.parse import parse_qs, urlsplit
+
+from fastapi import FastAPI, HTTPException, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+from starlette.concurrency import run_in_threadpool
+
+from thrsim.app.live import STATIC, THREE_DIR, LiveSession
+from thrsim.app.modes import MODES, Mode
+from thrsim.config import IgtlConfig
+from thrsim.errors import ThrsimInputError
+from thrsim.nav.session import NavigationSession
+
+log = logging.getLogger(__name__)
+
+TOKEN_COOKIE = "thrsim_token"
+_SESSION_ID = re.compile(r"^[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}$")
+_REPORT_LOCK = threading.Lock()  # matplotlib's pyplot is not safe for two reports at once
+
+
+def is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass
+class ServeSettings:
+    host: str = "127.0.0.1"
+    port: int = 8000
+    igtl_port: int = 18944
+    token: str | None = None
+    sessions_dir: Path = Path("sessions")
+    side: str = "right"
+    seed: int | None = None  # None: a fresh one per session
+    tick_hz: float = 60.0
+    igtl: bool = True
+
+    def check(self) -> None:
+        if not is_loopback(self.host) and not self.token:
+            raise ThrsimInputError(f"--host {self.host} is reachable from other machines: give an access token (--token or THRSIM_TOKEN)")
+        if self.token is not None and len(self.token) < 8:
+            raise ThrsimInputError("the access token must be at least 8 characters")
+        if self.side not in ("right", "left"):
+            raise ThrsimInputError(f"--side must be right or left, got {self.side!r}")
+        if not self.sessions_dir.is_dir():
+            raise ThrsimInputError(f"sessions folder {self.sessions_dir} does not exist")
+
+
+class _TokenGate:
+    """ASGI middleware: every HTTP request and WebSocket handshake must carry the token."""
+
+    def __init__(self, app, token: str | None):
+        self.app = app
+        self.token = token
+
+    def _presented(self, scope) -> tuple[str | None, bool]:
+        query = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [None])[0]
+        if query is not None:
+            return query, True
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        auth = headers.get("authorization", "")
+        if auth.lower().startswith("bearer "):
+            return auth[7:].strip(), False
+        for part in headers.get("cookie", "").split(";"):
+            name, _, value = part.strip().partition("=")
+            if name == TOKEN_COOKIE:
+                return value, False
+        return None, False
+
+    def _origin_ok(self, scope) -> bool:
+        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        origin = headers.get("origin")
+        return origin is None or urlsplit(origin).netloc == headers.get("host")
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] not in ("http", "websocket"):
+            return await self.app(scope, receive, send)
+        if scope["type"] == "websocket" and not self._origin_ok(scope):
+            return await send({"type": "websocket.close", "code": 4403, "reason": "foreign origin"})
+        if self.token is None:
+            return await self.app(scope, receive, send)
+        presented, from_query = self._presented(scope)
+        if presented is None or not hmac.compare_digest(presented.encode(), self.token.encode()):
+            reason = "missing access token" if presented is None else "wrong access token"
+            if scope["type"] == "websocket":
+                return await send({"type": "websocket.close", "code": 4401, "reason": reason})
+            body = f"{reason}: open the trainer as /?token=YOUR_TOKEN\n".encode()
+            await send({"type": "http.response.start", "status": 401, "headers": [(b"content-type", b"text/plain; charset=utf-8")]})
+            return await send({"type": "http.response.body", "body": body})
+        if scope["type"] == "http" and from_query:
+            # The page's modules and its WebSocket then carry the token without it in every URL.
+            cookie = f"{TOKEN_COOKIE}={self.token}; Path=/; HttpOnly; SameSite=Strict".encode()
+
+            async def send_with_cookie(message):
+                if message["type"] == "http.response.start":
+                    message = dict(message, headers=list(message.get("headers", [])) + [(b"set-cookie", cookie)])
+                await send(message)
+
+            return await self.app(scope, receive, send_with_cookie)
+        return await self.app(scope, receive, send)
+
+
+@dataclass(eq=False)  # hashed by identity: viewers live in a set
+class _Viewer:
+    socket: WebSocket
+    queue: asyncio.Queue = field(default_factory=lambda: asyncio.Queue(maxsize=1))
+    sent: int = 0
+
+    def offer(self, text: str) -> None:
+        if self.queue.full():
+            self.queue.get_nowait()  # newest state wins
+        self.queue.put_nowait(text)
+
+
+class TrainerHub:
+    """The live sessions of every mode, their viewers, and the save on end."""
+
+    def __init__(self, settings: ServeSettings, clock=time.monotonic):
+        self.settings = settings
+        self.clock = clock
+        self.sessions: dict[str, LiveSession] = {name: self._start(mode) for name, mode in MODES.items()}
+        self.viewers: dict[str, set[_Viewer]] = {name: set() for name in MODES}
+        self.saved: list[Path] = []
+        self.ticks = 0
+        self.igtl_address: tuple[str, int] | None = None
+
+    def _start(self, mode: Mode) -> LiveSession:
+        seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
+        return LiveSession(mode, {"side": self.settings.side, "seed": seed}, self.clock)
+
+    def on_pose(self, device: str, pose, clock_time: float) -> None:
+        for session in self.sessions.values():
+            try:
+                session.pose(device, pose, clock_time)
+            except ThrsimInputError as error:
+                log.warning("pose %s refused: %s", device, error)
+
+    def on_force(self, newton: float, clock_time: float) -> None:
+        for session in self.sessions.values():
+            session.force(newton, clock_time)
+
+    def tick(self) -> None:
+        self.ticks += 1
+        for name, session in self.sessions.items():
+            try:
+                state = session.tick()
+                text = json.dumps(state, allow_nan=False) if self.viewers[name] else ""
+            except Exception:  # a trainer bug must not stop the other modes or lose the session
+                log.exception("%s step failed", name)
+                continue
+            if text:
+                for viewer in self.viewers[name]:
+                    viewer.offer(text)
+
+    def end(self, name: str) -> Path:
+        """Save the mode's session and start a fresh one."""
+        session = self.sessions[name]
+        path = session.save(self.settings.sessions_dir)
+        self.saved.append(path)
+        self.sessions[name] = self._start(session.mode)
+        return path
+
+    def save_all(self) -> list[Path]:
+        """On shutdown: keep every session that received anything."""
+        return [self.end(name) for name, session in list(self.sessions.items()) if session.inputs.count > session.inputs.ticks]
+
+    def hello(self, name: str) -> dict:
+        session = self.sessions[name]
+        return {"type": "hello", "mode": name, "session": session.id, "scene": session.trainer.scene(), "igtl": self.igtl_address}
+
+
+class _ForwardingSession(NavigationSession):
+    """The OpenIGTLink server's navigation session, also forwarding each reading to the trainer."""
+
+    def __init__(self, hub: TrainerHub, **kwargs):
+        super().__init__(**kwargs)
+        self.hub = hub
+
+    def update_pose(self, device: str, pose, time_s: float) -> None:
+        super().update_pose(device, pose, time_s)  # validates; raises for a non-rigid pose
+        self.hub.on_pose(device, self.poses[device].value, time_s)
+
+    def update_force(self, values, time_s: float) -> None:
+        super().update_force(values, time_s)
+        self.hub.on_force(self.force.value, time_s)
+
+
+async def _ticker(hub: TrainerHub, period: float) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time()
+    while True:
+        hub.tick()
+        deadline += period
+        delay = deadline - loop.time()
+        if delay < -period:
+            deadline = loop.time()  # fell behind (a busy machine): skip, do not burst
+        await asyncio.sleep(max(0.0, delay))
+
+
+def _page(mode: Mode) -> HTMLResponse:
+    html = (STATIC / mode.page).read_text()
+    if not (THREE_DIR / "build" / "three.module.js").is_file():
+        html = html.replace("<body>", '<body><p class="fatal">three.js is not installed: run ./install.sh (or npm ci in thrsim/app/static).</p>', 1)
+    return HTMLResponse(html, headers={"cache-control": "no-store"})
+
+
+def create_app(settings: ServeSettings) -> FastAPI:
+    """The trainer app; its lifespan runs the OpenIGTLink listener and the ticker."""
+    settings.check()
+    hub = TrainerHub(settings)
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        igtl_server = None
+        if settings.igtl:
+            from thrsim.io.server import NavigationServer
+
+            first = next(iter(hub.sessions.values())).trainer
+            igtl_session = _ForwardingSession(hub, side=first.side, landmarks=getattr(first, "targets", None))
+            igtl_server = NavigationServer(IgtlConfig(host=settings.host, port=settings.igtl_port), session=igtl_session, clock=hub.clock)
+            try:
+                hub.igtl_address = await igtl_server.start()
+            except OSError as error:
+                app.state.startup_error = f"cannot listen for OpenIGTLink on {settings.host}:{settings.igtl_port}: {error.strerror or error}"
+                raise ThrsimInputError(app.state.startup_error) from None
+        ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
+        app.state.ready = True
+        announce = getattr(app.state, "announce", None)
+        if announce is not None:
+            announce(hub.igtl_address or ("(off)", 0))
+        try:
+            yield
+        finally:
+            ticker.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await ticker
+            if igtl_server is not None:
+                await igtl_server.close()
+            for path in hub.save_all():
+                log.warning("session saved on shutdown: %s", path)
+
+    app = FastAPI(title="thrsim trainer", lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
+    app.state.hub = hub
+    app.add_middleware(_TokenGate, token=settings.token)
+    app.mount("/static", StaticFiles(directory=STATIC, check_dir=True), name="static")
+    if THREE_DIR.is_dir():
+        app.mount("/vendor/three", StaticFiles(directory=THREE_DIR), name="three")
+
+    for mode in MODES.values():
+        app.add_api_route(mode.path, lambda mode=mode: _page(mode), methods=["GET"], include_in_schema=False)
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    def favicon() -> Response:
+        return Response(status_code=204)
+
+    @app.get("/api/modes")
+    def modes() -> dict:
+        return {"modes": [{"name": m.name, "path": m.path, "title": m.title} for m in MODES.values()]}
+
+    @app.get("/api/health")
+    def health() -> dict:
+        return {"ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "viewers": {k: len(v) for k, v in hub.viewers.items()}}
+
+    @app.get("/api/sessions")
+    def sessions() -> dict:
+        files = sorted(settings.sessions_dir.glob("*.h5"))
+        return {"sessions": [{"id": f.stem, "report": f"/sessions/{f.stem}/report", "file": f"/sessions/{f.stem}/file"} for f in files if _SESSION_ID.match(f.stem)]}
+
+    def _session_file(session_id: str) -> Path:
+        path = settings.sessions_dir / f"{session_id}.h5"
+        if not _SESSION_ID.match(session_id) or not path.is_file():
+            raise HTTPException(404, f"no saved session {session_id!r}")
+        return path
+
+    @app.get("/sessions/{session_id}/file")
+    def session_file(session_id: str) -> FileResponse:
+        return FileResponse(_session_file(session_id), media_type="application/x-hdf5", filename=f"{session_id}.h5")
+
+    @app.get("/sessions/{session_id}/report")
+    async def session_report(session_id: str) -> Response:
+        from thrsim.report import build_report
+
+        path = _session_file(session_id)
+        try:
+            html = await run_in_threadpool(_locked_report, build_report, path)
+        except ThrsimInputError as error:
+            return JSONResponse({"error": str(error)}, status_code=422)
+        return HTMLResponse(html)
+
+    @app.websocket("/ws/{mode_name}")
+    async def stream(socket: WebSocket, mode_name: str) -> None:
+        if mode_name not in MODES:
+            await socket.close(code=4404, reason=f"unknown mode {mode_name!r}")
+            return
+        await socket.accept()
+        viewer = _Viewer(socket)
+        hub.viewers[mode_name].add(viewer)
+        sender = asyncio.create_task(_send_states(viewer))
+        try:
+            await socket.send_text(json.dumps(hub.hello(mode_name)))
+            while True:
+                message = await socket.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                reply = _handle(hub, mode_name, message.get("text"))
+                for kind, payload in reply:
+                    if kind == "all":
+                        for other in list(hub.viewers[mode_name]):
+                            with contextlib.suppress(Exception):
+                                await other.socket.send_text(json.dumps(payload))
+                    else:
+                        await socket.send_text(json.dumps(payload))
+        except WebSocketDisconnect:
+            pass
+        finally:
+            hub.viewers[mode_name].discard(viewer)
+            sender.cancel()
+
+    return app
+
+
+def _locked_report(build, path: Path) -> str:
+    with _REPORT_LOCK:
+        return build(path)
+
+
+def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str, dict]]:
+    """One viewer message → replies: ("one", payload) to the sender, ("all", payload) to every viewer."""
+    if text is None:
+        return [("one", {"type": "error", "message": "controls are JSON text messages, not binary"})]
+    session = hub.sessions[mode_name]
+    try:
+        control, ack = session.control(text)
+    except ThrsimInputError as error:
+        return [("one", {"type": "error", "message": str(error)})]
+    except Exception as error:  # a trainer bug: refuse this control, keep the session and the server
+        log.exception("control failed")
+        return [("one", {"type": "error", "message": f"control failed: {error}"})]
+    if control.type == "end_session":
+        try:
+            path = hub.end(mode_name)
+        except (ThrsimInputError, OSError) as error:
+            return [("one", {"type": "error", "message": f"session not saved: {error}"})]
+        saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}
+        return [("all", saved), ("all", hub.hello(mode_name))]
+    if control.type == "side":
+        return [("one", {"type": "ack", "message": ack}), ("all", {"type": "scene", "scene": session.trainer.scene()})]
+    return [("one", {"type": "ack", "message": ack})]
+
+
+async def _send_states(viewer: _Viewer) -> None:
+    with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
+        while True:
+            await viewer.socket.send_text(await viewer.queue.get())
+            viewer.sent += 1

@@ -1,0 +1,283 @@
+// The navigation trainer page: connects to /ws/navigation, draws each state, sends controls.
+// The server owns the session (and records it); this page only shows and asks.
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { NavigationScene } from "./scene.js";
+
+const $ = (id) => document.getElementById(id);
+const canvas = $("view");
+const view = new NavigationScene(canvas);
+const orbit = new OrbitControls(view.camera, canvas);
+orbit.enableDamping = false;
+
+// Figures the end-to-end tests and the benchmark read.
+const stats = { frames: 0, states: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false };
+window.trainer = { stats, view, send: (message) => send(message) };
+
+let socket = null;
+let state = null;
+let steer = { inclination_deg: 60, anteversion_deg: 10 };
+let camera = { azimuth_deg: 50, elevation_deg: -37, distance_mm: 1600 };
+let audio = null;
+
+function resize() {
+  view.resize(window.innerWidth, window.innerHeight);
+}
+window.addEventListener("resize", resize);
+resize();
+
+function toast(text, kind = "") {
+  const item = document.createElement("div");
+  item.className = `toast ${kind}`;
+  item.textContent = text;
+  $("toasts").appendChild(item);
+  setTimeout(() => item.remove(), kind === "error" ? 5000 : 2500);
+}
+
+function beep(frequency, duration = 0.12) {
+  if (!$("sound").checked) return;
+  try {
+    audio = audio || new AudioContext();
+    const oscillator = audio.createOscillator();
+    const gain = audio.createGain();
+    oscillator.frequency.value = frequency;
+    gain.gain.value = 0.08;
+    oscillator.connect(gain).connect(audio.destination);
+    oscillator.start();
+    oscillator.stop(audio.currentTime + duration);
+  } catch (error) {
+    // No audio device (a headless browser): feedback stays visual.
+  }
+}
+
+function send(message) {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
+}
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  socket = new WebSocket(`${scheme}://${location.host}/ws/navigation`);
+  socket.onopen = () => {
+    stats.connected = true;
+    $("connection").textContent = "connected";
+    $("connection").className = "pill ok";
+    sendViewer();
+  };
+  socket.onclose = () => {
+    stats.connected = false;
+    $("connection").textContent = "disconnected — retrying";
+    $("connection").className = "pill bad";
+    setTimeout(connect, 1000);
+  };
+  socket.onmessage = (event) => receive(JSON.parse(event.data));
+}
+
+function receive(message) {
+  if (message.type === "state") {
+    stats.states += 1;
+    stats.last = message;
+    state = message;
+    const look = JSON.stringify([message.tools, message.camera, message.zone, message.registration, message.occluder]);
+    if (look !== lastLook) { lastLook = look; dirty = true; }
+    view.apply(message);
+    if (!stats.framed) frameView();
+    showState(message);
+    for (const e of message.events) feedback(e);
+  } else if (message.type === "hello") {
+    stats.hello = message;
+    view.build(message.scene);
+    $("session-id").textContent = `session ${message.session}`;
+    $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
+    $("side").value = message.scene.side;
+  } else if (message.type === "scene") {
+    view.build(message.scene);
+    $("side").value = message.scene.side;
+  } else if (message.type === "ack") {
+    stats.acks.push(message.message);
+  } else if (message.type === "error") {
+    stats.errors.push(message.message);
+    toast(message.message, "error");
+  } else if (message.type === "session_saved") {
+    stats.saved = message;
+    const box = $("saved");
+    box.classList.remove("hidden");
+    box.innerHTML = "";
+    const link = document.createElement("a");
+    link.href = message.report;
+    link.target = "_blank";
+    link.id = "report-link";
+    link.textContent = "Open the assessment report";
+    box.append("Session saved: ", link);
+    toast("session saved", "good");
+  }
+}
+
+function feedback(event) {
+  if (event.kind === "acquired") {
+    beep(880);
+    toast(`acquired ${event.landmark} (${(event.value * 1000).toFixed(1)} mm from target)`, "good");
+  } else if (event.kind === "completed") {
+    beep(660, 0.1); setTimeout(() => beep(990, 0.2), 120);
+  } else if (event.kind === "app_built") {
+    toast(`anterior pelvic plane built · fit ${event.detail}`, "good");
+  } else if (event.kind === "tracking_lost") {
+    beep(220, 0.2);
+    toast(`tracking lost: ${event.detail}`, "error");
+  } else if (event.kind === "calibration_done") {
+    toast(`display calibrated: ${event.detail}`, "good");
+  } else if (event.kind === "calibration_refused") {
+    toast(`calibration refused: ${event.detail}`, "error");
+  } else if (event.kind === "cup_confirmed") {
+    toast(`cup orientation confirmed: ${event.detail}`, "good");
+  }
+}
+
+const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
+
+function showState(s) {
+  const angles = s.angles ? s.angles[s.definition] : null;
+  const box = $("angles");
+  box.className = `angles ${s.zone ? s.zone.colour : "unknown"}`;
+  $("inclination").textContent = angles ? `${angles[0].toFixed(1)}°` : "—";
+  $("anteversion").textContent = angles ? `${angles[1].toFixed(1)}°` : "—";
+  $("zone-text").textContent = !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`;
+  $("note").textContent = s.zone ? s.note : "";
+  const list = $("tools");
+  list.innerHTML = "";
+  for (const [name, t] of Object.entries(s.tools)) {
+    const li = document.createElement("li");
+    const dot = document.createElement("span");
+    dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
+    li.append(dot, `${name}: ${REASONS[t.reason] ?? t.reason}`);
+    if (t.angle_deg !== null) li.append(` (${t.angle_deg.toFixed(0)}°)`);
+    li.dataset.tool = name;
+    li.dataset.reason = t.reason;
+    list.appendChild(li);
+  }
+  const reg = s.registration;
+  $("reg-count").textContent = `${reg.acquired.length} / ${reg.total}`;
+  $("reg-bar").style.width = `${(100 * reg.acquired.length) / reg.total}%`;
+  $("reg-target").textContent = reg.done ? `done · fit ${reg.rms_mm.toFixed(2)} mm` : reg.current ?? "—";
+  const cal = s.calibration;
+  $("calibration-status").textContent =
+    cal.state === "sampling" ? `sampling ${cal.samples} / ${cal.needed} — hold still` :
+    cal.state === "done" ? `residual ${cal.result.rotation_residual_rms_deg.toFixed(2)}° / ${cal.result.translation_residual_rms_mm.toFixed(1)} mm (${cal.result.used} samples)` :
+    cal.state === "refused" ? `refused: ${cal.message}` : "not calibrated";
+  if (document.activeElement !== $("definition")) $("definition").value = s.definition;
+  // Follow the server's camera (another viewer may move it), but not over this viewer's own
+  // recent edits that the server has not applied yet.
+  if (s.camera.source === "page" && !draggingCamera && performance.now() - lastCameraEdit > 1000) {
+    camera = { azimuth_deg: s.camera.azimuth_deg, elevation_deg: s.camera.elevation_deg, distance_mm: s.camera.distance_mm };
+    $("cam-azimuth").value = camera.azimuth_deg;
+    $("cam-elevation").value = camera.elevation_deg;
+    $("cam-distance").value = camera.distance_mm;
+  }
+  $("occluder").checked = s.occluder.present;
+}
+
+function frameView() {
+  stats.framed = true;
+  // Beside the table, above the hip, looking between the hip and the IR camera: both in view.
+  const focus = view.focus.clone().lerp(view.irCameraPosition(), 0.12);
+  view.camera.position.set(focus.x + 0.75, focus.y + 0.4, focus.z + 0.5);
+  orbit.target.copy(focus);
+  orbit.update();
+}
+
+// ---- controls ---------------------------------------------------------------------------------
+
+let draggingCamera = false;
+let lastCameraEdit = -Infinity;
+function sendCamera() { lastCameraEdit = performance.now(); send({ type: "camera", ...camera }); }
+for (const [id, key] of [["cam-azimuth", "azimuth_deg"], ["cam-elevation", "elevation_deg"], ["cam-distance", "distance_mm"]]) {
+  const input = $(id);
+  input.addEventListener("pointerdown", () => { draggingCamera = true; });
+  input.addEventListener("pointerup", () => { draggingCamera = false; });
+  input.addEventListener("input", () => { camera[key] = Number(input.value); sendCamera(); });
+}
+function sendSteer() {
+  $("steer-inc").value = steer.inclination_deg;
+  $("steer-ant").value = steer.anteversion_deg;
+  $("steer-inc-value").textContent = `${steer.inclination_deg}°`;
+  $("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
+  send({ type: "reamer", ...steer });
+}
+$("steer-inc").addEventListener("input", (e) => { steer.inclination_deg = Number(e.target.value); sendSteer(); });
+$("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number(e.target.value); sendSteer(); });
+$("steer-inc").value = steer.inclination_deg;
+$("steer-ant").value = steer.anteversion_deg;
+$("steer-inc-value").textContent = `${steer.inclination_deg}°`;
+$("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
+
+const touch = (landmark = null) => send({ type: "probe", action: "touch", landmark });
+$("touch").addEventListener("click", () => touch());
+$("lift").addEventListener("click", () => send({ type: "probe", action: "lift" }));
+$("retake").addEventListener("click", () => send({ type: "registration", action: "retake" }));
+$("restart").addEventListener("click", () => send({ type: "registration", action: "restart" }));
+$("confirm").addEventListener("click", () => send({ type: "confirm_cup" }));
+$("calibrate").addEventListener("click", () => { sendViewer(); send({ type: "calibration", action: "start" }); });
+$("end").addEventListener("click", () => send({ type: "end_session" }));
+$("definition").addEventListener("change", (e) => send({ type: "definition", value: e.target.value }));
+$("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
+$("show-volume").addEventListener("change", (e) => { view.setVolumeVisible(e.target.checked); dirty = true; });
+$("occluder").addEventListener("change", (e) => send({ type: "occluder", present: e.target.checked }));
+$("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
+$("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
+
+// Clicking a landmark point touches it with the probe (a click, not the end of an orbit drag).
+let down = null;
+canvas.addEventListener("pointerdown", (e) => { down = [e.clientX, e.clientY]; });
+canvas.addEventListener("pointerup", (e) => {
+  if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 4) return;
+  const name = view.pick((e.clientX / window.innerWidth) * 2 - 1, -(e.clientY / window.innerHeight) * 2 + 1);
+  if (name) touch(name);
+});
+
+let lastViewerSent = 0;
+function sendViewer() { send({ type: "viewer", pose: view.viewerPose() }); lastViewerSent = performance.now(); }
+orbit.addEventListener("change", () => { if (performance.now() - lastViewerSent > 100) sendViewer(); });
+
+const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
+document.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
+  if (e.target instanceof HTMLSelectElement) return;
+  const step = e.shiftKey ? 5 : 1;
+  const handled = {
+    " ": () => touch(),
+    Backspace: () => send({ type: "registration", action: "retake" }),
+    l: () => send({ type: "probe", action: "lift" }),
+    Enter: () => send({ type: "confirm_cup" }),
+    ArrowUp: () => { steer.inclination_deg = clamp(steer.inclination_deg + step, 0, 90); sendSteer(); },
+    ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
+    ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
+    ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    "[": () => { camera.azimuth_deg = ((camera.azimuth_deg - 5 + 540) % 360) - 180; sendCamera(); },
+    "]": () => { camera.azimuth_deg = ((camera.azimuth_deg + 5 + 540) % 360) - 180; sendCamera(); },
+    v: () => { $("show-volume").checked = !$("show-volume").checked; view.setVolumeVisible($("show-volume").checked); dirty = true; },
+    o: () => send({ type: "occluder", present: !$("occluder").checked }),
+    c: () => $("calibrate").click(),
+    h: () => $("help").classList.toggle("hidden"),
+  }[e.key.length === 1 ? e.key.toLowerCase() : e.key];
+  if (handled) { e.preventDefault(); handled(); }
+});
+
+// Draw only when something changed (a new pose, the view moved) or for the target's pulse
+// (~12 Hz): a browser on a busy machine then leaves the CPU to the server. ?continuous=1 draws
+// every frame (to measure drawing speed).
+const continuous = new URLSearchParams(location.search).has("continuous");
+let dirty = true;
+let lastLook = "";
+let lastPulse = 0;
+orbit.addEventListener("change", () => { dirty = true; });
+window.addEventListener("resize", () => { dirty = true; });
+function frame(now) {
+  if (continuous || dirty || now - lastPulse > 80) {
+    if (now - lastPulse > 80) lastPulse = now;
+    dirty = false;
+    stats.frames += 1;
+    view.animate();
+    view.render();
+  }
+  requestAnimationFrame(frame);
+}
+requestAnimationFrame(frame);
+connect();

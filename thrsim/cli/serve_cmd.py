@@ -1,0 +1,82 @@
+"""``thrsim serve``: the browser trainer (pages, WebSocket state stream, OpenIGTLink listener)."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import signal
+import socket
+from pathlib import Path
+
+import typer
+
+from thrsim.errors import ThrsimInputError
+
+
+def _uvicorn_server(config):
+    import uvicorn
+
+    class _Server(uvicorn.Server):
+        @contextlib.contextmanager
+        def capture_signals(self):
+            # Ctrl-C or SIGTERM: shut down (saving live sessions) and exit 0, not re-raise the signal.
+            previous = {signum: signal.signal(signum, self.handle_exit) for signum in (signal.SIGINT, signal.SIGTERM)}
+            try:
+                yield
+            finally:
+                for signum, handler in previous.items():
+                    signal.signal(signum, handler)
+
+    return _Server(config)
+
+
+def serve(
+    port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
+    igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
+    host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
+    token: str | None = typer.Option(None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"),
+    sessions: Path = typer.Option(Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"),
+    side: str = typer.Option("right", "--side", help="operated hip at start: right or left"),
+    seed: int | None = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
+) -> None:
+    """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
+    import uvicorn
+
+    from thrsim.app.server import ServeSettings, create_app
+
+    if not 0 <= port <= 65535 or not 0 <= igtl_port <= 65535:
+        raise ThrsimInputError("ports must lie in 0..65535")
+    if not sessions.exists():
+        if not sessions.parent.is_dir():
+            raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
+        sessions.mkdir()
+    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed)
+    app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
+    try:
+        family = socket.AF_INET6 if ":" in host else socket.AF_INET
+        listener = socket.socket(family, socket.SOCK_STREAM)
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind((host, port))
+        listener.listen(128)  # connections wait in the backlog until the app has started
+    except OSError as error:
+        raise ThrsimInputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
+    if igtl_port != 0:
+        # Refuse a taken OpenIGTLink port here, as one line, before the app starts.
+        try:
+            with socket.socket(family, socket.SOCK_STREAM) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                probe.bind((host, igtl_port))
+        except OSError as error:
+            listener.close()
+            raise ThrsimInputError(f"cannot listen for OpenIGTLink on {host}:{igtl_port}: {error.strerror or error}") from None
+    bound_port = listener.getsockname()[1]
+    shown_host = f"[{host}]" if ":" in host else host
+    app.state.announce = lambda igtl: print(
+        f"thrsim trainer: http://{shown_host}:{bound_port}/{'?token=…' if token else ''} · OpenIGTLink on {igtl[0]}:{igtl[1]} · sessions saved in {sessions}/",
+        flush=True,
+    )
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    config = uvicorn.Config(app, log_level="warning", ws_max_size=64 * 1024, ws_ping_interval=20, ws_ping_timeout=20, lifespan="on")
+    _uvicorn_server(config).run(sockets=[listener])
+    if not getattr(app.state, "ready", False):
+        raise ThrsimInputError(getattr(app.state, "startup_error", "the trainer did not start"))

@@ -1,0 +1,224 @@
+"""The session file: a trainer session's inputs (in arrival order) and each mode's outputs.
+
+Layout (HDF5, one file per session; times in seconds from the session's start, poses in metres):
+
+* attrs: ``format`` = "thrsim-session", ``format_version``, ``mode``, ``started_utc``,
+  ``ended_utc``, ``duration_s``, ``settings`` (JSON), ``versions`` (JSON: thrsim, Python,
+  numerical and web libraries, three.js);
+* ``/inputs/controls``: ``seq``, ``time``, ``message`` (JSON text of each page control);
+* ``/inputs/poses``: ``seq``, ``time``, ``device`` (name), ``matrix`` (N×4×4) from the tracker;
+* ``/inputs/forces``: ``seq``, ``time``, ``newton``;
+* ``/inputs/ticks``: ``seq``, ``time`` of each trainer step;
+* one group per mode that ran (``/navigation``; reaming adds ``/reaming``), written and read by
+  that mode's record class.
+
+``seq`` is one counter over all inputs, so a replay applies them in the order they were lived.
+The file is written once, when the session ends, to a temporary name and renamed
+(:mod:`thrsim.atomic`): a crash mid-write leaves no half file.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterator
+from array import array
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from thrsim.atomic import atomic_path
+from thrsim.errors import ThrsimInputError
+
+FORMAT = "thrsim-session"
+FORMAT_VERSION = 1
+_TEXT = h5py.string_dtype()
+
+
+class _Column:
+    """A growing numeric column in a compact buffer (``array``): a ten-minute session at 60 Hz
+    holds ~36,000 ticks and as many poses, which Python tuples would make several times larger."""
+
+    def __init__(self, typecode: str, width: int = 1, values=()):
+        self.width = width
+        self.data = array(typecode, values)
+
+    def append(self, *values) -> None:
+        self.data.extend(values)
+
+    def __len__(self) -> int:
+        return len(self.data) // self.width
+
+    def numpy(self, dtype) -> np.ndarray:
+        values = np.frombuffer(self.data, dtype=np.dtype(self.data.typecode)) if len(self.data) else np.zeros(0)
+        return values.astype(dtype).reshape(-1, self.width) if self.width > 1 else values.astype(dtype)
+
+
+class InputLog:
+    """Every input of a live session, appended as it arrives; ``seq`` orders them all."""
+
+    def __init__(self) -> None:
+        self.controls: list[tuple[int, float, str]] = []
+        self.devices: list[str] = []  # pose device names, stored as indices into this list
+        self.pose_seq, self.pose_time, self.pose_device, self.pose_matrix = _Column("q"), _Column("d"), _Column("H"), _Column("d", 16)
+        self.force_seq, self.force_time, self.force_newton = _Column("q"), _Column("d"), _Column("d")
+        self.tick_seq, self.tick_time = _Column("q"), _Column("d")
+        self._seq = 0
+
+    def _next(self) -> int:
+        self._seq += 1
+        return self._seq
+
+    def control(self, time_s: float, message: dict) -> None:
+        self.controls.append((self._next(), time_s, json.dumps(message, separators=(",", ":"))))
+
+    def pose(self, time_s: float, device: str, matrix: np.ndarray) -> None:
+        if device not in self.devices:
+            self.devices.append(device)
+        self.pose_seq.append(self._next())
+        self.pose_time.append(time_s)
+        self.pose_device.append(self.devices.index(device))
+        self.pose_matrix.append(*np.asarray(matrix, dtype=float).ravel())
+
+    def force(self, time_s: float, newton: float) -> None:
+        self.force_seq.append(self._next())
+        self.force_time.append(time_s)
+        self.force_newton.append(float(newton))
+
+    def tick(self, time_s: float) -> None:
+        self.tick_seq.append(self._next())
+        self.tick_time.append(time_s)
+
+    @property
+    def count(self) -> int:
+        return self._seq
+
+    @property
+    def ticks(self) -> int:
+        return len(self.tick_seq)
+
+    def pose_devices(self) -> list[str]:
+        return [self.devices[i] for i in self.pose_device.data]
+
+    def replay(self) -> Iterator[tuple[str, float, object]]:
+        """(kind, time, payload) in lived order: kind is control, pose, force or tick."""
+        matrices = self.pose_matrix.numpy(float).reshape(-1, 4, 4)
+        merged = [(s, "control", t, json.loads(m)) for s, t, m in self.controls]
+        merged += [(s, "pose", t, (self.devices[d], matrices[k])) for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data))]
+        merged += [(s, "force", t, f) for s, t, f in zip(self.force_seq.data, self.force_time.data, self.force_newton.data)]
+        merged += [(s, "tick", t, None) for s, t in zip(self.tick_seq.data, self.tick_time.data)]
+        for _, kind, time_s, payload in sorted(merged, key=lambda item: item[0]):
+            yield kind, time_s, payload
+
+
+@dataclass
+class SessionFile:
+    """A session read back: header attributes, inputs, and each mode group as nested dicts of arrays."""
+
+    path: Path
+    attrs: dict
+    inputs: InputLog
+    groups: dict[str, dict]
+
+    @property
+    def settings(self) -> dict:
+        return json.loads(self.attrs["settings"])
+
+    @property
+    def versions(self) -> dict:
+        return json.loads(self.attrs["versions"])
+
+
+def _write_table(group: h5py.Group, columns: dict[str, np.ndarray]) -> None:
+    for name, values in columns.items():
+        group.create_dataset(name, data=values)
+
+
+def write_session(
+    path: str | Path,
+    attrs: dict,
+    inputs: InputLog,
+    mode_writers: dict[str, Callable[[h5py.Group], None]],
+) -> Path:
+    """Write the whole session atomically; ``mode_writers`` fill one group per mode."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        with h5py.File(tmp, "w") as h5:
+            h5.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, **attrs})
+            group = h5.create_group("inputs")
+            _write_table(
+                group.create_group("controls"),
+                {
+                    "seq": np.array([c[0] for c in inputs.controls], dtype=np.int64),
+                    "time": np.array([c[1] for c in inputs.controls], dtype=float),
+                    "message": np.array([c[2] for c in inputs.controls], dtype=object).astype(_TEXT),
+                },
+            )
+            _write_table(
+                group.create_group("poses"),
+                {
+                    "seq": inputs.pose_seq.numpy(np.int64),
+                    "time": inputs.pose_time.numpy(float),
+                    "device": np.array(inputs.pose_devices(), dtype=object).astype(_TEXT),
+                    "matrix": inputs.pose_matrix.numpy(float).reshape(-1, 4, 4),
+                },
+            )
+            _write_table(
+                group.create_group("forces"),
+                {"seq": inputs.force_seq.numpy(np.int64), "time": inputs.force_time.numpy(float), "newton": inputs.force_newton.numpy(float)},
+            )
+            _write_table(group.create_group("ticks"), {"seq": inputs.tick_seq.numpy(np.int64), "time": inputs.tick_time.numpy(float)})
+            for mode, writer in mode_writers.items():
+                writer(h5.create_group(mode))
+    return path
+
+
+def _read_group(group: h5py.Group) -> dict:
+    out: dict = {"attrs": dict(group.attrs)}
+    for name, item in group.items():
+        if isinstance(item, h5py.Group):
+            out[name] = _read_group(item)
+        elif item.dtype.kind == "O" or h5py.check_string_dtype(item.dtype) is not None:
+            out[name] = [v.decode() if isinstance(v, bytes) else str(v) for v in item[()]]
+        else:
+            out[name] = item[()]
+    return out
+
+
+def read_session(path: str | Path) -> SessionFile:
+    """Read a session file; ThrsimInputError (one line) if it is missing, garbled, or of another format version."""
+    path = Path(path)
+    if not path.is_file():
+        raise ThrsimInputError(f"{path}: no such session file")
+    try:
+        with h5py.File(path, "r") as h5:
+            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in h5.attrs.items()}
+            if attrs.get("format") != FORMAT:
+                raise ThrsimInputError(f"{path}: not a thrsim session file (format {attrs.get('format')!r})")
+            version = int(attrs.get("format_version", -1))
+            if version != FORMAT_VERSION:
+                raise ThrsimInputError(f"{path}: session file format version {version}; this thrsim reads version {FORMAT_VERSION}")
+            data = {name: _read_group(group) for name, group in h5.items()}
+    except ThrsimInputError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as error:
+        raise ThrsimInputError(f"{path}: unreadable session file ({str(error).splitlines()[0]})") from None
+    raw = data.pop("inputs", None)
+    if raw is None:
+        raise ThrsimInputError(f"{path}: session file has no inputs group")
+    try:
+        inputs = InputLog()
+        inputs.controls = list(zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"]))
+        poses = raw["poses"]
+        for seq, time_s, device, matrix in zip(poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4)):
+            inputs._seq = seq - 1
+            inputs.pose(time_s, device, matrix)
+        forces, ticks = raw["forces"], raw["ticks"]
+        inputs.force_seq, inputs.force_time, inputs.force_newton = (_Column(t, 1, forces[k].tolist()) for t, k in (("q", "seq"), ("d", "time"), ("d", "newton")))
+        inputs.tick_seq, inputs.tick_time = _Column("q", 1, ticks["seq"].tolist()), _Column("d", 1, ticks["time"].tolist())
+    except (KeyError, ValueError, TypeError) as error:
+        raise ThrsimInputError(f"{path}: session file lacks or garbles an inputs table ({error})") from None
+    every = [s for s, _, _ in inputs.controls] + list(inputs.pose_seq.data) + list(inputs.force_seq.data) + list(inputs.tick_seq.data)
+    inputs._seq = max(every, default=0)
+    return SessionFile(path=path, attrs=attrs, inputs=inputs, groups=data)

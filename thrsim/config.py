@@ -297,7 +297,7 @@ class TrackingVolumeConfig(_Frozen):
         return self
 
 
-KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference")
+KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 
 class IgtlConfig(_Frozen):

@@ -178,3 +178,9 @@ def test_an_error_inside_the_server_is_answered_and_stays_in_its_connection(nav_
         assert (code, name) == (igtl.STATUS_UNKNOWN_ERROR, "InternalError") and "a bug in the state" in text
         assert served(sock) and served(bystander)
     assert nav_server.server.stats["internal_errors"] == 1
+
+
+def test_the_trainers_device_names_are_known_to_the_server():
+    from thrsim.app.navigation import DEVICES
+
+    assert set(DEVICES) <= set(IgtlConfig().known_devices)

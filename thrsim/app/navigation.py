@@ -54,7 +54,8 @@ from thrsim.nav.tracking import (
 from thrsim.session.navigation import NavigationRecord, write_navigation
 
 TOOLS = {"Reference": REFERENCE_FRAME, "Probe": PROBE, "Reamer": REAMER}
-# Tracker device → (tool, frame the pose is given in); SPEC §3 names.
+# Tracker device → (tool, frame the pose is given in): the TRANSFORM device names trackers send
+# (thrsim.config.KNOWN_TRACKER_DEVICES).
 DEVICES = {
     "ReferenceToTracker": ("Reference", "tracker"),
     "ProbeToReference": ("Probe", "reference"),

@@ -2,7 +2,7 @@
 
 A dataset directory (``thrsim dataset``, with its manifest and splits) or a single case file is
 read into arrays once; every case must share one mesh, which becomes the model's mesh. Extra
-datasets a newer solver writes are ignored; only the SPEC §4 layout is read.
+datasets a newer solver writes are ignored; only the layout of :mod:`thrsim.data.case_file` is read.
 """
 
 from __future__ import annotations

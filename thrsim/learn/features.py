@@ -1,4 +1,4 @@
-"""Per-frame inputs of the learned simulator (SPEC §2 graph, plus what helps; see FeatureSettings).
+"""Per-frame inputs of the learned simulator (the thesis's graph [7.3.1], plus what helps; see FeatureSettings).
 
 Everything is computed on a :class:`~thrsim.learn.graph.Subgraph` only (the region near the
 reamer and its halo), from arrays already in memory: a centroid table, α, the reamer centre,

@@ -1,6 +1,6 @@
 """The static graph of the learned simulator [7.3.1]: one node per tet, edges between face-sharing tets.
 
-Built once from the mesh (SPEC §2: the topology never changes; a removed element keeps its node
+Built once from the mesh (the topology never changes [7.3.1]; a removed element keeps its node
 and only its features say it is gone). Per frame only the *region* near the reamer is looked at:
 the cutting front (active elements on the free surface within the teeth's reach plus a margin of
 the reamer centre, grown a face-hop or two into the bone), plus a halo of face-hops around it so

@@ -44,7 +44,7 @@ class StepResult:
 
 
 def angles_of(axis: np.ndarray) -> tuple[float, float]:
-    """(γ, θ) in degrees of a unit axis D = (sin γ cos θ, sin γ sin θ, −cos γ) (SPEC §3)."""
+    """(γ, θ) in degrees of a unit axis D = (sin γ cos θ, sin γ sin θ, −cos γ), as in the case files."""
     gamma = math.degrees(math.acos(float(np.clip(-axis[2], -1.0, 1.0))))
     theta = math.degrees(math.atan2(axis[1], axis[0])) % 360.0 if gamma > 1e-9 else 0.0
     return gamma, theta

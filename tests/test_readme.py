@@ -39,17 +39,13 @@ def test_no_citation_of_files_this_repository_does_not_hold():
         assert not re.search(rf"\b{name}\b", README), name
 
 
-# Left to the solver's owner (issue 10): the two citations in thrsim/physics and thrsim/verification.
-_CITATIONS_TO_REMOVE = {"thrsim/physics/explicit.py", "thrsim/verification/material_checks.py"}
-
-
 def test_no_code_cites_files_this_repository_does_not_hold():
     """A reader has only this repository: code states the fact (with the thesis as citation)."""
     citing = re.compile(r"\b(?:NOTES|SPEC)\b")
     offenders = [
         f"{path.relative_to(REPO_ROOT)}:{number}"
         for path in sorted([*(REPO_ROOT / "thrsim").rglob("*.py"), *(REPO_ROOT / "tests").rglob("*.py")])
-        if str(path.relative_to(REPO_ROOT)) not in _CITATIONS_TO_REMOVE and path.name != "test_readme.py"
+        if path.name != "test_readme.py"
         for number, line in enumerate(path.read_text().splitlines(), 1)
         if citing.search(line)
     ]

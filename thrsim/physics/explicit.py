@@ -1,8 +1,9 @@
 """Explicit central-difference dynamics of a damaging Johnson–Cook solid on linear tets.
 
 Written here because no Python library combines explicit dynamics, JC plasticity with rate
-dependence, ductile damage and element deletion (see NOTES: torch-fem, warp.fem, scikit-fem,
-SfePy were checked). Kernels are Numba; the two per-step kernels are:
+dependence, ductile damage and element deletion (torch-fem 0.14 is quasi-static without rate or
+deletion, warp.fem and scikit-fem have no plasticity, SfePy has no plasticity in its explicit
+stepping). Kernels are Numba; the two per-step kernels are:
 
 * :func:`element_update`, parallel over elements: strain increment from the reference
   gradients, elastic trial stress, JC radial return, damage initiation/evolution, deletion at

@@ -14,8 +14,8 @@ from thrsim.verification.single_element import SingleTet, graded_increments
 
 JC_RATES_S = (1e-3, 1.0, 1e3)
 JC_TARGET_PEEQ = 2.0
-#: relative error allowed on σ(εᵖ) along the whole path (NOTES: 2e-5 reached in a prototype that
-#: used the nominal rate; with the step's own plastic rate only the return's tolerance remains)
+#: relative error allowed on σ(εᵖ) along the whole path (a prototype that used the nominal rate
+#: reached 2e-5; with the step's own plastic rate only the return's tolerance remains)
 JC_TOLERANCE = 1e-6
 #: |εᵖ − (ε − σ/E)|: the kernel's PEEQ against the uniaxial-stress identity
 JC_PEEQ_IDENTITY_TOLERANCE = 1e-12

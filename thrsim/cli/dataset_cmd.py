@@ -8,18 +8,6 @@ same tasks to a Dask scheduler instead. Start one and its workers with::
 
 (the output directory must be visible at the same path on every worker).
 
-Security: a Dask scheduler has no authentication of its own, and its tasks are pickled
-functions, so anyone who reaches its port can run code on every worker. Never listen on
-``0.0.0.0`` on a network you do not control. On one machine keep it on loopback
-(``--host 127.0.0.1``); across machines bind it to a private interface that only the cluster
-reaches, or keep it on loopback and reach it through an SSH tunnel
-(``ssh -N -L 8786:127.0.0.1:8786 HEAD``, then ``--scheduler tcp://127.0.0.1:8786``); on a
-shared network use Dask's TLS: ``dask scheduler --protocol tls --tls-ca-file ca.pem --tls-cert
-scheduler.pem --tls-key scheduler.key``, workers with ``tls://HEAD:8786`` and their own
-``--tls-*`` files, and thrsim with ``--scheduler tls://HEAD:8786`` and the client's certificate
-in Dask's configuration (``DASK_DISTRIBUTED__COMM__TLS__CA_FILE``,
-``DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT``, ``DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY``,
-``DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True``).
 """
 
 from __future__ import annotations
@@ -33,8 +21,11 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn
 
 from thrsim.cli.output import command_group, console, err_console, print_json, print_table
 from thrsim.config import SweepConfig
+from thrsim.data.executor import DASK_SECURITY
 from thrsim.data.sweep import format_list
 from thrsim.errors import SimulationError, ThrsimInputError
+
+__doc__ = f"{__doc__}\n{DASK_SECURITY}"
 
 app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
 

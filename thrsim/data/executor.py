@@ -14,18 +14,7 @@ Dask (``--scheduler tcp://HOST:PORT``): start a scheduler and workers, for examp
     dask scheduler --host 10.0.0.1 --port 8786             # the head node's private interface
     dask worker tcp://10.0.0.1:8786 --nworkers 4 --nthreads 1   # on every compute node
 
-Security: a Dask scheduler has no authentication of its own, and its tasks are pickled
-functions, so anyone who reaches its port can run code on every worker. Never listen on
-``0.0.0.0`` on a network you do not control. On one machine keep it on loopback
-(``--host 127.0.0.1``); across machines bind it to a private interface that only the cluster
-reaches, or keep it on loopback and reach it through an SSH tunnel
-(``ssh -N -L 8786:127.0.0.1:8786 HEAD``, then ``--scheduler tcp://127.0.0.1:8786``); on a
-shared network use Dask's TLS: ``dask scheduler --protocol tls --tls-ca-file ca.pem --tls-cert
-scheduler.pem --tls-key scheduler.key``, workers with ``tls://HEAD:8786`` and their own
-``--tls-*`` files, and thrsim with ``--scheduler tls://HEAD:8786`` and the client's certificate
-in Dask's configuration (``DASK_DISTRIBUTED__COMM__TLS__CA_FILE``,
-``DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT``, ``DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY``,
-``DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True``).
+See :data:`DASK_SECURITY` (appended below) before starting a scheduler anywhere but loopback.
 
 Every worker needs the same thrsim installed, and the output directory must be on a file
 system every worker sees at the same path (workers write the case files; the client writes
@@ -45,6 +34,23 @@ from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
 from thrsim.errors import ThrsimInputError
+
+#: how to keep a Dask scheduler private; part of this module's and ``thrsim dataset``'s help
+DASK_SECURITY = """
+Security: a Dask scheduler has no authentication of its own, and its tasks are pickled
+functions, so anyone who reaches its port can run code on every worker. Never listen on
+``0.0.0.0`` on a network you do not control. On one machine keep it on loopback
+(``--host 127.0.0.1``); across machines bind it to a private interface that only the cluster
+reaches, or keep it on loopback and reach it through an SSH tunnel
+(``ssh -N -L 8786:127.0.0.1:8786 HEAD``, then ``--scheduler tcp://127.0.0.1:8786``); on a
+shared network use Dask's TLS: ``dask scheduler --protocol tls --tls-ca-file ca.pem --tls-cert
+scheduler.pem --tls-key scheduler.key``, workers with ``tls://HEAD:8786`` and their own
+``--tls-*`` files, and thrsim with ``--scheduler tls://HEAD:8786`` and the client's certificate
+in Dask's configuration (``DASK_DISTRIBUTED__COMM__TLS__CA_FILE``,
+``DASK_DISTRIBUTED__COMM__TLS__CLIENT__CERT``, ``DASK_DISTRIBUTED__COMM__TLS__CLIENT__KEY``,
+``DASK_DISTRIBUTED__COMM__REQUIRE_ENCRYPTION=True``).
+"""
+__doc__ = f"{__doc__}\n{DASK_SECURITY}"
 
 _THREAD_VARS = ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 

@@ -104,10 +104,9 @@ class JohnsonCookDamage(_Frozen):
 
     With the thesis constants ε_f < 0 for every triaxiality η: damage initiates at first yield.
     ``displacement_at_failure_m`` (u_f): Table 8 lists 5e-4 m, the text [5.2.1] 1e-4 m. The
-    default, 4.5e-4 m, was calibrated with solver 0.2.0 on the default case (0.45 mm mesh,
-    2 mm shell, γ 15°, θ 30°, 230 N) to break through near frame 99 of 120; with solver 0.3.0
-    that case seats and stops advancing for every u_f tried (README, "Calibration"), so the
-    value awaits a recalibration.
+    default, 4.5e-4 m, was calibrated with solver 0.2.0; since 0.3.0 the teeth's cutting law
+    (:class:`ContactConfig`, ``specific_cutting_energy_j_m3``) sets the pace of the default case
+    and this damage adds to it (README, "Calibration").
     """
 
     d1: float = -0.09
@@ -160,11 +159,19 @@ class ContactConfig(_Frozen):
     on its contact spring has ω·Δt = √β on any mesh and time step. β = 0.4 is a tenth of the
     single-spring stability bound (4); the node's element stiffness and the dampers use the
     rest of the margin (see :func:`contact_stability_terms`).
+
+    ``specific_cutting_energy_j_m3`` (u_c): the teeth cut the volume their friction work pays
+    for, W/u_c (:mod:`thrsim.physics.contact`). 0.3 J/mm³ makes the default case (0.45 mm mesh,
+    γ 15°, θ 30°, 230 N) seat, feed at 1.3 mm/s and break through at frame 89 of 120; published
+    orthogonal cutting of cortical bone is of the order of 0.1 to a few J/mm³.
     """
 
     friction: float = Field(0.3, ge=0)
     damping_ratio: float = Field(0.2, ge=0, lt=1, description="contact damping as a fraction of critical")
     penalty_factor: float = Field(0.4, gt=0, description="β in k_i = β·m_i/Δt² (node on its contact spring: ω·Δt = √β)")
+    specific_cutting_energy_j_m3: float = Field(
+        3e8, gt=0, description="u_c: volume the teeth cut = their friction work / u_c (thrsim.physics.contact)",
+    )  # fmt: skip
 
 
 #: the contact-friction cap as a fraction of the one-step stick force (thrsim.physics.contact)

@@ -29,7 +29,7 @@ def _one_node(mass: float, position: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> So
         viscous_work=np.zeros(0), viscous_pressure=np.zeros(0), element_force=np.zeros((0, 4, 3)),
         nodal_mass=np.array([mass]), inverse_mass=np.array([1.0 / mass]), elements_at_node=np.ones(1, dtype=np.int64),
         velocity=np.array([velocity], dtype=float), displacement=node3.copy(), du=node3.copy(),
-        external_force=node3.copy(), debris=np.zeros(7),
+        external_force=node3.copy(), cutting_damage=one.copy(), debris=np.zeros(7),
     )  # fmt: skip
 
 
@@ -38,7 +38,7 @@ def _contact(mass: float, depth: float, dt: float, penalty_factor: float, veloci
     where a spin ω about +z moves the surface along +y at ω·R."""
     teeth = ReamerTeeth(HEAD_RADIUS, HEAD_RADIUS, 1e-4, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
     pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, omega)
-    law = ContactLaw(penalty_factor, 0.0, friction, dt)
+    law = ContactLaw(penalty_factor, 0.0, friction, dt, 5e8)
     out = ContactArrays.zeros(1)
     touching = reamer_contact(np.array([[HEAD_RADIUS - depth, 0.0, 0.0]]), _one_node(mass, None, velocity), pose, teeth, law, out)
     return touching, out
@@ -52,7 +52,7 @@ def test_penalty_gives_the_same_omega_dt_whatever_the_node_mass_and_step(mass, d
     stiffness = np.linalg.norm(out.force[0]) / 1e-6
     assert stiffness == pytest.approx(beta * mass / dt**2, rel=1e-9)
     assert math.sqrt(stiffness / mass) * dt == pytest.approx(math.sqrt(beta), rel=1e-9)
-    np.testing.assert_allclose(out.normal[0], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out.normal_force[0] / np.linalg.norm(out.normal_force[0]), [1.0, 0.0, 0.0], atol=1e-12)
     assert out.penalty_energy[0] == pytest.approx(0.5 * stiffness * 1e-12, rel=1e-9)
 
 
@@ -71,6 +71,67 @@ def test_friction_is_coulomb_while_slipping_and_capped_below_the_one_step_stick_
     assert -out.force[0, 2] == pytest.approx(stick_cap, rel=1e-9)
 
 
+def _tooth_cut(polar_deg: float, volume: float, friction: float = 0.3, cutting_energy: float = 2e8):
+    """One tet whose node 0 is pressed 1 µm into a single tooth (azimuth 0, the x–z meridian) of a
+    reamer spinning at 100 rad/s about +z; its other nodes are far outside. Returns the contact
+    output and the node's slip speed."""
+    edge_axis, edge = 0.02265, 2.5e-4
+    teeth = ReamerTeeth(0.0225, edge_axis, edge, np.ones(1), np.zeros(1), np.radians([3.0]), np.radians([86.0]))
+    direction = np.array([math.sin(math.radians(polar_deg)), 0.0, math.cos(math.radians(polar_deg))])
+    nodes = np.array([direction * (edge_axis + edge - 1e-6), [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
+    mass, dt = 6e-4, 4e-6
+    solid = _one_node(mass, None)._replace(
+        tets=np.array([[0, 1, 2, 3]], dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
+        offsets=np.array([0, 1, 2, 3, 4], dtype=np.int64), entries=np.arange(4, dtype=np.int64),
+        nodal_mass=np.full(4, mass), inverse_mass=np.full(4, 1 / mass), velocity=np.zeros((4, 3)),
+        displacement=np.zeros((4, 3)), cutting_damage=np.zeros(4),
+    )  # fmt: skip
+    pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, 100.0)
+    out = ContactArrays.zeros(4)
+    assert reamer_contact(nodes, solid, pose, teeth, ContactLaw(0.4, 0.0, friction, dt, cutting_energy), out) == 1
+    return out, 100.0 * nodes[0, 0], dt
+
+
+@pytest.mark.parametrize("polar_deg, volume", [(20.0, 1.7e-11), (60.0, 1.7e-11), (60.0, 5e-11)])
+def test_a_tooth_cuts_the_volume_its_friction_work_pays_for(polar_deg, volume):
+    cutting_energy = 2e8
+    out, slip, dt = _tooth_cut(polar_deg, volume, cutting_energy=cutting_energy)
+    normal = np.linalg.norm(out.normal_force[0])
+    friction_work = 0.3 * normal * slip * dt  # Coulomb while slipping: μ·f_n over the step's slip
+    # every element at the node gains W/(u_c·ΣV): the volume-weighted damage is exactly W/u_c
+    assert out.cutting_damage[0] * volume == pytest.approx(friction_work / cutting_energy, rel=1e-6)
+    assert not out.cutting_damage[1:].any()
+    # no friction, no cutting: the teeth remove bone only through the work they do on it
+    out, _, _ = _tooth_cut(polar_deg, volume, friction=0.0)
+    assert not out.cutting_damage.any()
+
+
+def test_below_its_edge_a_tooth_pushes_sideways_and_the_head_outward():
+    """A node in the corner where a tooth's flank meets the head: the flank pushes it across the
+    ridge, the head outward, at right angles; the round edge never pushes it into the head."""
+    edge_axis, edge, head = 0.02265, 2.5e-4, 0.0225
+    teeth = ReamerTeeth(head, edge_axis, edge, np.ones(1), np.zeros(1), np.radians([3.0]), np.radians([86.0]))
+    polar = math.radians(40.0)
+    outward = np.array([math.sin(polar), 0.0, math.cos(polar)])
+    # 5 µm inside the head, 0.2 mm across the ridge (y) from the meridian plane of the tooth
+    position = outward * (head - 5e-6) * math.cos(2e-4 / head) + np.array([0.0, 2e-4, 0.0])
+    pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, 0.0)
+    out = ContactArrays.zeros(1)
+    assert reamer_contact(position[None, :], _one_node(6e-4, None), pose, teeth, ContactLaw(0.4, 0.0, 0.3, 4e-6, 5e8), out) == 1
+    normal_force = out.normal_force[0]
+    radial = position / np.linalg.norm(position)
+    assert normal_force @ radial > 0  # the head pushes out
+    assert normal_force[1] > 0  # the flank pushes across, away from the ridge
+    sideways = normal_force - (normal_force @ radial) * radial
+    assert abs(sideways @ radial) < 1e-12 and sideways[1] > 0
+
+
+def test_the_smooth_head_cuts_nothing():
+    touching, out = _contact(6e-4, 1e-6, 4e-6, 0.4, omega=100.0)
+    assert touching == 1 and out.force[0, 1] > 0  # friction drags the node along
+    assert out.cutting_damage[0] == 0.0
+
+
 def test_contact_settings_that_break_the_stable_step_are_refused():
     normal, tangential = contact_stability_terms(0.7, 0.4, 0.2)
     assert max(normal, tangential) < 3.6
@@ -78,7 +139,10 @@ def test_contact_settings_that_break_the_stable_step_are_refused():
         ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, solver={"safety_factor": 0.9})
     with pytest.raises(ValueError, match="stable step"):
         ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, contact={"penalty_factor": 1.5})
-    for bad in ({"hold": {"effective_mass_kg": 0}}, {"hold": {"axial_damping_n_s_m": 0}}, {"contact": {"penalty_factor": -1}}):
+    for bad in (
+        {"hold": {"effective_mass_kg": 0}}, {"hold": {"axial_damping_n_s_m": 0}}, {"contact": {"penalty_factor": -1}},
+        {"contact": {"specific_cutting_energy_j_m3": 0}},
+    ):  # fmt: skip
         with pytest.raises(ValueError):
             ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, **bad)
 

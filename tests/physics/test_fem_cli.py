@@ -49,6 +49,7 @@ def test_fem_writes_a_valid_case(tmp_path):
         ({}, ["--axial-damping", "-5"], "axial_damping_n_s_m"),
         ({}, ["--contact-factor", "0"], "penalty_factor"),
         ({}, ["--contact-factor", "2.5"], "stable step"),
+        ({}, ["--cutting-energy", "0"], "specific_cutting_energy_j_m3"),
         ({"solver": {"safety_factor": 0.9}}, [], "stable step"),
         ({"contact": {"damping_ratio": -0.1}}, [], "damping_ratio"),
     ],

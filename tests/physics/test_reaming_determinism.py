@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "7323012b8c357f05caeb5f2036bd87aef2688bf8f273b006071920e0923e70f9"
+PINNED_DIGEST = "3812cb759ce513d100ae664f721ef79979d384edcc4941e390bbdf656e3238d3"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

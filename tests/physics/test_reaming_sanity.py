@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thrsim.config import BonePatchConfig, JohnsonCookDamage, JohnsonCookHardening, ReamingCaseConfig
+from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.physics.reaming import ENERGY_NAMES, STALL_FRAMES, ReamingSimulation
 
@@ -97,30 +97,39 @@ def test_more_push_force_removes_more(coarse_mesh, baseline):
     assert summary["removed"] > 1.2 * baseline[2]["removed"]
 
 
-def test_stronger_bone_removes_less(coarse_mesh, baseline):
-    _, _, summary = _run(coarse_mesh, hardening=JohnsonCookHardening(a_pa=150e6))
-    assert summary["removed"] < 0.8 * baseline[2]["removed"]
+def test_bone_that_takes_more_energy_to_cut_loses_less(coarse_mesh, baseline):
+    case = baseline[0].case
+    tougher = case.contact.model_copy(update={"specific_cutting_energy_j_m3": 3 * case.contact.specific_cutting_energy_j_m3})
+    _, _, summary = _run(coarse_mesh, contact=tougher)
+    assert summary["removed_volume_mm3"] < 0.8 * baseline[2]["removed_volume_mm3"]
 
 
-def test_zero_force_after_first_contact_stops_removal(coarse_mesh):
+def test_zero_force_after_first_contact_all_but_stops_removal(coarse_mesh):
     case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=4, bone=COARSE)
     simulation = ReamingSimulation(case, coarse_mesh)
-    simulation.run(4)
+    log, _ = simulation.run(4)
+    loaded = [int((status == 0).sum()) for status in log.status]
+    loaded_rate = (loaded[-1] - loaded[1]) / (len(loaded) - 2)
     simulation.force_n = 0.0
     removed = []
-    for _ in range(3):
+    for _ in range(6):
         simulation.advance(simulation.steps_per_frame)
         removed.append(int((simulation.solid.active == 0).sum()))
-    # unloaded, the arm's damper and the contact reaction bring the reamer to rest: removal stops
-    assert removed[-1] == removed[-2]
+    # unloaded, the arm's damper and the contact reaction bring the reamer to rest on the bone;
+    # only the head's weight (~1.8 N against 230 N) still presses the teeth, so cutting all but stops
+    unloaded_rate = (removed[-1] - removed[1]) / (len(removed) - 2)
+    assert loaded_rate > 20
+    assert unloaded_rate < 0.05 * loaded_rate
 
 
 def test_perforation_ends_the_case_before_the_reamer_falls():
-    # a hard push and the text's u_f = 0.1 mm [5.2.1] break through the coarse shell in ~9 frames
+    # a hard push, the text's u_f = 0.1 mm [5.2.1] and bone cut at 0.1 J/mm³ break through the
+    # coarse shell in ~6 frames (at the default 0.3 J/mm³ this coarse mesh stalls on the last
+    # elements over the held outer face at the axis, where the teeth barely move)
     bone = BonePatchConfig(element_size_mm=1.2)
     case = ReamingCaseConfig(
         inclination_deg=15.0, anteversion_deg=30.0, force_n=600.0, frames=20, bone=bone,
-        damage=JohnsonCookDamage(displacement_at_failure_m=1e-4),
+        damage=JohnsonCookDamage(displacement_at_failure_m=1e-4), contact={"specific_cutting_energy_j_m3": 1e8},
     )  # fmt: skip
     simulation = ReamingSimulation(case)
     log, summary = simulation.run(case.frames)

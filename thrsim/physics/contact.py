@@ -1,4 +1,4 @@
-"""Penalty contact between bone nodes and the rigid rotating reamer (head sphere + tooth capsules).
+"""Penalty contact between bone nodes and the rigid rotating reamer (head sphere + toothed ridges).
 
 Written here: no library offers contact of a mesh against an analytic, spinning, toothed body.
 Every node still attached to an active element is a candidate, interior ones included, so
@@ -8,9 +8,29 @@ basis (e1, e2, D) turned to the current spin angle:
 * head: penetration g = R − |p − c|, normal (p − c)/|p − c|;
 * tooth k: the edge axis is an arc of radius R_a in the meridian half-plane at azimuth ψ_k,
   between polar angles φ_start and φ_end; the closest arc point is found by clamping the
-  node's polar angle in that half-plane, and g = r_edge − distance.
+  node's polar angle in that half-plane. The tooth is a ridge standing on the head: above its
+  axis (outward) its cross-section is the edge's circle, g = r_edge − distance; below the axis
+  it has flat flanks down to the head, so there the distance and the normal are taken across
+  the ridge only, sideways. (A round capsule there would push nodes between tooth and head
+  inward, against the head's push: a node in that corner flipped between the two from step to
+  step and rang at the step's frequency.) Of the 56 teeth the deepest acts.
 
-The deepest of these contacts acts.
+Head and tooth both act when a node touches both (a node in the corner where a flank meets the
+head): each pushes along its own normal with its own spring and damper, and the two are at
+right angles, so the stiffness along any direction stays that of one contact.
+
+Cutting below the mesh's scale (written here; a sub-grid law, not part of the thesis's model).
+A tooth's edge is sharp at the scale of a chip (micrometres per tooth pass at reaming feeds), but
+at 0.45 mm elements its contact is a bearing contact: once the cut surface conforms to the
+teeth, 230 N spread over the several hundred nodes under them stresses the bone below its 50 MPa yield,
+and plasticity and damage alone stop removing bone (without this law the default case seated after 0.24 mm whatever
+u_f). Machining removes material at a rate set by the cutting power: the volume cut equals the
+work of the cutting (tangential) force divided by the material's specific cutting energy u_c
+(J/m³), the law behind mechanistic cutting-force models and Archard-type wear. So the friction
+work of a tooth on a node in a step, W = f_t·|v_t|·Δt, damages every active element at that
+node by W/(u_c·ΣV), ΣV their total volume: the volume-weighted damage added is W/u_c. Friction
+against the smooth head cuts nothing. Removal then follows the push (the friction force is
+μ times the normal force) and the cutting speed ω·r, not the penalty's numerics.
 
 Stiffness scaled to the explicit step (as ABAQUS/Explicit's penalty method scales its penalty
 to the underlying element stiffness): node i gets k_i = β·m_i/Δt², with m_i its current
@@ -23,8 +43,9 @@ of the single-spring bound and leaves room for the element stiffness the node al
 At 230 N spread over the ~100 nodes under the teeth the penetration is ≈ 0.5 µm, a thousandth of
 an element.
 
-Normal force f_n = k_i·g + 2ξ√(k_i·m_i)·(−v_rel·n), never pulling (f_n ≥ 0), ξ the contact
-damping ratio [5.3.1]. Friction opposes the relative sliding velocity v_t with
+Normal force of each contact f_n = k_i·g + 2ξ√(k_i·m_i)·(−v_rel·n), never pulling (f_n ≥ 0), ξ
+the contact damping ratio [5.3.1]. Friction acts once per node, on the resultant N of the normal
+forces (f_n = |N|, n = N/|N|), and opposes the relative sliding velocity v_t with
 f_t = min(μ·f_n, a·m_i·|v_t|/Δt), a = ``STICK_FRACTION``: Coulomb while slipping, and never more
 than the force that takes the node half way to the reamer's surface speed within one step. A
 smooth regularisation instead (viscous below a slip speed) has a viscous coefficient μ·f_n/v_reg
@@ -41,8 +62,8 @@ configuration refuses settings outside these bounds with a 10 % reserve for bulk
 18 m/s within ten steps. The reaming case therefore runs at s = 0.7.
 
 Energy (for the balance of :mod:`thrsim.physics.reaming`): per node, the kernel also writes the
-reamer surface velocity w, the contact normal n and the elastic energy ½ k_i g² stored in the
-penalty spring, so the caller can book the work of each force through the displacement it
+reamer surface velocity w, the resultant normal force N and the elastic energy ½ k_i g² stored
+in the penalty springs, so the caller can book the work of each force through the displacement it
 actually acts over. Totals are summed sequentially by :func:`contact_totals`, never across
 threads (a parallel floating-point reduction would make results depend on the thread count).
 """
@@ -76,6 +97,7 @@ class ContactLaw(NamedTuple):
     damping_ratio: float  # ξ, fraction of critical for the node on its contact spring
     friction: float  # Coulomb μ
     dt: float
+    cutting_energy: float  # u_c, J/m³: volume cut = tooth friction work / u_c
 
 
 class ReamerPose(NamedTuple):
@@ -94,48 +116,58 @@ class ContactArrays(NamedTuple):
 
     force: np.ndarray  # (N, 3) on the bone, N
     surface_velocity: np.ndarray  # (N, 3) reamer surface velocity where the node touches
-    normal: np.ndarray  # (N, 3) contact normal, from the reamer into the bone
+    normal_force: np.ndarray  # (N, 3) resultant normal force N on the bone (the force less friction), N
     penalty_energy: np.ndarray  # (N,) ½ k g², J
+    cutting_damage: np.ndarray  # (N,) damage this step's tooth cutting adds to every active element at the node
 
     @classmethod
     def zeros(cls, n_nodes: int) -> "ContactArrays":
-        return cls(np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros(n_nodes))
+        return cls(np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros(n_nodes), np.zeros(n_nodes))
 
 
 @njit(cache=True)
-def deepest_contact(qx, qy, qz, e1, e2, axis, teeth):
-    """Penetration and outward normal of the deepest contact at p − c = (qx, qy, qz); depth ≤ 0
-    when the point is clear of the head and every tooth."""
-    r = math.sqrt(qx * qx + qy * qy + qz * qz)
-    if r >= teeth.edge_axis_radius + teeth.edge_radius or r == 0.0:
-        return 0.0, 0.0, 0.0, 0.0
-    depth = teeth.head_radius - r
-    nx, ny, nz = qx / r, qy / r, qz / r
-    if r > teeth.edge_axis_radius - teeth.edge_radius:
-        # the point is in the teeth's shell: express it in the spinning reamer frame
-        lx = qx * e1[0] + qy * e1[1] + qz * e1[2]
-        ly = qx * e2[0] + qy * e2[1] + qz * e2[2]
-        lz = qx * axis[0] + qy * axis[1] + qz * axis[2]
-        for k in range(len(teeth.tooth_cos)):
-            across = -lx * teeth.tooth_sin[k] + ly * teeth.tooth_cos[k]
-            if abs(across) >= teeth.edge_radius:
-                continue
-            along = lx * teeth.tooth_cos[k] + ly * teeth.tooth_sin[k]
-            polar = min(max(math.atan2(along, lz), teeth.tooth_start[k]), teeth.tooth_end[k])
-            d_along = along - teeth.edge_axis_radius * math.sin(polar)
-            d_z = lz - teeth.edge_axis_radius * math.cos(polar)
-            distance = math.sqrt(d_along * d_along + across * across + d_z * d_z)
-            tooth_depth = teeth.edge_radius - distance
-            if tooth_depth > depth and distance > 0.0:
-                depth = tooth_depth
-                # normal back in the bone frame: (d_along·e_ψ + across·e_⊥ + d_z·D)/distance
-                ux = (d_along * teeth.tooth_cos[k] - across * teeth.tooth_sin[k]) / distance
-                uy = (d_along * teeth.tooth_sin[k] + across * teeth.tooth_cos[k]) / distance
-                uz = d_z / distance
-                nx = ux * e1[0] + uy * e2[0] + uz * axis[0]
-                ny = ux * e1[1] + uy * e2[1] + uz * axis[1]
-                nz = ux * e1[2] + uy * e2[2] + uz * axis[2]
+def tooth_contact(qx, qy, qz, e1, e2, axis, teeth):
+    """Penetration and outward normal of the deepest tooth at p − c = (qx, qy, qz); depth ≤ 0
+    when every tooth is clear."""
+    depth = nx = ny = nz = 0.0
+    # the point in the spinning reamer frame
+    lx = qx * e1[0] + qy * e1[1] + qz * e1[2]
+    ly = qx * e2[0] + qy * e2[1] + qz * e2[2]
+    lz = qx * axis[0] + qy * axis[1] + qz * axis[2]
+    for k in range(len(teeth.tooth_cos)):
+        across = -lx * teeth.tooth_sin[k] + ly * teeth.tooth_cos[k]
+        if abs(across) >= teeth.edge_radius:
+            continue
+        along = lx * teeth.tooth_cos[k] + ly * teeth.tooth_sin[k]
+        polar = min(max(math.atan2(along, lz), teeth.tooth_start[k]), teeth.tooth_end[k])
+        sin_polar, cos_polar = math.sin(polar), math.cos(polar)
+        d_along = along - teeth.edge_axis_radius * sin_polar
+        d_z = lz - teeth.edge_axis_radius * cos_polar
+        # offset from the closest axis point: outward (radial), along the arc (beyond its ends)
+        outward = d_along * sin_polar + d_z * cos_polar
+        lengthwise = d_along * cos_polar - d_z * sin_polar
+        if outward < 0.0:  # below the axis: the flat flanks, pushed sideways
+            outward = 0.0
+        distance = math.sqrt(outward * outward + lengthwise * lengthwise + across * across)
+        tooth_depth = teeth.edge_radius - distance
+        if tooth_depth > depth and distance > 0.0:
+            depth = tooth_depth
+            # normal in the tooth's meridian frame (e_ψ, e_⊥, D), then in the bone frame
+            u_along = (outward * sin_polar + lengthwise * cos_polar) / distance
+            u_z = (outward * cos_polar - lengthwise * sin_polar) / distance
+            u_across = across / distance
+            ux = u_along * teeth.tooth_cos[k] - u_across * teeth.tooth_sin[k]
+            uy = u_along * teeth.tooth_sin[k] + u_across * teeth.tooth_cos[k]
+            nx = ux * e1[0] + uy * e2[0] + u_z * axis[0]
+            ny = ux * e1[1] + uy * e2[1] + u_z * axis[1]
+            nz = ux * e1[2] + uy * e2[2] + u_z * axis[2]
     return depth, nx, ny, nz
+
+
+@njit(cache=True, inline="always")
+def _normal_force(depth, nx, ny, nz, rx, ry, rz, stiffness, damping):
+    """Penalty + damper force along n (≥ 0: contact never pulls)."""
+    return max(0.0, stiffness * depth - damping * (rx * nx + ry * ny + rz * nz))
 
 
 @njit(parallel=True, cache=True)
@@ -154,58 +186,94 @@ def reamer_contact(nodes, solid, pose, teeth, law, out):
     # array bound by a multiple assignment (a, b = t.a, t.b)
     force = out.force
     surface_velocity = out.surface_velocity
-    normal = out.normal
+    normal_force = out.normal_force
     penalty_energy = out.penalty_energy
+    cutting_damage = out.cutting_damage
+    offsets = solid.offsets
+    entries = solid.entries
+    active = solid.active
+    volume = solid.volume
     displacement = solid.displacement
     velocity = solid.velocity
     nodal_mass = solid.nodal_mass
     inverse_mass = solid.inverse_mass
     contacts = 0
     for node in prange(len(inverse_mass)):
-        fx = fy = fz = wx = wy = wz = nx = ny = nz = stored = 0.0
+        fx = fy = fz = wx = wy = wz = bx = by = bz = stored = cut = 0.0
         touching = 0
         if inverse_mass[node] > 0.0:  # orphaned nodes (every element gone) are skipped
             qx = nodes[node, 0] + displacement[node, 0] - centre[0]
             qy = nodes[node, 1] + displacement[node, 1] - centre[1]
             qz = nodes[node, 2] + displacement[node, 2] - centre[2]
-            depth, nx, ny, nz = deepest_contact(qx, qy, qz, e1, e2, axis, teeth)
-            if depth > 0.0:
-                mass = nodal_mass[node]
-                stiffness = stiffness_per_mass * mass
-                damping = 2.0 * law.damping_ratio * math.sqrt(stiffness * mass)
-                # reamer surface velocity at the node: ω D × (p − c) + ṡ D
-                wx = omega * (axis[1] * qz - axis[2] * qy) + axial_speed * axis[0]
-                wy = omega * (axis[2] * qx - axis[0] * qz) + axial_speed * axis[1]
-                wz = omega * (axis[0] * qy - axis[1] * qx) + axial_speed * axis[2]
-                rx = velocity[node, 0] - wx
-                ry = velocity[node, 1] - wy
-                rz = velocity[node, 2] - wz
-                normal_speed = rx * nx + ry * ny + rz * nz
-                fn = stiffness * depth - damping * normal_speed
-                if fn > 0.0:
-                    tx = rx - normal_speed * nx
-                    ty = ry - normal_speed * ny
-                    tz = rz - normal_speed * nz
-                    slip = math.sqrt(tx * tx + ty * ty + tz * tz)
-                    # force per unit slip speed: Coulomb, capped at a fraction of the one-step stick force
-                    ft = min(law.friction * fn / slip, STICK_FRACTION * mass / law.dt) if slip > 0.0 else 0.0
-                    fx = fn * nx - ft * tx
-                    fy = fn * ny - ft * ty
-                    fz = fn * nz - ft * tz
-                    stored = 0.5 * stiffness * depth * depth
-                    touching = 1
+            r = math.sqrt(qx * qx + qy * qy + qz * qz)
+            if 0.0 < r < teeth.edge_axis_radius + teeth.edge_radius:
+                head_depth = teeth.head_radius - r
+                tooth_depth, tx, ty, tz = 0.0, 0.0, 0.0, 0.0
+                if r > teeth.edge_axis_radius - teeth.edge_radius:  # in the teeth's shell
+                    tooth_depth, tx, ty, tz = tooth_contact(qx, qy, qz, e1, e2, axis, teeth)
+                if head_depth > 0.0 or tooth_depth > 0.0:
+                    mass = nodal_mass[node]
+                    stiffness = stiffness_per_mass * mass
+                    damping = 2.0 * law.damping_ratio * math.sqrt(stiffness * mass)
+                    # reamer surface velocity at the node: ω D × (p − c) + ṡ D
+                    wx = omega * (axis[1] * qz - axis[2] * qy) + axial_speed * axis[0]
+                    wy = omega * (axis[2] * qx - axis[0] * qz) + axial_speed * axis[1]
+                    wz = omega * (axis[0] * qy - axis[1] * qx) + axial_speed * axis[2]
+                    rx = velocity[node, 0] - wx
+                    ry = velocity[node, 1] - wy
+                    rz = velocity[node, 2] - wz
+                    head_fn = tooth_fn = 0.0
+                    if head_depth > 0.0:
+                        hx, hy, hz = qx / r, qy / r, qz / r
+                        head_fn = _normal_force(head_depth, hx, hy, hz, rx, ry, rz, stiffness, damping)
+                        bx += head_fn * hx
+                        by += head_fn * hy
+                        bz += head_fn * hz
+                        if head_fn > 0.0:
+                            stored += 0.5 * stiffness * head_depth * head_depth
+                    if tooth_depth > 0.0:
+                        tooth_fn = _normal_force(tooth_depth, tx, ty, tz, rx, ry, rz, stiffness, damping)
+                        bx += tooth_fn * tx
+                        by += tooth_fn * ty
+                        bz += tooth_fn * tz
+                        if tooth_fn > 0.0:
+                            stored += 0.5 * stiffness * tooth_depth * tooth_depth
+                    fn = math.sqrt(bx * bx + by * by + bz * bz)
+                    if fn > 0.0:
+                        nx, ny, nz = bx / fn, by / fn, bz / fn
+                        normal_speed = rx * nx + ry * ny + rz * nz
+                        sx = rx - normal_speed * nx
+                        sy = ry - normal_speed * ny
+                        sz = rz - normal_speed * nz
+                        slip = math.sqrt(sx * sx + sy * sy + sz * sz)
+                        # force per unit slip speed: Coulomb, capped at a fraction of the one-step stick force
+                        ft = min(law.friction * fn / slip, STICK_FRACTION * mass / law.dt) if slip > 0.0 else 0.0
+                        fx = bx - ft * sx
+                        fy = by - ft * sy
+                        fz = bz - ft * sz
+                        touching = 1
+                        if tooth_fn > 0.0 and ft > 0.0:
+                            # the tooth's share of the friction work cuts (module docstring)
+                            attached = 0.0
+                            for entry in range(offsets[node], offsets[node + 1]):
+                                if active[entries[entry] // 4] != 0:
+                                    attached += volume[entries[entry] // 4]
+                            if attached > 0.0:
+                                work = ft * slip * slip * law.dt * tooth_fn / (tooth_fn + head_fn)
+                                cut = work / (law.cutting_energy * attached)
         if touching == 0:
-            wx = wy = wz = nx = ny = nz = 0.0
+            wx = wy = wz = bx = by = bz = stored = 0.0
         force[node, 0] = fx
         force[node, 1] = fy
         force[node, 2] = fz
         surface_velocity[node, 0] = wx
         surface_velocity[node, 1] = wy
         surface_velocity[node, 2] = wz
-        normal[node, 0] = nx
-        normal[node, 1] = ny
-        normal[node, 2] = nz
+        normal_force[node, 0] = bx
+        normal_force[node, 1] = by
+        normal_force[node, 2] = bz
         penalty_energy[node] = stored
+        cutting_damage[node] = cut
         contacts += touching
     return contacts
 
@@ -229,7 +297,7 @@ def contact_step_work(out, du, axis, axial_speed, advance, dt, work):
     The reamer surface at a node moved by (ω D × (p − c))·Δt + D·Δs (spin, then the reamer's
     actual axial step Δs), the node by Δu (v(n+½)·Δt). Adds to ``work``: [0] the motor's spin
     work Σ f·(ω D × (p − c))·Δt, [1] the work on the bone Σ f·Δu, [2] friction, the tangential
-    force through the relative slip, [3] the normal force through the relative approach
+    force through the relative slip, [3] the normal forces through the relative approach
     (penalty energy stored plus contact damping dissipated). Summed in node order.
     """
     for node in range(len(out.penalty_energy)):
@@ -244,8 +312,6 @@ def contact_step_work(out, du, axis, axial_speed, advance, dt, work):
         rx = sx + advance * axis[0] - du[node, 0]
         ry = sy + advance * axis[1] - du[node, 1]
         rz = sz + advance * axis[2] - du[node, 2]
-        nx, ny, nz = out.normal[node, 0], out.normal[node, 1], out.normal[node, 2]
-        fn = fx * nx + fy * ny + fz * nz
-        approach = rx * nx + ry * ny + rz * nz
-        work[3] += fn * approach
-        work[2] += fx * rx + fy * ry + fz * rz - fn * approach
+        normal_work = out.normal_force[node, 0] * rx + out.normal_force[node, 1] * ry + out.normal_force[node, 2] * rz
+        work[3] += normal_work
+        work[2] += fx * rx + fy * ry + fz * rz - normal_work

@@ -72,6 +72,7 @@ class SolidArrays(NamedTuple):
     displacement: np.ndarray  # (N, 3)
     du: np.ndarray  # (N, 3) last step's increment
     external_force: np.ndarray  # (N, 3), e.g. contact
+    cutting_damage: np.ndarray  # (N,) damage added this step to every active element at the node (tooth cutting)
     debris: np.ndarray  # (7,) what deleted elements took: mass, momentum (3), kinetic, count, elastic
 
 
@@ -124,6 +125,7 @@ def element_update(s, m):
     viscous_work = s.viscous_work
     element_force = s.element_force
     viscous_pressure = s.viscous_pressure
+    cutting_damage = s.cutting_damage
     for e in prange(n_elements):
         if active[e] == 0:
             continue
@@ -176,6 +178,13 @@ def element_update(s, m):
                 damage[e] += grown
                 # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V
                 damage_work[e] += grown * strain_energy_density(sxx, syy, szz, sxy, syz, szx, youngs, poisson) * volume[e]
+        cut = 0.0
+        for k in range(4):
+            cut += cutting_damage[tets[e, k]]
+        if cut > 0.0:
+            grown = min(1.0, damage[e] + cut) - damage[e]
+            damage[e] += grown
+            damage_work[e] += grown * strain_energy_density(sxx, syy, szz, sxy, syz, szx, youngs, poisson) * volume[e]
         stress[e, 0] = sxx
         stress[e, 1] = syy
         stress[e, 2] = szz
@@ -369,9 +378,9 @@ class ExplicitSolid:
         self.active = np.ones(n_el, dtype=np.uint8)
         self.viscous_work = np.zeros(n_el)
         self.viscous_pressure = np.zeros(n_el)
-        self.active = np.ones(n_el, dtype=np.uint8)
         self.element_force = np.zeros((n_el, 4, 3))
         self.external_force = np.zeros((n_nodes, 3))
+        self.cutting_damage = np.zeros(n_nodes)
         # what deleted elements took with them: [mass, momentum (3), kinetic energy, count, elastic energy]
         self.debris = np.zeros(7)
         self.detached_count = 0
@@ -389,7 +398,8 @@ class ExplicitSolid:
             initiation=self.initiation, plastic_work=self.plastic_work, damage_work=self.damage_work,
             viscous_work=self.viscous_work, viscous_pressure=self.viscous_pressure, element_force=self.element_force, nodal_mass=self.nodal_mass,
             inverse_mass=self.inverse_mass, elements_at_node=self.elements_at_node, velocity=self.velocity,
-            displacement=self.displacement, du=self.du, external_force=self.external_force, debris=self.debris,
+            displacement=self.displacement, du=self.du, external_force=self.external_force,
+            cutting_damage=self.cutting_damage, debris=self.debris,
         )  # fmt: skip
 
     @property

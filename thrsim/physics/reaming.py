@@ -226,8 +226,13 @@ class ReamingSimulation:
             tooth_sin=np.sin(self.reamer.tooth_azimuth), tooth_start=self.reamer.tooth_polar_start,
             tooth_end=self.reamer.tooth_polar_end,
         )  # fmt: skip
-        self.contact_law = ContactLaw(case.contact.penalty_factor, case.contact.damping_ratio, case.contact.friction, self.solid.dt)
-        self.contact = ContactArrays(self.solid.external_force, *ContactArrays.zeros(self.mesh.n_nodes)[1:])
+        self.contact_law = ContactLaw(
+            case.contact.penalty_factor, case.contact.damping_ratio, case.contact.friction, self.solid.dt,
+            case.contact.specific_cutting_energy_j_m3,
+        )  # fmt: skip
+        # the kernels share the force and cutting arrays: contact writes them, the solid step reads them
+        scratch = ContactArrays.zeros(self.mesh.n_nodes)
+        self.contact = scratch._replace(force=self.solid.external_force, cutting_damage=self.solid.cutting_damage)
         self.mass = case.hold.effective_mass_kg
         self.force_n = case.force_n  # the surgeon's push; may change during a run
         self.gravity_load = self.reamer.mass_kg * case.reamer.gravity_m_s2 * float(_along(GRAVITY_DIRECTION, self.axis))

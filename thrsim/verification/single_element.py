@@ -62,7 +62,8 @@ class SingleTet:
             accounted=np.zeros(1, dtype=np.bool_), stress=stress, peeq=peeq, damage=damage, initiation=initiation,
             plastic_work=work, damage_work=one.copy(), viscous_work=one.copy(), viscous_pressure=one.copy(), element_force=np.zeros((1, 4, 3)),
             nodal_mass=np.zeros(4), inverse_mass=np.zeros(4), elements_at_node=np.ones(4, dtype=np.int64),
-            velocity=nodes4.copy(), displacement=nodes4.copy(), du=du, external_force=nodes4.copy(), debris=np.zeros(7),
+            velocity=nodes4.copy(), displacement=nodes4.copy(), du=du, external_force=nodes4.copy(),
+            cutting_damage=np.zeros(4), debris=np.zeros(7),
         )  # fmt: skip
         constants = MaterialConstants(
             dt=dt, lam=self.lam, mu=self.mu, a=j.a_pa, b=j.b_pa, n=j.n, c=j.c, rate0=j.reference_strain_rate_s,

@@ -126,7 +126,7 @@ class ReamerConfig(_Frozen):
     head_diameter_mm: float = Field(45.0, gt=0)
     tooth_count: int = Field(56, ge=1)
     tooth_length_mm: float = Field(3.0, gt=0, description="cutting-edge length along the meridian")
-    tooth_edge_radius_mm: float = Field(0.25, gt=0, description="radius of the edge's capsule")
+    tooth_edge_radius_mm: float = Field(0.25, gt=0, description="radius of the edge's rounded crest")
     tooth_protrusion_mm: float = Field(0.4, gt=0, description="how far the edge stands proud of the head")
     tooth_first_polar_deg: float = Field(3.0, ge=0, lt=90)
     tooth_last_polar_deg: float = Field(86.0, gt=0, le=90)

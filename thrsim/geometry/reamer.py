@@ -5,9 +5,9 @@ local +z along the axis D, pointing from the reamer into the bone, so the cuttin
 hemisphere z ≥ 0 with its pole at (0, 0, R).
 
 Tooth layout (56 teeth by default). Each tooth's cutting edge is an arc along a meridian of the
-head, modelled for contact as a capsule (a tube of radius ``edge_radius``) around an arc of
-radius ``edge_axis_radius = R + protrusion − edge_radius``, so the edge stands ``protrusion``
-proud of the head. Tooth k sits at polar angle φ_k (from the pole), evenly spaced from
+head, modelled for contact as a ridge: rounded with radius ``edge_radius`` around an arc of
+radius ``edge_axis_radius = R + protrusion − edge_radius``, flat flanks below that arc down to the
+head (:mod:`thrsim.physics.contact`), so the edge stands ``protrusion`` proud of the head. Tooth k sits at polar angle φ_k (from the pole), evenly spaced from
 ``tooth_first_polar_deg`` to ``tooth_last_polar_deg``, and at azimuth ψ_k = k × golden angle
 (137.5°), which spreads successive teeth evenly around the axis. Every edge is ``tooth_length``
 long (clipped at the pole and the equator), several times the polar spacing: every point of

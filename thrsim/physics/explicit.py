@@ -6,7 +6,8 @@ deletion, warp.fem and scikit-fem have no plasticity, SfePy has no plasticity in
 stepping). Kernels are Numba; the two per-step kernels are:
 
 * :func:`element_update`, parallel over elements: strain increment from the reference
-  gradients, elastic trial stress, JC radial return, damage initiation/evolution, deletion at
+  gradients, elastic trial stress, JC radial return, damage initiation/evolution plus the
+  teeth's cutting damage at the element's nodes (:mod:`thrsim.physics.contact`), deletion at
   D ≥ 1, linear bulk viscosity (ABAQUS's b1 = 0.06) and the element's nodal forces;
 * :func:`node_update`, parallel over nodes: gathers element forces through a node→element CSR
   (race-free, no atomics), adds external forces, integrates v and u (central difference),

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from thrsim.config import ReamingCaseConfig, contact_stability_terms
+from thrsim.config import STICK_FRACTION, ReamingCaseConfig, contact_stability_terms
 from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, reamer_contact
 from thrsim.physics.explicit import SolidArrays
 from thrsim.physics.tet_kinematics import shape_gradients
@@ -71,14 +71,14 @@ def test_friction_is_coulomb_while_slipping_and_capped_below_the_one_step_stick_
     assert -out.force[0, 2] == pytest.approx(stick_cap, rel=1e-9)
 
 
-def _tooth_cut(polar_deg: float, volume: float, friction: float = 0.3, cutting_energy: float = 2e8):
-    """One tet whose node 0 is pressed 1 µm into a single tooth (azimuth 0, the x–z meridian) of a
+def _tooth_cut(polar_deg: float, volume: float, friction: float = 0.3, cutting_energy: float = 2e8, depth: float = 1e-6):
+    """One tet whose node 0 is pressed ``depth`` (1 µm) into a single tooth (azimuth 0, the x–z meridian) of a
     reamer spinning at 100 rad/s about +z; its other nodes are far outside. Returns the contact
     output and the node's slip speed."""
     edge_axis, edge = 0.02265, 2.5e-4
     teeth = ReamerTeeth(0.0225, edge_axis, edge, np.ones(1), np.zeros(1), np.radians([3.0]), np.radians([86.0]))
     direction = np.array([math.sin(math.radians(polar_deg)), 0.0, math.cos(math.radians(polar_deg))])
-    nodes = np.array([direction * (edge_axis + edge - 1e-6), [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
+    nodes = np.array([direction * (edge_axis + edge - depth), [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
     mass, dt = 6e-4, 4e-6
     solid = _one_node(mass, None)._replace(
         tets=np.array([[0, 1, 2, 3]], dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
@@ -104,6 +104,19 @@ def test_a_tooth_cuts_the_volume_its_friction_work_pays_for(polar_deg, volume):
     # no friction, no cutting: the teeth remove bone only through the work they do on it
     out, _, _ = _tooth_cut(polar_deg, volume, friction=0.0)
     assert not out.cutting_damage.any()
+
+
+def test_the_cut_follows_coulomb_friction_where_the_stick_cap_binds():
+    """A node pressed deep into a tooth (a flank ploughing through it), where the one-step stick cap
+    limits the friction actually applied, still cuts what Coulomb friction pays for: relative to
+    μ·f_n the cap shrinks with Δt, and must not make the removal depend on the step."""
+    volume, mass = 1.7e-11, 6e-4
+    out, slip, dt = _tooth_cut(60.0, volume, depth=1e-4)
+    normal = np.linalg.norm(out.normal_force[0])
+    applied = np.linalg.norm(out.force[0] - out.normal_force[0])
+    assert applied == pytest.approx(STICK_FRACTION * mass / dt * slip, rel=1e-9)
+    assert applied < 0.5 * 0.3 * normal  # the cap binds
+    assert out.cutting_damage[0] * volume == pytest.approx(0.3 * normal * slip * dt / 2e8, rel=1e-6)
 
 
 def test_below_its_edge_a_tooth_pushes_sideways_and_the_head_outward():

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "3812cb759ce513d100ae664f721ef79979d384edcc4941e390bbdf656e3238d3"
+PINNED_DIGEST = "5cafa799f5acf98ea3240ca079a740764de5df28f07e28e9c8d3af0e4814529e"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

@@ -262,7 +262,8 @@ document.addEventListener("keydown", (e) => {
 
 // Draw only when something changed (a new pose, the view moved) or for the target's pulse
 // (~12 Hz): a browser on a busy machine then leaves the CPU to the server. ?continuous=1 draws
-// every frame (to measure drawing speed).
+// every frame and turns the reamer a little each time: `thrsim bench --browser` then counts frames
+// of a tool moving on every one, as a tracked tool in use.
 const continuous = new URLSearchParams(location.search).has("continuous");
 let dirty = true;
 let lastLook = "";
@@ -274,6 +275,7 @@ function frame(now) {
     if (now - lastPulse > 80) lastPulse = now;
     dirty = false;
     stats.frames += 1;
+    if (continuous) view.spinReamer(stats.frames * 0.05);
     view.animate();
     view.render();
   }

@@ -8,6 +8,8 @@ const BONE = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.Double
 const GREEN = 0x00c850, RED = 0xdc1e1e, AMBER = 0xffb000, GREY = 0x888888, YELLOW = 0xffe14d;
 export const ZONE_COLOURS = { green: GREEN, amber: AMBER, red: RED };
 
+const SPIN = new THREE.Matrix4();
+
 const v = (p) => new THREE.Vector3(p[0], p[1], p[2]);
 const mirror = (p) => [-p[0], p[1], p[2]];
 
@@ -102,7 +104,7 @@ function buildTool(name, scene) {
   const { group, materials } = markerArray(scene.tool_markers[name]);
   group.matrixAutoUpdate = false;
   const tip = scene.tool_tips[name];
-  const extras = {};
+  const extras = { pose: new THREE.Matrix4() };
   if (name === "Probe") {
     group.add(rod([0, 0, 0], tip, 0.003, 0xb0b8c0));
   } else if (name === "Reamer") {
@@ -237,7 +239,10 @@ export class NavigationScene {
     for (const [name, tool] of Object.entries(this.tools)) {
       const info = state.tools[name];
       tool.group.visible = info.pose !== null;
-      if (info.pose) tool.group.matrix.copy(matrixFromRowMajor(info.pose));
+      if (info.pose) {
+        tool.pose.copy(matrixFromRowMajor(info.pose));
+        tool.group.matrix.copy(tool.pose);
+      }
       for (const m of tool.materials) m.color.setHex(info.tracked ? GREEN : RED);
     }
     const ray = this.tools.Reamer.ray;
@@ -262,6 +267,13 @@ export class NavigationScene {
       ball.material.emissive.setHex(current ? 0x806000 : 0x000000);
       ball.scale.setScalar(current ? pulse * 1.6 : 1);
     }
+  }
+
+  // Turns the reamer about its own axis (tool z) from its last pose: a scene that changes every
+  // frame, for measuring drawing speed (?continuous=1).
+  spinReamer(angle) {
+    const reamer = this.tools?.Reamer;
+    if (reamer) reamer.group.matrix.copy(reamer.pose).multiply(SPIN.makeRotationZ(angle));
   }
 
   // The display's pose in the model frame, row-major (sent for the calibration step).

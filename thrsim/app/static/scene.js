@@ -301,6 +301,9 @@ export class NavigationScene {
     if (this.nextLandmark.visible) this.nextLandmark.scale.setScalar(1.6 * (1 + 0.5 * Math.abs(Math.sin(performance.now() / 200))));
   }
 
+  // Whether a landmark waits to be touched (it pulses).
+  pulsing() { return this.registration?.current != null; }
+
   // Turns the reamer about its own axis (tool z) from its last pose: a scene that changes every
   // frame, for measuring drawing speed (?continuous=1).
   spinReamer(angle) {

@@ -102,6 +102,20 @@ def test_openigtlink_transform_moves_the_reamer_on_the_page(page, served):
     assert changed_fraction(before, picture(page)) > 0.002
 
 
+def test_continuous_drawing_moves_the_reamer_every_frame(page, served):
+    # What `thrsim bench --browser` counts: frames of a scene that changes, not redraws of a still one.
+    measured = page.context.browser.new_page(viewport={"width": 1100, "height": 720})
+    try:
+        measured.goto(served.url + "/?continuous=1", timeout=30_000)
+        measured.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.frames > 3", timeout=30_000)
+        before = picture(measured)
+        frames = measured.evaluate("trainer.stats.frames")
+        measured.wait_for_function(f"trainer.stats.frames > {frames + 5}", timeout=30_000)
+        assert changed_fraction(before, picture(measured)) > 0.0005  # the landmark's pulse alone: ~0.0001
+    finally:
+        measured.close()
+
+
 def test_safe_zone_colour_changes_when_the_aim_leaves_the_zone(page):
     for _ in range(4):
         keys(page, "Shift+ArrowDown")  # 60° → 40° inclination

@@ -1,12 +1,12 @@
 """Trainer performance figures (not a test: run it by hand; it prints one JSON object).
 
-    python3 tests/app/trainer_benchmark.py [--viewers 10] [--seconds 20] [--browser] [--soak 600]
+    python3 tests/app/trainer_benchmark.py [--viewers 10] [--seconds 20] [--soak 600]
 
 A real ``thrsim serve`` child process; N WebSocket viewers count the states they receive
 (updates per second, longest gap); a tracker streams ReamerToReference at 60 Hz over
 OpenIGTLink; the server's resident memory is read from /proc at the start and the end;
-``--browser`` measures drawing speed in headless Chromium (``?continuous=1`` draws every
-frame) and the states the page applies; ``--soak S`` runs the whole load for S seconds.
+``--soak S`` runs the whole load for S seconds. The page's drawing speed is ``thrsim bench
+--browser``.
 """
 
 from __future__ import annotations
@@ -84,38 +84,16 @@ class Tracker(threading.Thread):
             self.error = repr(error)
 
 
-def browser_figures(url: str, seconds: float) -> dict:
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(
-            executable_path="/usr/bin/chromium", args=["--no-sandbox", "--headless", "--disable-gpu", "--enable-unsafe-swiftshader"]
-        )
-        page = browser.new_page(viewport={"width": 1280, "height": 720})
-        page.goto(url + "/?continuous=1")
-        page.wait_for_function("window.trainer && trainer.stats.states > 10", timeout=60_000)
-        page.wait_for_timeout(2000)
-        first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
-        page.wait_for_timeout(seconds * 1000)
-        last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
-        browser.close()
-    elapsed = (last[0] - first[0]) / 1000
-    return {"fps": (last[1] - first[1]) / elapsed, "page_states_per_s": (last[2] - first[2]) / elapsed, "viewport": "1280x720"}
-
-
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--viewers", type=int, default=10)
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--soak", type=float, default=0.0, help="run the load this long instead of --seconds")
-    parser.add_argument("--browser", action="store_true")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         served = ServedTrainer(Path(folder))
         try:
             results: dict = {}
-            if args.browser:
-                results["browser"] = browser_figures(served.url, 5.0)
             stop = threading.Event()
             viewers = [Viewer(f"ws://127.0.0.1:{served.port}/ws/navigation", stop) for _ in range(args.viewers)]
             tracker = Tracker(served.igtl_port, stop)

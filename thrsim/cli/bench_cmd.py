@@ -8,6 +8,7 @@ from typing import Optional
 import typer
 
 from thrsim.cli.output import print_json
+from thrsim.errors import ThrsimInputError
 
 
 def bench(
@@ -15,11 +16,30 @@ def bench(
     frames: int = typer.Option(3, "--frames", min=1, help="solver frames to time (after a warm-up frame)"),
     learned: bool = typer.Option(False, "--learned", help="also time the learned simulator (production step, the thesis's way, a 4x larger mesh)"),
     model: Optional[Path] = typer.Option(None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"),
+    browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
+    browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
+    browser_seconds: float = typer.Option(10.0, "--browser-seconds", min=1.0, help="how long to count the page's frames", metavar="S"),
 ) -> None:
-    """Time mesh generation and the explicit solver; print one JSON object."""
+    """Time mesh generation and the explicit solver (and the trainer page's drawing); print one JSON object."""
+    if browser_only:
+        if learned:
+            raise ThrsimInputError("--browser-only times only the page: drop --learned")
+        import os
+        import platform
+
+        from thrsim.app.drawing_bench import time_drawing
+        from thrsim.app.live import versions
+
+        machine = {"cpu_count": os.cpu_count(), "platform": platform.platform()}
+        print_json({"machine": machine, "versions": versions(), "browser": time_drawing(browser_seconds)})
+        return
     from thrsim.bench import run_benchmarks  # Numba and gmsh: loaded only when benchmarking
 
     result = run_benchmarks(element_size, frames)
+    if browser:
+        from thrsim.app.drawing_bench import time_drawing
+
+        result["browser"] = time_drawing(browser_seconds)
     if learned:
         import torch
 

@@ -133,17 +133,54 @@ function feedback(event) {
 
 const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
 
+// States arrive at 60 Hz and mostly repeat what is shown: the panels are written only where a
+// value changed, since each write has the browser lay out and repaint them (CPU the drawing needs).
+function setText(id, text) {
+  const element = $(id);
+  if (element.textContent !== text) element.textContent = text;
+}
+let shownTools = "";
+
 function showState(s) {
   const angles = s.angles ? s.angles[s.definition] : null;
   const box = $("angles");
-  box.className = `angles ${s.zone ? s.zone.colour : "unknown"}`;
-  $("inclination").textContent = angles ? `${angles[0].toFixed(1)}°` : "—";
-  $("anteversion").textContent = angles ? `${angles[1].toFixed(1)}°` : "—";
-  $("zone-text").textContent = !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`;
-  $("note").textContent = s.zone ? s.note : "";
+  const boxClass = `angles ${s.zone ? s.zone.colour : "unknown"}`;
+  if (box.className !== boxClass) box.className = boxClass;
+  setText("inclination", angles ? `${angles[0].toFixed(1)}°` : "—");
+  setText("anteversion", angles ? `${angles[1].toFixed(1)}°` : "—");
+  setText("zone-text", !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`);
+  setText("note", s.zone ? s.note : "");
+  const tools = JSON.stringify(Object.entries(s.tools).map(([name, t]) => [name, t.reason, t.tracked, t.angle_deg?.toFixed(0)]));
+  if (tools !== shownTools) {
+    shownTools = tools;
+    showTools(s.tools);
+  }
+  const reg = s.registration;
+  setText("reg-count", `${reg.acquired.length} / ${reg.total}`);
+  const bar = `${(100 * reg.acquired.length) / reg.total}%`;
+  if ($("reg-bar").style.width !== bar) $("reg-bar").style.width = bar;
+  setText("reg-target", reg.done ? `done · fit ${reg.rms_mm.toFixed(2)} mm` : reg.current ?? "—");
+  const cal = s.calibration;
+  setText("calibration-status",
+    cal.state === "sampling" ? `sampling ${cal.samples} / ${cal.needed} — hold still` :
+    cal.state === "done" ? `residual ${cal.result.rotation_residual_rms_deg.toFixed(2)}° / ${cal.result.translation_residual_rms_mm.toFixed(1)} mm (${cal.result.used} samples)` :
+    cal.state === "refused" ? `refused: ${cal.message}` : "not calibrated");
+  if (document.activeElement !== $("definition") && $("definition").value !== s.definition) $("definition").value = s.definition;
+  // Follow the server's camera (another viewer may move it), but not over this viewer's own
+  // recent edits that the server has not applied yet.
+  if (s.camera.source === "page" && !draggingCamera && performance.now() - lastCameraEdit > 1000) {
+    camera = { azimuth_deg: s.camera.azimuth_deg, elevation_deg: s.camera.elevation_deg, distance_mm: s.camera.distance_mm };
+    for (const [id, value] of [["cam-azimuth", camera.azimuth_deg], ["cam-elevation", camera.elevation_deg], ["cam-distance", camera.distance_mm]]) {
+      if (Number($(id).value) !== value) $(id).value = value;
+    }
+  }
+  if ($("occluder").checked !== s.occluder.present) $("occluder").checked = s.occluder.present;
+}
+
+function showTools(states) {
   const list = $("tools");
   list.innerHTML = "";
-  for (const [name, t] of Object.entries(s.tools)) {
+  for (const [name, t] of Object.entries(states)) {
     const li = document.createElement("li");
     const dot = document.createElement("span");
     dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
@@ -153,25 +190,6 @@ function showState(s) {
     li.dataset.reason = t.reason;
     list.appendChild(li);
   }
-  const reg = s.registration;
-  $("reg-count").textContent = `${reg.acquired.length} / ${reg.total}`;
-  $("reg-bar").style.width = `${(100 * reg.acquired.length) / reg.total}%`;
-  $("reg-target").textContent = reg.done ? `done · fit ${reg.rms_mm.toFixed(2)} mm` : reg.current ?? "—";
-  const cal = s.calibration;
-  $("calibration-status").textContent =
-    cal.state === "sampling" ? `sampling ${cal.samples} / ${cal.needed} — hold still` :
-    cal.state === "done" ? `residual ${cal.result.rotation_residual_rms_deg.toFixed(2)}° / ${cal.result.translation_residual_rms_mm.toFixed(1)} mm (${cal.result.used} samples)` :
-    cal.state === "refused" ? `refused: ${cal.message}` : "not calibrated";
-  if (document.activeElement !== $("definition")) $("definition").value = s.definition;
-  // Follow the server's camera (another viewer may move it), but not over this viewer's own
-  // recent edits that the server has not applied yet.
-  if (s.camera.source === "page" && !draggingCamera && performance.now() - lastCameraEdit > 1000) {
-    camera = { azimuth_deg: s.camera.azimuth_deg, elevation_deg: s.camera.elevation_deg, distance_mm: s.camera.distance_mm };
-    $("cam-azimuth").value = camera.azimuth_deg;
-    $("cam-elevation").value = camera.elevation_deg;
-    $("cam-distance").value = camera.distance_mm;
-  }
-  $("occluder").checked = s.occluder.present;
 }
 
 function frameView() {
@@ -260,9 +278,10 @@ document.addEventListener("keydown", (e) => {
   if (handled) { e.preventDefault(); handled(); }
 });
 
-// Draw only when something changed (a new pose, the view moved) or for the target's pulse
-// (~12 Hz): a browser on a busy machine then leaves the CPU to the server. ?continuous=1 draws
-// every frame (to measure drawing speed).
+// Draw only when something changed (a new pose, the view moved) or, while a landmark waits to be
+// touched, for its pulse (~12 Hz): a browser on a busy machine then leaves the CPU to the server.
+// ?continuous=1 draws every frame and turns the reamer a little each time: `thrsim bench
+// --browser` then counts frames of a tool moving on every one, as a tracked tool in use.
 const continuous = new URLSearchParams(location.search).has("continuous");
 let dirty = true;
 let lastLook = "";
@@ -270,10 +289,12 @@ let lastPulse = 0;
 orbit.addEventListener("change", () => { dirty = true; });
 window.addEventListener("resize", () => { dirty = true; });
 function frame(now) {
-  if (continuous || dirty || now - lastPulse > 80) {
-    if (now - lastPulse > 80) lastPulse = now;
+  const pulse = view.pulsing() && now - lastPulse > 80;
+  if (continuous || dirty || pulse) {
+    if (pulse) lastPulse = now;
     dirty = false;
     stats.frames += 1;
+    if (continuous) view.spinReamer(stats.frames * 0.05);
     view.animate();
     view.render();
   }

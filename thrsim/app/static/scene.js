@@ -2,27 +2,56 @@
 // its truncated-pyramid tracking volume, the tracked tools and the reamer's safe-zone ray.
 // Coordinates are the server's model frame (metres, +x patient right, +y anterior, +z superior),
 // used as three.js's world as it is: the patient lies supine, anterior is up (three.js's +y).
+// Under software WebGL (SwiftShader) a frame's CPU cost grows with its draw calls and triangles:
+// parts that share a material are merged into one geometry (coloured per vertex where their
+// colours differ; not instanced, as SwiftShader draws each instance as a draw of its own), and
+// small spheres and tubes have no more segments than their size on screen needs.
 import * as THREE from "three";
+import { mergeGeometries } from "three/addons/utils/BufferGeometryUtils.js";
 
 const BONE = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.DoubleSide });
 const GREEN = 0x00c850, RED = 0xdc1e1e, AMBER = 0xffb000, GREY = 0x888888, YELLOW = 0xffe14d;
 export const ZONE_COLOURS = { green: GREEN, amber: AMBER, red: RED };
 
+// Scratch objects reused by the per-state and per-frame updates.
+const SPIN = new THREE.Matrix4();
+const POSE = new THREE.Matrix4();
+const SCALE = new THREE.Matrix4();
+const COLOUR = new THREE.Color();
+
 const v = (p) => new THREE.Vector3(p[0], p[1], p[2]);
 const mirror = (p) => [-p[0], p[1], p[2]];
 
-function matrixFromRowMajor(values) {
-  const m = new THREE.Matrix4();
-  m.set(...values);
-  return m;
+function matrixFromRowMajor(values, into = POSE) {
+  return into.set(...values);
 }
 
-function tube(points, radius, material = BONE) {
+// One geometry from parts (uv dropped: no material here is textured; every part indexed, as
+// mergeGeometries needs them all alike).
+function merge(parts) {
+  for (const part of parts) {
+    part.deleteAttribute("uv");
+    if (!part.index) part.setIndex([...Array(part.attributes.position.count).keys()]);
+  }
+  return mergeGeometries(parts);
+}
+
+// A part of a merged mesh drawn with vertex colours (three.js reads them as linear, as
+// Color.setHex gives them).
+function painted(geometry, hex) {
+  const c = new THREE.Color(hex);
+  const colours = new Float32Array(geometry.attributes.position.count * 3);
+  for (let i = 0; i < colours.length; i += 3) c.toArray(colours, i);
+  geometry.setAttribute("color", new THREE.BufferAttribute(colours, 3));
+  return geometry;
+}
+
+function tube(points, radius) {
   const curve = new THREE.CatmullRomCurve3(points.map(v));
-  return new THREE.Mesh(new THREE.TubeGeometry(curve, 24, radius, 8, false), material);
+  return new THREE.TubeGeometry(curve, 16, radius, 8, false);
 }
 
-function fan(centre, loop, material = BONE) {
+function fan(centre, loop) {
   // A triangle fan from a centre point to a closed loop: a thin bony plate.
   const positions = [];
   for (let i = 0; i < loop.length; i++) {
@@ -32,20 +61,19 @@ function fan(centre, loop, material = BONE) {
   const geometry = new THREE.BufferGeometry();
   geometry.setAttribute("position", new THREE.Float32BufferAttribute(positions, 3));
   geometry.computeVertexNormals();
-  return new THREE.Mesh(geometry, material);
+  return geometry;
 }
 
 function hemisphereCup(centre, axis, radius) {
   // The acetabulum: a hemispherical socket opening along `axis`.
-  const geometry = new THREE.SphereGeometry(radius, 24, 12, 0, Math.PI * 2, 0, Math.PI / 2);
-  const cup = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide }));
-  cup.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), v(axis).negate().normalize());
-  cup.position.copy(v(centre));
-  return cup;
+  const geometry = new THREE.SphereGeometry(radius, 24, 8, 0, Math.PI * 2, 0, Math.PI / 2);
+  geometry.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), v(axis).negate().normalize()));
+  return geometry.translate(...centre);
 }
 
 function buildPelvis(scene) {
   const group = new THREE.Group();
+  const bone = [], cups = [];
   const lm = scene.landmarks;
   const side = scene.side, other = side === "right" ? "left" : "right";
   const rimNames = Object.keys(lm).filter((n) => n.startsWith("rim_"));
@@ -62,59 +90,55 @@ function buildPelvis(scene) {
     const wingLoop = [...crest, notch, [acetabulum[0] * 0.9, acetabulum[1] - 0.01, acetabulum[2] + 0.035], get("aiis")];
     const wingCentre = wingLoop.reduce((a, p) => a.map((x, k) => x + p[k] / wingLoop.length), [0, 0, 0]);
     wingCentre[0] *= 0.8; // the iliac fossa curves medially
-    group.add(fan(wingCentre, wingLoop));
-    group.add(tube(crest, 0.007));
-    group.add(tube([acetabulum, get("pubic"), [0.0, flip(lm.pubic_symphysis)[1], flip(lm.pubic_symphysis)[2]]], 0.009));
-    group.add(tube([get("pubic"), [get("pubic")[0] * 1.3, -0.03, -0.11], tuberosity], 0.007));
-    group.add(tube([acetabulum, ischialSpine, tuberosity], 0.01));
-    group.add(hemisphereCup(acetabulum, axis, scene.rim_radius_m));
-    group.add(tube([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
+    bone.push(fan(wingCentre, wingLoop));
+    bone.push(tube(crest, 0.007));
+    bone.push(tube([acetabulum, get("pubic"), [0.0, flip(lm.pubic_symphysis)[1], flip(lm.pubic_symphysis)[2]]], 0.009));
+    bone.push(tube([get("pubic"), [get("pubic")[0] * 1.3, -0.03, -0.11], tuberosity], 0.007));
+    bone.push(tube([acetabulum, ischialSpine, tuberosity], 0.01));
+    cups.push(hemisphereCup(acetabulum, axis, scene.rim_radius_m));
+    bone.push(tube([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
   }
+  group.add(new THREE.Mesh(merge(bone), BONE));
+  group.add(new THREE.Mesh(merge(cups), new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide })));
   return group;
 }
 
-function markerArray(markers, radius = 0.0065) {
-  const group = new THREE.Group();
-  const materials = [];
-  for (const m of markers) {
-    const material = new THREE.MeshLambertMaterial({ color: GREEN, emissive: 0x000000 });
-    const ball = new THREE.Mesh(new THREE.SphereGeometry(radius, 16, 12), material);
-    ball.position.copy(v(m));
-    group.add(ball);
-    materials.push(material);
-  }
-  const plate = new THREE.Mesh(new THREE.BoxGeometry(0.07, 0.1, 0.004), new THREE.MeshLambertMaterial({ color: 0x505a66 }));
-  plate.position.set(0, 0, -0.004);
-  group.add(plate);
-  return { group, materials };
+// The marker balls, one mesh: they always share a colour (green tracked, red not).
+function markerBalls(markers, radius = 0.0065) {
+  const material = new THREE.MeshLambertMaterial({ color: GREEN });
+  const balls = merge(markers.map((m) => new THREE.SphereGeometry(radius, 12, 8).translate(...m)));
+  return { balls: new THREE.Mesh(balls, material), material };
+}
+
+function plate() {
+  return painted(new THREE.BoxGeometry(0.07, 0.1, 0.004).translate(0, 0, -0.004), 0x505a66);
 }
 
 function rod(from, to, radius, color) {
   const a = v(from), b = v(to);
-  const length = a.distanceTo(b);
-  const mesh = new THREE.Mesh(new THREE.CylinderGeometry(radius, radius, length, 10), new THREE.MeshLambertMaterial({ color }));
-  mesh.position.copy(a.clone().add(b).multiplyScalar(0.5));
-  mesh.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), b.clone().sub(a).normalize());
-  return mesh;
+  const geometry = new THREE.CylinderGeometry(radius, radius, a.distanceTo(b), 10);
+  geometry.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), b.clone().sub(a).normalize()));
+  return painted(geometry.translate(...a.add(b).multiplyScalar(0.5).toArray()), color);
 }
 
 function buildTool(name, scene) {
-  const { group, materials } = markerArray(scene.tool_markers[name]);
+  const group = new THREE.Group();
   group.matrixAutoUpdate = false;
+  const { balls, material } = markerBalls(scene.tool_markers[name]);
+  group.add(balls);
   const tip = scene.tool_tips[name];
-  const extras = {};
+  const extras = { pose: new THREE.Matrix4() };
+  // Plate, shaft and head: fixed colours, one mesh. DoubleSide for the open reamer head; the
+  // closed plate and shaft hide their own back faces.
+  const body = [plate()];
   if (name === "Probe") {
-    group.add(rod([0, 0, 0], tip, 0.003, 0xb0b8c0));
+    body.push(rod([0, 0, 0], tip, 0.003, 0xb0b8c0));
   } else if (name === "Reamer") {
-    group.add(rod([0, 0, 0], tip, 0.005, 0xb0b8c0));
+    body.push(rod([0, 0, 0], tip, 0.005, 0xb0b8c0));
     const radius = scene.reamer_head_diameter_m / 2;
-    const head = new THREE.Mesh(
-      new THREE.SphereGeometry(radius, 24, 12, 0, Math.PI * 2, 0, Math.PI / 2),
-      new THREE.MeshLambertMaterial({ color: 0xc0c6cc, side: THREE.DoubleSide }),
-    );
-    head.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, -1)); // dome into the bone (−z)
-    head.position.copy(v(tip));
-    group.add(head);
+    const head = new THREE.SphereGeometry(radius, 24, 8, 0, Math.PI * 2, 0, Math.PI / 2);
+    head.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, -1))); // dome into the bone (−z)
+    body.push(painted(head.translate(...tip), 0xc0c6cc));
     // The ray: the reamer axis through the head centre, coloured by the safe zone.
     const ray = new THREE.Mesh(new THREE.CylinderGeometry(0.0025, 0.0025, 0.5, 8), new THREE.MeshBasicMaterial({ color: GREY }));
     ray.quaternion.setFromUnitVectors(new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, 1));
@@ -122,7 +146,8 @@ function buildTool(name, scene) {
     group.add(ray);
     extras.ray = ray;
   }
-  return { group, materials, ...extras };
+  group.add(new THREE.Mesh(merge(body), new THREE.MeshLambertMaterial({ vertexColors: true, side: name === "Reamer" ? THREE.DoubleSide : THREE.FrontSide })));
+  return { group, material, ...extras };
 }
 
 function buildCamera(volume) {
@@ -131,12 +156,8 @@ function buildCamera(volume) {
   group.matrixAutoUpdate = false;
   const body = new THREE.Mesh(new THREE.BoxGeometry(0.5, 0.07, 0.08), new THREE.MeshLambertMaterial({ color: 0x30363d }));
   group.add(body);
-  for (const x of [-0.22, 0.22]) {
-    const lens = new THREE.Mesh(new THREE.CylinderGeometry(0.03, 0.03, 0.02, 20), new THREE.MeshLambertMaterial({ color: 0x7030a0, emissive: 0x300050 }));
-    lens.rotation.x = Math.PI / 2;
-    lens.position.set(x, 0, 0.045);
-    group.add(lens);
-  }
+  const lenses = [-0.22, 0.22].map((x) => new THREE.CylinderGeometry(0.03, 0.03, 0.02, 20).rotateX(Math.PI / 2).translate(x, 0, 0.045));
+  group.add(new THREE.Mesh(merge(lenses), new THREE.MeshLambertMaterial({ color: 0x7030a0, emissive: 0x300050 })));
   const n = volume.near_mm / 1e3, f = volume.far_mm / 1e3;
   const nw = volume.near_half_width_mm / 1e3, nh = volume.near_half_height_mm / 1e3;
   const fw = volume.far_half_width_mm / 1e3, fh = volume.far_half_height_mm / 1e3;
@@ -189,14 +210,20 @@ export class NavigationScene {
     this.root.add(this.content);
     this.sceneInfo = scene;
     this.content.add(buildPelvis(scene));
-    this.landmarks = {};
+    // The landmark points: one mesh coloured per vertex (grey, green once acquired), and the point
+    // to touch next drawn over its own ball, larger, glowing and pulsing.
+    const ball = new THREE.SphereGeometry(0.004, 10, 8);
+    this.landmarkNames = Object.keys(scene.landmarks);
+    this.ballVertices = ball.attributes.position.count;
+    const balls = this.landmarkNames.map((name) => painted(ball.clone().translate(...scene.landmarks[name]), GREY));
+    this.landmarks = new THREE.Mesh(merge(balls), new THREE.MeshLambertMaterial({ vertexColors: true }));
+    this.content.add(this.landmarks);
+    this.landmarkLook = "";
+    this.nextLandmark = new THREE.Mesh(ball, new THREE.MeshLambertMaterial({ color: YELLOW, emissive: 0x806000 }));
+    this.nextLandmark.visible = false;
+    this.content.add(this.nextLandmark);
     this.pickable = [];
     for (const [name, p] of Object.entries(scene.landmarks)) {
-      const ball = new THREE.Mesh(new THREE.SphereGeometry(0.004, 14, 10), new THREE.MeshLambertMaterial({ color: GREY, emissive: 0x000000 }));
-      ball.position.copy(v(p));
-      ball.userData.landmark = name;
-      this.content.add(ball);
-      this.landmarks[name] = ball;
       // A larger invisible sphere makes the small point easy to click.
       const hit = new THREE.Mesh(new THREE.SphereGeometry(0.012, 8, 6), new THREE.MeshBasicMaterial({ visible: false }));
       hit.position.copy(v(p));
@@ -233,35 +260,55 @@ export class NavigationScene {
 
   apply(state) {
     if (!this.tools) return;
-    this.irCamera.matrix.copy(matrixFromRowMajor(state.camera.pose));
+    matrixFromRowMajor(state.camera.pose, this.irCamera.matrix);
     for (const [name, tool] of Object.entries(this.tools)) {
       const info = state.tools[name];
       tool.group.visible = info.pose !== null;
-      if (info.pose) tool.group.matrix.copy(matrixFromRowMajor(info.pose));
-      for (const m of tool.materials) m.color.setHex(info.tracked ? GREEN : RED);
+      if (info.pose) tool.group.matrix.copy(matrixFromRowMajor(info.pose, tool.pose));
+      tool.material.color.setHex(info.tracked ? GREEN : RED);
     }
     const ray = this.tools.Reamer.ray;
     ray.material.color.setHex(state.zone ? ZONE_COLOURS[state.zone.colour] : GREY);
     this.occluder.visible = state.occluder.boxes.length > 0;
     if (this.occluder.visible) {
       const box = state.occluder.boxes[0];
-      this.occluder.matrix.copy(matrixFromRowMajor(box.pose)).multiply(new THREE.Matrix4().makeScale(...box.size));
+      matrixFromRowMajor(box.pose, this.occluder.matrix).multiply(SCALE.makeScale(...box.size));
     }
     this.registration = state.registration;
   }
 
-  // Per drawn frame: the landmark to touch next pulses; acquired ones are green.
+  // Per drawn frame: the landmark to touch next pulses; acquired ones are green (colours are
+  // rewritten only when the registration changed).
   animate() {
     const reg = this.registration;
     if (!reg || !this.landmarks) return;
-    const pulse = 1 + 0.5 * Math.abs(Math.sin(performance.now() / 200));
-    for (const [name, ball] of Object.entries(this.landmarks)) {
-      const acquired = reg.acquired.includes(name);
-      const current = reg.current === name;
-      ball.material.color.setHex(acquired ? GREEN : current ? YELLOW : GREY);
-      ball.material.emissive.setHex(current ? 0x806000 : 0x000000);
-      ball.scale.setScalar(current ? pulse * 1.6 : 1);
+    const look = `${reg.current} ${reg.acquired.join(" ")}`;
+    if (look !== this.landmarkLook) {
+      this.landmarkLook = look;
+      const colours = this.landmarks.geometry.attributes.color;
+      this.landmarkNames.forEach((name, i) => {
+        COLOUR.setHex(reg.acquired.includes(name) ? GREEN : GREY);
+        for (let k = i * this.ballVertices; k < (i + 1) * this.ballVertices; k++) colours.setXYZ(k, COLOUR.r, COLOUR.g, COLOUR.b);
+      });
+      colours.needsUpdate = true;
+      const i = this.landmarkNames.indexOf(reg.current);
+      this.nextLandmark.visible = i >= 0;
+      if (i >= 0) {
+        this.nextLandmark.position.fromArray(this.sceneInfo.landmarks[reg.current]);
+        this.nextLandmark.material.color.setHex(reg.acquired.includes(reg.current) ? GREEN : YELLOW);
+      }
     }
+    if (this.nextLandmark.visible) this.nextLandmark.scale.setScalar(1.6 * (1 + 0.5 * Math.abs(Math.sin(performance.now() / 200))));
+  }
+
+  // Whether a landmark waits to be touched (it pulses).
+  pulsing() { return this.registration?.current != null; }
+
+  // Turns the reamer about its own axis (tool z) from its last pose: a scene that changes every
+  // frame, for measuring drawing speed (?continuous=1).
+  spinReamer(angle) {
+    const reamer = this.tools?.Reamer;
+    if (reamer) reamer.group.matrix.copy(reamer.pose).multiply(SPIN.makeRotationZ(angle));
   }
 
   // The display's pose in the model frame, row-major (sent for the calibration step).

@@ -1,0 +1,157 @@
+"""Drawing speed of the trainer page (``thrsim bench --browser``).
+
+A real ``thrsim serve`` child process (this code: the parent of the imported ``thrsim`` leads its
+``PYTHONPATH``) and Debian's headless Chromium driven by Playwright, with the flags the browser
+tests use (software WebGL2: SwiftShader). The page is opened with ``?continuous=1``: it draws on
+every animation frame and turns the reamer a little each time, so the figure counts frames of a
+scene that changes on every one. Headless Chromium paces animation frames at 60 Hz, so 60 frames/s
+is the most this can show. Frames per second depend on how much CPU the machine leaves the
+browser; Chromium's CPU time per frame (all its processes, read from /proc) is steadier under
+load, though not independent of it, so both are reported.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import signal
+import subprocess
+import sys
+import tempfile
+import threading
+from pathlib import Path
+
+import thrsim
+from thrsim.errors import ThrsimInputError
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_FLAGS = ["--no-sandbox", "--headless", "--disable-gpu", "--enable-unsafe-swiftshader"]
+_ANNOUNCE = re.compile(r"http://127\.0\.0\.1:(\d+)/")
+
+# What the page reports about itself: WebGL renderer (through the debug extension, when offered),
+# canvas size in device pixels and the last frame's draw calls and triangles.
+_PAGE_INFO = """() => {
+  const renderer = trainer.view.renderer, gl = renderer.getContext();
+  const debug = gl.getExtension("WEBGL_debug_renderer_info");
+  return {
+    webgl_renderer: debug ? gl.getParameter(debug.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER),
+    canvas: [renderer.domElement.width, renderer.domElement.height],
+    device_pixel_ratio: devicePixelRatio,
+    draw_calls: renderer.info.render.calls,
+    triangles: renderer.info.render.triangles,
+  };
+}"""
+
+
+def _chromium_cpu_seconds() -> float | None:
+    """CPU seconds (user + system) used so far by this process's Chromium descendants (Linux)."""
+    proc = Path("/proc")
+    if not (proc / "self" / "stat").exists():
+        return None
+    children: dict[int, list[int]] = {}
+    stats: dict[int, list[str]] = {}
+    for entry in proc.iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            text = (entry / "stat").read_text()
+        except OSError:  # the process ended meanwhile
+            continue
+        name, fields = text[text.index("(") + 1 : text.rindex(")")], text[text.rindex(")") + 2 :].split()
+        stats[int(entry.name)] = [name, *fields]
+        children.setdefault(int(fields[1]), []).append(int(entry.name))
+    ticks, stack, seen = 0, [os.getpid()], set()
+    while stack:
+        pid = stack.pop()
+        for child in children.get(pid, []):
+            if child not in seen:
+                seen.add(child)
+                stack.append(child)
+                if "chrom" in stats[child][0]:
+                    ticks += int(stats[child][12]) + int(stats[child][13])  # utime, stime
+    return ticks / os.sysconf("SC_CLK_TCK")
+
+
+def _serve(sessions: Path) -> tuple[subprocess.Popen, str]:
+    code_root = str(Path(thrsim.__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in [code_root, os.environ.get("PYTHONPATH", "")] if p), "PYTHONUNBUFFERED": "1"}
+    process = subprocess.Popen(
+        [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        env=env,
+    )
+    found: list[str] = []
+    announced = threading.Event()
+
+    def read() -> None:
+        for line in process.stdout:  # drained to the end, so the child never blocks on a full pipe
+            match = _ANNOUNCE.search(line)
+            if match and not found:
+                found.append(f"http://127.0.0.1:{match.group(1)}")
+                announced.set()
+
+    threading.Thread(target=read, daemon=True).start()
+    if not announced.wait(60):
+        _stop(process)
+        raise RuntimeError("thrsim serve did not start within 60 s")
+    return process, found[0]
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.send_signal(signal.SIGTERM)
+        try:
+            process.wait(20)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+
+
+def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
+    """Frames per second the trainer page draws with its reamer moving every frame."""
+    try:
+        from playwright.sync_api import sync_playwright
+    except ImportError:
+        raise ThrsimInputError("--browser needs Playwright for Python (pip install playwright; ./install.sh installs it)") from None
+    if not Path(chromium).exists():
+        raise ThrsimInputError(f"--browser needs Chromium at {chromium} (./install.sh installs Debian's)")
+    load_before = os.getloadavg()
+    with tempfile.TemporaryDirectory() as folder:
+        process, url = _serve(Path(folder))
+        try:
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
+                try:
+                    page = browser.new_page(viewport={"width": width, "height": height})
+                    page.goto(url + "/?continuous=1", timeout=60_000)
+                    page.wait_for_function("window.trainer && trainer.stats.states > 10 && trainer.stats.frames > 10", timeout=60_000)
+                    page.wait_for_timeout(2000)  # warm-up: shaders compiled, caches filled
+                    cpu_first = _chromium_cpu_seconds()
+                    first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+                    page.wait_for_timeout(seconds * 1000)
+                    last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+                    cpu_last = _chromium_cpu_seconds()
+                    info = page.evaluate(_PAGE_INFO)
+                    chromium_version = browser.version
+                finally:
+                    browser.close()
+        finally:
+            _stop(process)
+    elapsed = (last[0] - first[0]) / 1000
+    frames = last[1] - first[1]
+    cpu_ms = None if cpu_first is None or not frames else 1e3 * (cpu_last - cpu_first) / frames
+    return {
+        "what": "frames drawn per second by the trainer page, reamer turning every frame (?continuous=1); at most 60 (headless Chromium's frame pacing)",
+        "fps": frames / elapsed,
+        "frames": frames,
+        "chromium_cpu_ms_per_frame": cpu_ms,
+        "seconds": elapsed,
+        "page_states_per_s": (last[2] - first[2]) / elapsed,
+        "viewport": [width, height],
+        **info,
+        "chromium": chromium_version,
+        "chromium_flags": CHROMIUM_FLAGS,
+        "load_average_1min": [load_before[0], os.getloadavg()[0]],
+    }

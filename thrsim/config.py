@@ -161,8 +161,8 @@ class ContactConfig(_Frozen):
     rest of the margin (see :func:`contact_stability_terms`).
 
     ``specific_cutting_energy_j_m3`` (u_c): the teeth cut the volume their friction work pays
-    for, W/u_c (:mod:`thrsim.physics.contact`). 0.3 J/mm³ makes the default case (0.45 mm mesh,
-    γ 15°, θ 30°, 230 N) seat, feed at 1.3 mm/s and break through at frame 89 of 120; published
+    for, W/u_c (:mod:`thrsim.physics.contact`). 0.5 J/mm³ makes the default case (0.45 mm mesh,
+    γ 15°, θ 30°, 230 N) seat, feed at 1.3 mm/s and break through at frame 93 of 120; published
     orthogonal cutting of cortical bone is of the order of 0.1 to a few J/mm³.
     """
 
@@ -170,7 +170,7 @@ class ContactConfig(_Frozen):
     damping_ratio: float = Field(0.2, ge=0, lt=1, description="contact damping as a fraction of critical")
     penalty_factor: float = Field(0.4, gt=0, description="β in k_i = β·m_i/Δt² (node on its contact spring: ω·Δt = √β)")
     specific_cutting_energy_j_m3: float = Field(
-        3e8, gt=0, description="u_c: volume the teeth cut = their friction work / u_c (thrsim.physics.contact)",
+        5e8, gt=0, description="u_c: volume the teeth cut = their friction work / u_c (thrsim.physics.contact)",
     )  # fmt: skip
 
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "5cafa799f5acf98ea3240ca079a740764de5df28f07e28e9c8d3af0e4814529e"
+PINNED_DIGEST = "1f1051bf4c2df976d9d2aa7dcb5f31e195738f8d566bda45c10c8b4fab3a3421"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

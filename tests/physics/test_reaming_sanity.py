@@ -124,7 +124,7 @@ def test_zero_force_after_first_contact_all_but_stops_removal(coarse_mesh):
 
 def test_perforation_ends_the_case_before_the_reamer_falls():
     # a hard push, the text's u_f = 0.1 mm [5.2.1] and bone cut at 0.1 J/mm³ break through the
-    # coarse shell in ~6 frames (at the default 0.3 J/mm³ this coarse mesh stalls on the last
+    # coarse shell in ~6 frames (at the default 0.5 J/mm³ this coarse mesh stalls on the last
     # elements over the held outer face at the axis, where the teeth barely move)
     bone = BonePatchConfig(element_size_mm=1.2)
     case = ReamingCaseConfig(

@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from app_helpers import ServedTrainer, reamer_to_reference, send_transform
 
+from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.session import read_session
 from thrsim.session.navigation import read_navigation
 
-CHROMIUM = "/usr/bin/chromium"
 pytestmark = pytest.mark.skipif(shutil.which(CHROMIUM) is None, reason="Debian chromium is not installed (./install.sh installs it)")
 
 
@@ -34,7 +34,7 @@ def page(served):
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(
             executable_path=CHROMIUM,
-            args=["--no-sandbox", "--headless", "--disable-gpu", "--enable-unsafe-swiftshader", "--disable-background-networking", "--no-first-run"],
+            args=[*CHROMIUM_FLAGS, "--disable-background-networking", "--no-first-run"],
         )
         page = browser.new_page(viewport={"width": 1100, "height": 720})
         problems: list[str] = []

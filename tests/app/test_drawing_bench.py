@@ -9,7 +9,9 @@ import shutil
 import pytest
 from checkout_cli import run_thrsim
 
-pytestmark = pytest.mark.skipif(shutil.which("/usr/bin/chromium") is None, reason="Debian chromium is not installed (./install.sh installs it)")
+from thrsim.app.drawing_bench import CHROMIUM
+
+pytestmark = pytest.mark.skipif(shutil.which(CHROMIUM) is None, reason="Debian chromium is not installed (./install.sh installs it)")
 
 
 def test_browser_benchmark_counts_the_frames_the_page_draws():

@@ -114,3 +114,17 @@ def test_model_directories_that_do_not_fit_are_refused(tiny_model, real_case, tm
     save_file(mesh_arrays(real_mesh), str(mixed / MESH))
     with pytest.raises(ThrsimInputError, match="digest"):
         load_model(mixed)
+
+
+def test_a_learning_pack_trains_the_same_cases_as_its_dataset(tiny_model, synthetic_dataset, tmp_path):
+    from thrsim.data.pack import write_pack
+    from thrsim.learn.pipeline import train_model
+
+    pack = tmp_path / "learning.h5"
+    write_pack(synthetic_dataset, pack)
+    card = train_model(pack, tmp_path / "from-pack", tiny_settings(epochs=1))
+    from_dataset = json.loads((tiny_model / CARD).read_text())
+    assert card["data"]["form"].startswith("learning pack") and from_dataset["data"]["form"] == "case files"
+    assert card["data"]["digest"] == from_dataset["data"]["digest"]  # the source cases' digests
+    assert card["data"]["split"] == from_dataset["data"]["split"] and card["data"]["frame_pairs"] == from_dataset["data"]["frame_pairs"]
+    assert card["data"]["source"] == str(pack)

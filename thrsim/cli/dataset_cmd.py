@@ -1,4 +1,4 @@
-"""``thrsim dataset``: the resumable orientation sweep (``--out DIR ...``) and ``thrsim dataset info DIR``.
+"""``thrsim dataset``: the resumable orientation sweep (``--out DIR ...``), ``info DIR`` and ``pack DIR --out FILE``.
 
 Local runs use a process pool (``--workers N``); ``--scheduler tcp://HOST:PORT`` sends the
 same tasks to a Dask scheduler instead. Start one and its workers with::
@@ -27,7 +27,7 @@ from thrsim.errors import SimulationError, ThrsimInputError
 
 __doc__ = f"{__doc__}\n{DASK_SECURITY}"
 
-app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), or summarise one with `info DIR`.", name="dataset", no_args_is_help=False)
+app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), summarise one with `info DIR`, or reduce it to a learning pack with `pack DIR --out FILE`.", name="dataset", no_args_is_help=False)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
 _SWEEP = SweepConfig()  # the sweep's defaults, defined once in thrsim.config
@@ -196,6 +196,22 @@ def info(
     print_table(f"dataset {directory}", rows)
     if plot is not None:
         console.print(f"α histograms written to {plot}")
+
+
+@app.command("pack")
+def pack(
+    directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
+    out: Path = typer.Option(..., "--out", help="learning pack to write (an existing pack of the same dataset keeps its cases and gains these)", metavar="FILE.h5"),
+    as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
+) -> None:
+    """Reduce a dataset's complete cases to what the learned simulator reads (α, removals, reamer path) in one small file."""
+    from thrsim.data.pack import write_pack
+
+    summary = write_pack(directory, out)
+    if as_json:
+        print_json(summary)
+        return
+    print_table(f"learning pack {out}", {**summary, "added": ", ".join(summary["added"]) or "none"})
 
 
 _SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")

@@ -90,7 +90,7 @@ class Case:
     attrs: dict[str, Any] = field(default_factory=dict)
 
 
-def _attr_value(value: Any) -> Any:
+def attr_value(value: Any) -> Any:
     """HDF5 attrs take scalars and strings; anything else is stored as JSON text."""
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
@@ -180,7 +180,7 @@ def write_case(
                 "elements": mesh.n_tets,
             }
             for key, value in (extra_attrs or {}).items():
-                value = _attr_value(value)
+                value = attr_value(value)
                 if key in ("frames", "elements"):  # a solver summary repeats them: the data decide
                     continue
                 if key in attrs and attrs[key] != value:
@@ -203,7 +203,7 @@ def write_case(
     return path
 
 
-def _decode_attrs(raw: h5py.AttributeManager) -> dict[str, Any]:
+def decode_attrs(raw: h5py.AttributeManager) -> dict[str, Any]:
     attrs: dict[str, Any] = {}
     for key, value in raw.items():
         if isinstance(value, bytes):
@@ -251,7 +251,7 @@ def read_case(path: str | os.PathLike) -> Case:
                 energy_names=_energy_names(g["energy"]),
                 **{name: g[name][()] if name in g else None for name in OPTIONAL_PER_FRAME},
             )
-            return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=_decode_attrs(f.attrs))
+            return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=decode_attrs(f.attrs))
         except KeyError as error:
             raise ThrsimInputError(f"{path}: missing dataset ({error})") from None
 
@@ -262,7 +262,7 @@ class CaseReader:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._file = _open(self.path)
-        self.attrs = _decode_attrs(self._file.attrs)
+        self.attrs = decode_attrs(self._file.attrs)
         g = self._file["frames"]
         self._frames = g
         self.n_frames = int(g["status"].shape[0])
@@ -281,6 +281,10 @@ class CaseReader:
         if self._mesh is None:
             self._mesh = read_mesh_group(self._file["mesh"])
         return self._mesh
+
+    def series(self, name: str) -> np.ndarray | None:
+        """A whole ``/frames`` dataset (every frame), or None where this case lacks it."""
+        return self._frames[name][()] if name in self._frames else None
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
         """status, peeq and von_mises of frame ``t``, plus its time and reamer position."""
@@ -360,7 +364,7 @@ def validate_case(path: str | os.PathLike) -> dict[str, Any]:
     with _open(path) as f:
         n_nodes, n_el, n_frames, names = _check_format(f, path)
         history = _check_history(f["frames"], path, n_frames, n_el)
-        attrs = _decode_attrs(f.attrs)
+        attrs = decode_attrs(f.attrs)
     removed_per_frame = history["removed_per_frame"]
     summary = {
         "path": str(path),

@@ -1,7 +1,7 @@
 """Ground-truth cases in memory for training and evaluation: α per frame, reamer path, settings.
 
-A dataset directory (``thrsim dataset``, with its manifest and splits) or a single case file is
-read into arrays once; every case must share one mesh, which becomes the model's mesh. Extra
+A dataset directory (``thrsim dataset``, with its manifest and splits), a learning pack
+(``thrsim dataset pack``) or a single case file is read into arrays once; every case must share one mesh, which becomes the model's mesh. Extra
 datasets a newer solver writes are ignored; only the layout of :mod:`thrsim.data.case_file` is read.
 """
 
@@ -17,6 +17,7 @@ import numpy as np
 from thrsim.config import LabelConfig, ReamerConfig
 from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
+from thrsim.data.pack import is_pack, read_pack
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.graph import mesh_digest
@@ -48,37 +49,53 @@ class CaseArrays:
         return np.diff(self.positions, axis=0) @ self.axis
 
 
-def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, labels: LabelConfig) -> tuple[TetMesh, CaseArrays]:
-    case = read_case(path)
-    frames = case.frames
-    axis = np.asarray(case.reamer_axis, dtype=np.float64).reshape(3)
-    config = case.attrs.get("config") if isinstance(case.attrs.get("config"), dict) else {}
+def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis) -> CaseArrays:
+    axis = np.asarray(axis, dtype=np.float64).reshape(3)
+    config = attrs.get("config") if isinstance(attrs.get("config"), dict) else {}
     reamer = {**ReamerConfig().model_dump(), **config.get("reamer", {})}
-    return case.mesh, CaseArrays(
+    return CaseArrays(
         case_id=case_id,
         path=path,
-        alpha=alpha_label(frames.peeq, frames.von_mises, frames.status, labels),
-        positions=np.asarray(frames.reamer_position, dtype=np.float64),
+        alpha=alpha,
+        positions=np.asarray(positions, dtype=np.float64),
         axis=axis / np.linalg.norm(axis),
-        force_n=float(case.attrs.get("force_n", 230.0)),
-        inclination_deg=float(case.attrs.get("inclination_deg", 0.0)),
-        anteversion_deg=float(case.attrs.get("anteversion_deg", 0.0)),
-        omega_rad_s=float(case.attrs.get("omega_rad_s", 136.0)),
+        force_n=float(attrs.get("force_n", 230.0)),
+        inclination_deg=float(attrs.get("inclination_deg", 0.0)),
+        anteversion_deg=float(attrs.get("anteversion_deg", 0.0)),
+        omega_rad_s=float(attrs.get("omega_rad_s", 136.0)),
         split=split,
-        end_reason=str(case.attrs.get("end_reason", "completed")),
+        end_reason=str(attrs.get("end_reason", "completed")),
         # the teeth reach R + protrusion from the head centre (thrsim.geometry.reamer)
         teeth_radius_m=(0.5 * float(reamer["head_diameter_mm"]) + float(reamer["tooth_protrusion_mm"])) * 1e-3,
-        digest=digest or data_digest(path),
-        solver_version=str(case.attrs.get("thrsim_version", "unknown")),
+        digest=digest,
+        solver_version=str(attrs.get("thrsim_version", "unknown")),
     )
 
 
+def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, labels: LabelConfig) -> tuple[TetMesh, CaseArrays]:
+    case = read_case(path)
+    frames = case.frames
+    alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
+    return case.mesh, _case_arrays(case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis)
+
+
+def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
+    mesh, packed = read_pack(path, splits, labels)
+    return mesh, [_case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis) for p in packed]
+
+
 def load_cases(source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[CaseArrays]]:
-    """The mesh and the cases of a dataset directory (optionally some splits only) or of one case file."""
+    """The mesh and the cases of a dataset directory or learning pack (optionally some splits only) or of one case file."""
     from thrsim.data.generate import load_dataset
 
     labels = labels or LabelConfig()
     source = Path(source)
+    if source.is_file() and is_pack(source):
+        mesh, cases = _read_pack(source, splits, labels)
+        cases = [case for case in cases if case.frames >= 2]
+        if not cases:
+            raise ThrsimInputError(f"{source}: no case with two frames or more{' in split(s) ' + ', '.join(splits) if splits else ''}")
+        return mesh, cases
     if source.is_file():
         if not h5py.is_hdf5(source):
             raise ThrsimInputError(f"{source}: not an HDF5 case file")

@@ -21,6 +21,7 @@ import torch
 
 from thrsim.config import LabelConfig
 from thrsim.errors import ThrsimInputError
+from thrsim.data.pack import ALPHA_LEVELS, is_pack
 from thrsim.learn.cases import CaseArrays, load_cases
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.model_dir import CARD, save_model
@@ -88,7 +89,8 @@ def train_model(
         "labels": labels.model_dump(mode="json"),
         "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": float(np.median([c.omega_rad_s for c in cases]))},
         "data": {
-            "source": str(Path(data).resolve()),
+            "source": str(data),  # as given: a shipped card names no machine's folders
+            "form": f"learning pack (α in levels of 1/{ALPHA_LEVELS})" if is_pack(data) else "case files",
             "digest": data_identity(cases),
             "solver_versions": sorted({c.solver_version for c in cases}),
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},

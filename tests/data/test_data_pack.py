@@ -1,0 +1,130 @@
+"""`thrsim dataset pack`: a dataset reduced to α, removals and the reamer path, read back by the learner."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+from thrsim.cli import main
+from thrsim.config import LabelConfig
+from thrsim.data.generate import read_manifest, write_manifest
+from thrsim.data.pack import ALPHA_LEVELS, dequantise_alpha, quantise_alpha, read_pack, removal_frames
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.cases import load_cases
+
+pytestmark = pytest.mark.timeout(180)
+
+SWEEP = ["--inclinations", "0,15,30", "--anteversions", "0,45,90", "--frames", "8", "--extra-forces", "none", "--solver", "synthetic", "--element-sizes", "1.0"]
+
+
+def run_cli(monkeypatch, capsys, *args):
+    monkeypatch.setattr(sys, "argv", ["thrsim", *args])
+    code = 0
+    try:
+        main()
+    except SystemExit as exit_:
+        code = exit_.code or 0
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("pack") / "ds"
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(sys, "argv", ["thrsim", "dataset", "--out", str(root), *SWEEP, "--json"])
+        with pytest.raises(SystemExit) as exit_:
+            main()
+    assert exit_.value.code in (0, None)
+    return root
+
+
+def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, capsys):
+    pack = tmp_path / "learning.h5"
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["cases"] == 7 and summary["kept"] == 0 and len(summary["added"]) == 7
+    mesh_dir, from_dir = load_cases(dataset)
+    mesh_pack, from_pack = load_cases(pack)
+    assert np.array_equal(mesh_dir.tets, mesh_pack.tets) and np.array_equal(mesh_dir.nodes, mesh_pack.nodes)
+    assert [c.case_id for c in from_dir] == [c.case_id for c in from_pack]
+    changed = 0
+    for full, packed in zip(from_dir, from_pack):
+        assert (packed.split, packed.digest, packed.force_n, packed.end_reason) == (full.split, full.digest, full.force_n, full.end_reason)
+        assert np.array_equal(packed.positions, full.positions) and np.array_equal(packed.axis, full.axis)
+        assert np.abs(packed.alpha - full.alpha).max() <= 0.5 / ALPHA_LEVELS + 1e-6
+        assert np.array_equal(packed.alpha < 0.3, full.alpha < 0.3)  # the removal rule sees the same elements
+        changed += int(np.any(np.diff(full.alpha < 0.3, axis=0)))
+    assert changed >= 3  # the sweep removes elements: the comparison above is not of constant arrays
+    _, test_only = load_cases(pack, splits=("test",))
+    assert {c.split for c in test_only} == {"test"} and len(test_only) == 2
+
+
+def test_packs_gather_a_sweep_run_in_parts(dataset, tmp_path, monkeypatch, capsys):
+    part = tmp_path / "part"
+    shutil.copytree(dataset, part)
+    manifest = read_manifest(part)
+    held_back = sorted(manifest["cases"])[-3:]
+    for case_id in held_back:
+        manifest["cases"][case_id]["status"] = "pending"
+    write_manifest(part, manifest)
+    pack = tmp_path / "learning.h5"
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(part), "--out", str(pack), "--json")
+    assert code == 0 and json.loads(out)["cases"] == 4, err
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
+    assert code == 0, err
+    summary = json.loads(out)
+    assert summary["kept"] == 4 and summary["added"] == held_back and summary["cases"] == 7
+
+    before = pack.read_bytes()
+    other_frames = tmp_path / "other-frames"  # another identity: the frame count is part of it
+    code, _, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(other_frames), *SWEEP[:4], "--frames", "6", *SWEEP[6:], "--json")
+    assert code == 0, err
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(other_frames), "--out", str(pack))
+    assert code != 0 and "another dataset" in err and err.count("\n") == 1
+    other_mesh = tmp_path / "other-mesh"  # per-case element sizes stay out of the identity: the mesh check refuses
+    code, _, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(other_mesh), *SWEEP[:-2], "--element-sizes", "2.0", "--inclinations", "0", "--anteversions", "0", "--json")
+    assert code == 0, err
+    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(other_mesh), "--out", str(pack))
+    assert code != 0 and "mesh differs" in err and err.count("\n") == 1
+    assert pack.read_bytes() == before  # a refused merge leaves the pack as it was
+
+
+def test_bad_targets_and_sources_get_one_line(dataset, tmp_path, monkeypatch, capsys):
+    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(tmp_path / "nothing"), "--out", str(tmp_path / "p.h5"))
+    assert code != 0 and "not a thrsim dataset" in err and err.count("\n") == 1
+    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(dataset / "manifest.json"))
+    assert code != 0 and "not a learning pack" in err and err.count("\n") == 1
+    assert json.loads((dataset / "manifest.json").read_text())["format"] == "thrsim-dataset"
+    pack = tmp_path / "p.h5"
+    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))
+    assert code == 0, err
+    with pytest.raises(ThrsimInputError, match="label constants"):
+        read_pack(pack, labels=LabelConfig(mu=0.5))
+    with h5py.File(pack, "r+") as f:
+        f.attrs["version"] = 99
+    with pytest.raises(ThrsimInputError, match="version 99"):
+        load_cases(pack)
+
+
+def test_quantisation_keeps_every_element_on_its_side_of_the_threshold():
+    rng = np.random.default_rng(3)
+    levels = np.arange(ALPHA_LEVELS + 1) / ALPHA_LEVELS
+    alpha = np.concatenate([rng.random(5000), levels, np.nextafter(levels, -1), np.nextafter(levels, 2)]).clip(0, 1).astype(np.float32)[None, :]
+    back = dequantise_alpha(quantise_alpha(alpha))
+    assert np.abs(back - alpha).max() <= 0.5 / ALPHA_LEVELS + 1e-6
+    for threshold in (0.3, 0.5, 0.1):
+        assert np.array_equal(back < threshold, alpha < threshold)
+
+
+def test_removal_is_one_frame_per_element_and_revival_is_refused():
+    status = np.array([[1, 1, 1], [1, 0, 1], [0, 0, 1]], dtype=np.uint8)
+    assert removal_frames(status, "x").tolist() == [2, 1, -1]
+    with pytest.raises(ThrsimInputError, match="comes back"):
+        removal_frames(np.array([[1], [0], [1]], dtype=np.uint8), "x")

@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # One command installs everything thrsim needs on a fresh Debian machine:
-# the system libraries gmsh's wheel links against, CalculiX (the solver
-# cross-check), PyTorch's CPU build (pinned), thrsim itself, and for the browser trainer
-# Chromium (its end-to-end tests) and three.js from the npm registry (npm ci, locked).
+# the system libraries gmsh's wheel links against, Mesa's EGL (the offscreen
+# renderer, thrsim.render), CalculiX (the solver cross-check), PyTorch's CPU
+# build (pinned), thrsim itself, and for the browser trainer Chromium (its
+# end-to-end tests) and three.js from the npm registry (npm ci, locked).
 set -euo pipefail
 cd "$(dirname "$0")"
 
@@ -12,6 +13,7 @@ if command -v apt-get >/dev/null 2>&1; then
   $SUDO apt-get update -qq
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
     libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1 libxi6 libgl1 \
+    libegl1 libegl-mesa0 libgl1-mesa-dri \
     calculix-ccx chromium >/dev/null
   if ! command -v npm >/dev/null 2>&1; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq nodejs npm >/dev/null

@@ -7,6 +7,7 @@ import json
 import meshio
 import numpy as np
 import pytest
+from PIL import Image
 
 from learn_helpers import run_thrsim
 from thrsim.learn.evaluation import windows
@@ -67,9 +68,13 @@ def test_windows_cover_every_horizon_or_the_end():
 
 def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
     out = tmp_path / "ream"
-    result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--model", str(tiny_model), "--out", str(out), "--json")
+    png = tmp_path / "last.png"
+    result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--model", str(tiny_model), "--out", str(out), "--png", str(png), "--json")
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
+    assert summary["png"] == str(png)
+    picture = np.asarray(Image.open(png).convert("RGB"))
+    assert picture.shape == (768, 1024, 3) and len(np.unique(picture.reshape(-1, 3), axis=0)) > 20  # the bone is drawn
     assert summary["frames"] == 3 and len(summary["removed_per_frame"]) == 3
     assert json.loads((out / "ream.json").read_text()) == summary
     pvd = (out / "ream.pvd").read_text()
@@ -90,6 +95,7 @@ def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
         (["--side", "middle"], "unknown side"),
         (["--inclination", "95"], "--inclination"),
         (["--frames", "0"], "--frames"),
+        (["--png", "last.jpg"], "--png"),
     ],
 )
 def test_ream_refuses_bad_input_and_writes_nothing(tiny_model, tmp_path, args, message):

@@ -19,6 +19,7 @@ def ream(
     side: str = typer.Option("right", "--side", help="hip side: right or left"),
     model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
+    png: Optional[Path] = typer.Option(None, "--png", help="also draw the last frame (offscreen OpenGL) to this PNG", metavar="FILE.png"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Ream with the learned simulator (autonomous: the regressor advances the reamer) and write the series."""
@@ -31,7 +32,7 @@ def ream(
     from thrsim.learn.ream import ream as run_ream
 
     torch.set_num_threads(threads)
-    summary = run_ream(inclination, anteversion, force, frames, side, out, model)
+    summary = run_ream(inclination, anteversion, force, frames, side, out, model, png)
     if as_json:
         print_json(summary)
     else:

@@ -37,7 +37,11 @@ def check_out(out: Path) -> None:
         raise ThrsimInputError(f"{out}: parent folder {parent} is not writable")
 
 
-def ream(inclination_deg: float, anteversion_deg: float, force_n: float, frames: int, side: str, out: str | os.PathLike, model_dir: str | os.PathLike | None = None) -> dict:
+def ream(
+    inclination_deg: float, anteversion_deg: float, force_n: float, frames: int, side: str, out: str | os.PathLike,
+    model_dir: str | os.PathLike | None = None, png: str | os.PathLike | None = None,
+) -> dict:  # fmt: skip
+    """Roll the learned simulator out and write the series (and, with ``png``, a picture of the last frame)."""
     out = Path(out)
     if frames < 1:
         raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
@@ -49,6 +53,8 @@ def ream(inclination_deg: float, anteversion_deg: float, force_n: float, frames:
     if not (0 <= anteversion_deg <= 360 and np.isfinite(anteversion_deg)):
         raise ThrsimInputError(f"--anteversion must lie in [0, 360] degrees, got {anteversion_deg:g}")
     check_out(out)
+    if png is not None and Path(png).suffix.lower() != ".png":
+        raise ThrsimInputError(f"{png}: --png writes a PNG; give a .png name")
     simulator = ReamingSimulator(model_dir)
     simulator.reset(side)
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
@@ -89,6 +95,8 @@ def ream(inclination_deg: float, anteversion_deg: float, force_n: float, frames:
             "series": "ream.pvd",
             "versions": package_versions(),
         }
+        if png is not None:
+            summary["png"] = str(_picture(simulator, states[-1], axis, teeth, Path(png)))
         (staging / SUMMARY).write_text(json.dumps(summary, indent=2, default=json_default))
         os.chmod(staging, 0o755)
         if out.exists():
@@ -99,3 +107,12 @@ def ream(inclination_deg: float, anteversion_deg: float, force_n: float, frames:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
     return summary
+
+
+def _picture(simulator: ReamingSimulator, state, axis: np.ndarray, teeth_radius_m: float, png: Path) -> Path:
+    """The last frame seen along the reamer axis, the reamer a translucent dome (thrsim.render)."""
+    from thrsim.render import BoneRenderer, ReamerView, save_png
+
+    with BoneRenderer(simulator.mesh, 1024, 768, threshold=simulator.model.threshold) as renderer:
+        image = renderer.image(state.alpha, reamer=ReamerView(state.reamer_position, axis, teeth_radius_m))
+    return save_png(image, png)

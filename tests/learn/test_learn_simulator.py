@@ -60,6 +60,20 @@ def test_left_side_is_the_mirror_of_the_right(simulator):
     assert np.allclose(simulator.mesh.nodes, simulator.right_mesh.nodes * mirror)
 
 
+def test_a_snapshot_restores_a_frame_and_the_run_goes_on_as_before(simulator):
+    simulator.reset()
+    for _ in range(2):
+        simulator.step(AXIS, 230.0)
+    taken = simulator.snapshot()
+    first = [simulator.step(AXIS, 230.0) for _ in range(3)]
+    simulator.restore(taken)
+    assert simulator.frame == 2 and np.array_equal(simulator.alpha, taken.alpha)
+    again = [simulator.step(AXIS, 230.0) for _ in range(3)]
+    for a, b in zip(first, again):
+        assert a.frame == b.frame and np.array_equal(a.alpha, b.alpha) and np.array_equal(a.reamer_position, b.reamer_position)
+    assert first[-1].frame == 5 and simulator.depth_m > 0
+
+
 def test_reset_restores_the_intact_bone(simulator):
     simulator.reset()
     for _ in range(3):

@@ -90,8 +90,26 @@ class EndSessionControl(_Control):
     type: Literal["end_session"]
 
 
+#: the largest push the reaming mode takes (the dataset spans 150–310 N)
+MAX_FORCE_N = 400.0
 
-_MODELS = (
+
+class RunControl(_Control):
+    """Reaming: start or pause the simulation, restore the intact bone, or undo the last second."""
+
+    type: Literal["run"]
+    action: Literal["start", "pause", "reset", "undo"]
+
+
+class ForceControl(_Control):
+    """Reaming: the push along the reamer axis when no force sensor streams."""
+
+    type: Literal["force"]
+    newton: float = Field(..., ge=0, le=MAX_FORCE_N)
+
+
+
+_NAVIGATION = (
     CameraControl,
     ReamerControl,
     ProbeControl,
@@ -104,27 +122,48 @@ _MODELS = (
     ConfirmControl,
     EndSessionControl,
 )
-NavigationControl = Annotated[Union[_MODELS], Field(discriminator="type")]  # noqa: UP007 (a tuple of models)
-_ADAPTER: TypeAdapter = TypeAdapter(NavigationControl)
-CONTROL_TYPES: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in _MODELS))
+# the reaming mode keeps the navigation trainer's controls (it composes that trainer) and adds its own
+_REAMING = (*_NAVIGATION, RunControl, ForceControl)
+
+
+class _Parser:
+    """Validates one mode's control messages: one JSON object whose ``type`` picks the model."""
+
+    def __init__(self, models: tuple[type[_Control], ...]):
+        self.adapter: TypeAdapter = TypeAdapter(Annotated[Union[models], Field(discriminator="type")])  # noqa: UP007 (a tuple of models)
+        self.types: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in models))
+
+    def __call__(self, text: str | bytes | dict) -> _Control:
+        if isinstance(text, (str, bytes)):
+            if len(text) > MAX_MESSAGE_BYTES:
+                raise ThrsimInputError(f"control message of {len(text)} bytes exceeds {MAX_MESSAGE_BYTES}")
+            try:
+                text = json.loads(text)
+            except (json.JSONDecodeError, UnicodeDecodeError):
+                raise ThrsimInputError("control message is not JSON") from None
+        if not isinstance(text, dict):
+            raise ThrsimInputError("control message must be a JSON object with a 'type'")
+        if text.get("type") not in self.types:
+            raise ThrsimInputError(f"unknown control type {text.get('type')!r}; known: {', '.join(self.types)}")
+        try:
+            return self.adapter.validate_python(text)
+        except ValidationError as error:
+            first = error.errors()[0]
+            where = ".".join(str(p) for p in first.get("loc", ())[1:]) or "message"
+            raise ThrsimInputError(f"{text['type']} control refused: {where}: {first.get('msg', 'invalid')}") from None
+
+
+_NAVIGATION_PARSER = _Parser(_NAVIGATION)
+_REAMING_PARSER = _Parser(_REAMING)
+CONTROL_TYPES: tuple[str, ...] = _NAVIGATION_PARSER.types
+REAMING_CONTROL_TYPES: tuple[str, ...] = _REAMING_PARSER.types
 
 
 def parse_control(text: str | bytes | dict) -> _Control:
-    """One control from a WebSocket text frame (or an already decoded object); ThrsimInputError says why not."""
-    if isinstance(text, (str, bytes)):
-        if len(text) > MAX_MESSAGE_BYTES:
-            raise ThrsimInputError(f"control message of {len(text)} bytes exceeds {MAX_MESSAGE_BYTES}")
-        try:
-            text = json.loads(text)
-        except (json.JSONDecodeError, UnicodeDecodeError):
-            raise ThrsimInputError("control message is not JSON") from None
-    if not isinstance(text, dict):
-        raise ThrsimInputError("control message must be a JSON object with a 'type'")
-    if text.get("type") not in CONTROL_TYPES:
-        raise ThrsimInputError(f"unknown control type {text.get('type')!r}; known: {', '.join(CONTROL_TYPES)}")
-    try:
-        return _ADAPTER.validate_python(text)
-    except ValidationError as error:
-        first = error.errors()[0]
-        where = ".".join(str(p) for p in first.get("loc", ())[1:]) or "message"
-        raise ThrsimInputError(f"{text['type']} control refused: {where}: {first.get('msg', 'invalid')}") from None
+    """One navigation control from a WebSocket text frame (or a decoded object); ThrsimInputError says why not."""
+    return _NAVIGATION_PARSER(text)
+
+
+def parse_reaming_control(text: str | bytes | dict) -> _Control:
+    """One reaming-mode control (the navigation controls plus run and force)."""
+    return _REAMING_PARSER(text)

@@ -58,6 +58,38 @@ def _read_navigation(group: dict) -> Any:
     return read_navigation(group)
 
 
+_MODELS: dict[str | None, object] = {}  # loaded once per model folder: a new session reuses it
+
+
+def _reaming(settings: dict) -> Trainer:
+    from thrsim.app.reaming import ReamingTrainer
+    from thrsim.errors import ThrsimInputError
+    from thrsim.learn.model_dir import load_model
+    from thrsim.learn.simulator import ReamingSimulator
+
+    model_dir = settings.get("model")
+    try:
+        if model_dir not in _MODELS:
+            _MODELS[model_dir] = load_model(model_dir)
+        simulator = ReamingSimulator(model=_MODELS[model_dir], threads=1)
+    except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
+        return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error))
+    return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator)
+
+
+def _parse_reaming(message: Any) -> Any:
+    from thrsim.app.controls import parse_reaming_control
+
+    return parse_reaming_control(message)
+
+
+def _read_reaming(group: dict) -> Any:
+    from thrsim.session.reaming import read_reaming
+
+    return read_reaming(group)
+
+
 MODES: dict[str, Mode] = {
     "navigation": Mode("navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation, _read_navigation),
+    "reaming": Mode("reaming", "/reaming", "reaming.html", "Reaming", _reaming, _parse_reaming, _read_reaming),
 }

@@ -57,7 +57,10 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
             except ThrsimInputError:
                 refused += 1
         elif kind == "force":
-            trainer.apply_force(payload, time_s)
+            try:
+                trainer.apply_force(payload, time_s)
+            except ThrsimInputError:
+                refused += 1
         elif payload.get("type") != "end_session":
             try:
                 trainer.apply_control(mode.parse_control(payload), time_s)
@@ -67,10 +70,12 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
         raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
     recorded = mode.read_record(session.groups[mode.name])
     replayed = trainer.record()
-    strip = lambda events: [(e["kind"], e["landmark"], round(e["time_s"], 9)) for e in events]
+    strip = lambda events: [(e["kind"], e.get("landmark") or e.get("detail"), round(e["time_s"], 9)) for e in events]
     same_shape = recorded.angles.shape == replayed.angles.shape
     difference = float(np.nanmax(np.abs(recorded.angles - replayed.angles), initial=0.0)) if same_shape else float("inf")
     trace_match = same_shape and bool(np.array_equal(np.isnan(recorded.angles), np.isnan(replayed.angles))) and difference <= 1e-9
+    if hasattr(recorded, "removed_volume_mm3"):  # reaming: the bone removed frame by frame, too
+        trace_match = trace_match and np.array_equal(recorded.removed, replayed.removed) and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
     return ReplayOutcome(
         mode=mode.name,
         inputs=session.inputs.count,

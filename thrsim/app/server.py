@@ -170,7 +170,10 @@ class TrainerHub:
 
     def on_force(self, newton: float, clock_time: float) -> None:
         for session in self.sessions.values():
-            session.force(newton, clock_time)
+            try:
+                session.force(newton, clock_time)
+            except ThrsimInputError as error:
+                log.warning("force reading refused: %s", error)
 
     def tick(self) -> None:
         self.ticks += 1

@@ -43,6 +43,18 @@ class StepResult:
     seconds: float
 
 
+@dataclass(frozen=True)
+class SimulatorSnapshot:
+    """Everything :meth:`ReamingSimulator.restore` needs to go back to a frame (undo)."""
+
+    side: str
+    frame: int
+    alpha: np.ndarray
+    centre: np.ndarray | None
+    start: np.ndarray | None
+    last_removed_m3: float
+
+
 def angles_of(axis: np.ndarray) -> tuple[float, float]:
     """(γ, θ) in degrees of a unit axis D = (sin γ cos θ, sin γ sin θ, −cos γ), as in the case files."""
     gamma = math.degrees(math.acos(float(np.clip(-axis[2], -1.0, 1.0))))
@@ -133,6 +145,20 @@ class ReamingSimulator:
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
         self._last_removed_m3 = 0.0
+
+    def snapshot(self) -> SimulatorSnapshot:
+        """The state now (copies), for :meth:`restore`."""
+        copy = lambda v: None if v is None else v.copy()  # noqa: E731
+        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), copy(self._centre), copy(self._start), self._last_removed_m3)
+
+    def restore(self, snapshot: SimulatorSnapshot) -> None:
+        """Go back to a state taken by :meth:`snapshot` (same model)."""
+        if snapshot.alpha.shape != self.alpha.shape:
+            raise ThrsimInputError(f"snapshot of {snapshot.alpha.size} elements, this model's mesh has {self.alpha.size}")
+        self.side, self.frame, self._last_removed_m3 = snapshot.side, snapshot.frame, snapshot.last_removed_m3
+        self.alpha = snapshot.alpha.copy()
+        self._centre = None if snapshot.centre is None else snapshot.centre.copy()
+        self._start = None if snapshot.start is None else snapshot.start.copy()
 
     @property
     def removed(self) -> np.ndarray:

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from thrsim.learn.settings import ArchSettings, FeatureSettings, ModelSettings, TrainSettings
 
-REPO = Path(__file__).resolve().parents[2]
+REPO = Path(__file__).resolve().parents[1]
 
 
 def run_thrsim(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:

@@ -1,0 +1,168 @@
+"""The reaming trainer's logic with a real (tiny) trained model: frames follow the running time,
+pause, undo and reset, the force sources, the patch in the pelvis, the session group and replay."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from thrsim.app.controls import parse_reaming_control
+from thrsim.app.modes import MODES
+from thrsim.app.reaming import DISPLAY_LEVELS, FRAME_RATE_HZ, ReamingTrainer
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.simulator import ReamingSimulator
+from thrsim.nav.anatomy import local_axis_from_angles
+
+STEP = 1 / 60
+
+
+class Clock:
+    def __init__(self, trainer: ReamingTrainer):
+        self.trainer, self.now, self.state = trainer, 0.0, None
+
+    def run(self, seconds: float, step: float = STEP) -> dict:
+        for _ in range(int(round(seconds / step))):
+            self.now += step
+            self.state = self.trainer.step(self.now)
+        return self.state
+
+    def control(self, message: dict) -> str:
+        return self.trainer.apply_control(parse_reaming_control(message), self.now)
+
+
+@pytest.fixture
+def clock(tiny_model):
+    trainer = ReamingTrainer(simulator=ReamingSimulator(tiny_model, threads=1))
+    clock = Clock(trainer)
+    clock.control({"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20})
+    return clock
+
+
+def test_frames_follow_the_running_time_and_bone_is_removed(clock):
+    state = clock.run(0.5)
+    assert state["reaming"]["frame"] == 0 and not state["reaming"]["running"]
+    assert clock.control({"type": "run", "action": "start"}) == "reaming"
+    state = clock.run(1.0)
+    reaming = state["reaming"]
+    assert abs(reaming["frame"] - FRAME_RATE_HZ) <= 1 and reaming["behind_frames"] == 0
+    volumes = clock.trainer.trace.removed_volume_mm3
+    assert volumes[-1] > 0 and all(b >= a for a, b in zip(volumes, volumes[1:]))  # removal never undoes itself
+    assert reaming["removed"] > 0 and reaming["depth_mm"] > 0 and reaming["removed_volume_mm3"] == pytest.approx(volumes[-1])
+    assert reaming["gamma_deg"] == pytest.approx(math.degrees(math.acos(local_axis_from_angles(40, 15) @ local_axis_from_angles(45, 20))), abs=1e-6)
+    clock.control({"type": "run", "action": "pause"})
+    frames = reaming["frame"]
+    assert clock.run(0.5)["reaming"]["frame"] == frames
+
+
+def test_a_slow_tick_steps_at_most_two_frames_and_says_it_fell_behind(clock):
+    clock.control({"type": "run", "action": "start"})
+    state = clock.run(1.0, step=0.1)  # 10 ticks, 6 frames due each
+    assert state["reaming"]["frame"] == 20 and state["reaming"]["behind_frames"] == 40
+
+
+def test_undo_goes_back_one_second_and_reset_restores_the_bone(clock):
+    trainer = clock.trainer
+    clock.control({"type": "run", "action": "start"})
+    clock.run(2.5)
+    frames = trainer.frames_run
+    assert clock.control({"type": "run", "action": "undo"}).startswith("undid 60")
+    assert trainer.frames_run == frames - 60 and not trainer.running
+    assert trainer.simulator.frame == frames - 60
+    # the bone is as it was at that frame
+    assert trainer.simulator.removed.sum() == trainer.trace.removed[trainer.trace.frame.index(frames - 60)]
+    clock.control({"type": "run", "action": "reset"})
+    state = clock.run(0.1)
+    assert state["reaming"]["frame"] == 0 and state["reaming"]["removed"] == 0
+    assert [e["kind"] for e in trainer.events] == ["start", "undo", "reset"]
+
+
+def test_a_force_sensor_overrides_the_page_while_it_streams(clock):
+    trainer = clock.trainer
+    clock.control({"type": "force", "newton": 150})
+    assert clock.run(0.1)["reaming"]["force_n"] == 150
+    trainer.apply_force(300.0, clock.now)
+    state = clock.run(0.2)
+    assert state["reaming"]["force_n"] == 300 and state["reaming"]["force_source"] == "sensor"
+    state = clock.run(0.5)
+    assert state["reaming"]["force_n"] == 150 and state["reaming"]["force_source"] == "page"
+    for bad in (-1.0, float("nan"), 1e4):
+        with pytest.raises(ThrsimInputError, match="force reading"):
+            trainer.apply_force(bad, clock.now)
+    for message in ({"type": "force", "newton": 500}, {"type": "run", "action": "explode"}, {"type": "probe", "action": "kick"}):
+        with pytest.raises(ThrsimInputError):
+            parse_reaming_control(message)
+
+
+def test_reaming_holds_while_the_reamer_cannot_be_measured(clock):
+    clock.control({"type": "run", "action": "start"})
+    clock.run(0.2)
+    frames = clock.trainer.frames_run
+    clock.control({"type": "camera", "azimuth_deg": -130, "elevation_deg": 30, "distance_mm": 1600})  # behind the patient
+    state = clock.run(0.5)
+    assert not state["tools"]["Reamer"]["tracked"] and state["reaming"]["frame"] == frames
+    assert "not measured" in state["reaming"]["note"]
+
+
+def test_the_patch_sits_in_the_acetabulum_along_the_safe_zone_centre(tiny_model):
+    for side, handedness in (("right", 1.0), ("left", -1.0)):
+        trainer = ReamingTrainer(side=side, simulator=ReamingSimulator(tiny_model, threads=1))
+        placement = trainer.patch_to_model
+        linear = placement[:3, :3]
+        assert np.allclose(linear.T @ linear, np.eye(3), atol=1e-12) and np.sign(np.linalg.det(linear)) == handedness
+        assert np.allclose(placement[:3, 3], trainer.navigation.acetabulum_model)
+        # the patch's +z, out of the acetabulum, is the cup axis at 40° / 15° in this hip's APP
+        cup = trainer.navigation.true_app_model.to_local(linear @ np.array([0.0, 0.0, 1.0]))
+        assert np.allclose(cup, local_axis_from_angles(40, 15), atol=1e-12)
+    scene = trainer.scene()["reaming"]
+    assert scene["available"] and scene["elements"] == trainer.simulator.n_elements and scene["display_levels"] == DISPLAY_LEVELS
+
+
+def test_display_levels_mark_removed_elements_and_quantise_alpha(clock):
+    clock.control({"type": "run", "action": "start"})
+    clock.run(0.05)
+    levels = clock.trainer.display_levels()
+    removed = clock.trainer.simulator.removed
+    assert removed.any() and not removed.all()
+    assert levels.dtype == np.uint8 and np.array_equal(levels == 0, removed)
+    assert levels[~removed].min() >= 1 and levels.max() <= DISPLAY_LEVELS
+
+
+def test_without_a_model_the_mode_says_why_and_navigation_still_works():
+    trainer = MODES["reaming"].make_trainer({"side": "right", "seed": 0, "model": "/nonexistent/model"})
+    state = trainer.step(STEP)
+    assert not state["reaming"]["available"] and "model" in state["reaming"]["unavailable"]
+    assert state["tools"]["Reamer"]["tracked"] in (True, False) and "angles" in state
+    with pytest.raises(ThrsimInputError, match="unavailable"):
+        trainer.apply_control(parse_reaming_control({"type": "run", "action": "start"}), STEP)
+    assert trainer.apply_control(parse_reaming_control({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}), STEP) == "reamer steered"
+
+
+def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tiny_model, tmp_path):
+    from thrsim.app.live import LiveSession
+    from thrsim.app.replay import replay_session
+    from thrsim.session.file import read_session
+    from thrsim.session.reaming import read_reaming
+
+    now = [0.0]
+    session = LiveSession(MODES["reaming"], {"side": "left", "seed": 3, "model": str(tiny_model)}, lambda: now[0])
+    session.control('{"type": "reamer", "inclination_deg": 42, "anteversion_deg": 18}')
+    session.control('{"type": "run", "action": "start"}')
+    for k in range(40):
+        now[0] += STEP
+        if k == 10:
+            session.force(280.0, now[0])
+        if k == 20:
+            with pytest.raises(ThrsimInputError, match="display's pose"):  # logged, and refused again in the replay
+                session.control('{"type": "calibration", "action": "start"}')
+        session.tick()
+    path = session.save(tmp_path)
+    record = read_reaming(read_session(path).groups["reaming"])
+    live = session.trainer.record()
+    assert record.side == "left" and record.mesh_digest == session.trainer.simulator.model.graph.digest
+    assert np.array_equal(record.removed, live.removed) and np.array_equal(record.final_alpha, live.final_alpha)
+    assert record.force_n[5] == 230 and record.force_n[15] == 280  # the sensor's reading, while fresh
+    assert [e["kind"] for e in record.events] == ["start"] and record.navigation.side == "left"
+    outcome = replay_session(path)
+    assert outcome.reproduced and outcome.refused_controls == 1

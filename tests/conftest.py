@@ -1,0 +1,37 @@
+"""Fixtures shared across test folders: a synthetic dataset and a tiny model trained on it.
+
+The learned-simulator tests (tests/learn) and the reaming trainer's (tests/app) both need a real
+trained model; it is trained once per test session (a 192-tet synthetic block, 12 frames per case,
+networks a few units wide).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from learn_helpers import run_thrsim, tiny_settings
+
+
+@pytest.fixture(scope="session")
+def synthetic_dataset(tmp_path_factory) -> Path:
+    """Synthetic sweep: γ 0, 15, 30 × θ 0 (train), 45 (test), 90 (validation); 12 frames, 192 tets."""
+    out = tmp_path_factory.mktemp("learn-data") / "synthetic"
+    result = run_thrsim(
+        "dataset", "--solver", "synthetic", "--out", str(out), "--inclinations", "0,15,30", "--anteversions", "0,45,90",
+        "--frames", "12", "--element-sizes", "1.0", "--extra-forces", "none", "--json",
+    )
+    assert result.returncode == 0, result.stderr
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_model(synthetic_dataset, tmp_path_factory) -> Path:
+    import torch
+
+    from thrsim.learn.pipeline import train_model
+
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("learn-model") / "model"
+    train_model(synthetic_dataset, out, tiny_settings())
+    return out

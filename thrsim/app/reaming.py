@@ -1,0 +1,338 @@
+"""The reaming trainer: the learned simulator driven by the navigation trainer's reamer and a push force.
+
+The trainee steers the reamer (the page's controls, or a tracked reamer over OpenIGTLink) and
+pushes (the page's force control, or a force sensor's SENSOR stream); every frame the learned
+simulator (:class:`thrsim.learn.simulator.ReamingSimulator`) removes bone. Tracking, the APP,
+cup angles and the safe zone are the navigation trainer's (:mod:`thrsim.app.navigation`),
+composed here, so the reamer is tracked, lost and measured exactly as in the navigation mode.
+
+Frames. The bone patch's frame (origin at the acetabular centre, +z out of the acetabulum) sits
+in the hip's APP frame (lateral, anterior, inferior) with its +z along the cup axis at the safe
+zone's centre (40° inclination, 15° anteversion, radiographic), so reaming at the zone's centre
+is the dataset's γ = 0 and the model's trained range (γ ≤ 45°) spans every clinical aim. The
+APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
+sides; only the placement in the pelvis (``patch_to_model``) is mirrored.
+
+Time. The simulator steps 1/60 s of reaming per frame, as the solver's cases do. While running,
+every tick steps the frames that are due by the running time (at most ``max_frames_per_tick``;
+beyond that the simulation falls behind real time and says so). Frames are driven by the tick
+times, which the session logs, so a replay steps the same frames. No I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from thrsim.app import controls as c
+from thrsim.app.navigation import NavigationTrainer
+from thrsim.config import SafeZone
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot, angles_of
+from thrsim.nav.anatomy import local_axis_from_angles
+from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.session.reaming import ReamingRecord, write_reaming
+
+FRAME_RATE_HZ = 60.0
+#: α is sent to viewers in this many levels above the removal threshold (0 = removed)
+DISPLAY_LEVELS = 32
+#: a force sensor reading counts for this long; then the page's force control applies again
+SENSOR_FRESH_S = 0.5
+DEFAULT_FORCE_N = 230.0
+#: the model learned reamer axes up to this far from the patch's pole (the dataset's γ range)
+TRAINED_GAMMA_DEG = 45.0
+
+
+def patch_in_app(zone: SafeZone = SafeZone()) -> np.ndarray:
+    """3×3: the bone patch's axes (columns) in APP (lateral, anterior, inferior) components.
+
+    (lateral, anterior, inferior) is a left-handed triple for a right hip, so the patch's axes are
+    written left-handed in it: placed in a right pelvis the patch is then rotated, not mirrored,
+    and in a left pelvis (whose APP frame is the mirror) it is mirrored, as a left hip is.
+    """
+    z = local_axis_from_angles(zone.inclination_deg, zone.anteversion_deg)
+    inferior = np.array([0.0, 0.0, 1.0])
+    x = inferior - (inferior @ z) * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(x, z), z])
+
+
+@dataclass
+class _Trace:
+    time: list[float] = field(default_factory=list)
+    frame: list[int] = field(default_factory=list)
+    force_n: list[float] = field(default_factory=list)
+    axis: list[tuple[float, float, float]] = field(default_factory=list)
+    position_m: list[tuple[float, float, float]] = field(default_factory=list)
+    removed: list[int] = field(default_factory=list)
+    removed_volume_mm3: list[float] = field(default_factory=list)
+    depth_mm: list[float] = field(default_factory=list)
+    angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
+
+
+class ReamingTrainer:
+    """One trainee's reaming session. Feed it controls, poses, forces and ticks; read its state."""
+
+    mode = "reaming"
+
+    def __init__(
+        self,
+        side: str = "right",
+        seed: int = 0,
+        simulator: ReamingSimulator | None = None,
+        unavailable: str | None = None,
+        max_frames_per_tick: int = 2,
+        undo_s: float = 1.0,
+        zone: SafeZone = SafeZone(),
+    ):
+        self.navigation = NavigationTrainer(side=side, seed=seed, zone=zone)
+        self.simulator = simulator
+        self.unavailable = unavailable if simulator is None else None
+        self.max_frames_per_tick = max_frames_per_tick
+        self.undo_frames = max(1, int(round(undo_s * FRAME_RATE_HZ)))
+        self.zone = zone
+        self.patch_axes = patch_in_app(zone)
+        self.page_force_n = DEFAULT_FORCE_N
+        self.sensor_force_n: float | None = None
+        self._sensor_time = -math.inf
+        self.trace = _Trace()
+        self.events: list[dict] = []
+        self._pending_events: list[dict] = []
+        self._reset_run()
+
+    # ---- state of the run ---------------------------------------------------------------------
+
+    def _reset_run(self) -> None:
+        self.running = False
+        self.running_s = 0.0
+        self.frames_run = 0
+        self.behind_frames = 0
+        self._last_tick: float | None = None
+        self._history: deque[SimulatorSnapshot] = deque(maxlen=self.undo_frames + 1)
+        self._last_step_ms = math.nan
+        self._reamer_position: np.ndarray | None = None  # patch frame, m
+        if self.simulator is not None:
+            self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
+
+    @property
+    def side(self) -> str:
+        return self.navigation.side
+
+    @property
+    def patch_to_model(self) -> np.ndarray:
+        """4×4 placement of the patch frame in the pelvis model frame, metres (a mirror for a left hip)."""
+        placement = np.eye(4)
+        placement[:3, :3] = self.navigation.true_app_model.axes.T @ self.patch_axes
+        placement[:3, 3] = self.navigation.acetabulum_model
+        return placement
+
+    def force_n(self, time_s: float) -> tuple[float, str]:
+        if self.sensor_force_n is not None and time_s - self._sensor_time <= SENSOR_FRESH_S:
+            return self.sensor_force_n, "sensor"
+        return self.page_force_n, "page"
+
+    def reamer_axis(self, nav_state: dict) -> np.ndarray | None:
+        """D in the patch frame (into the bone), or None while the reamer cannot be measured."""
+        tools = nav_state["tools"]
+        if not (tools["Reamer"]["tracked"] and tools["Reference"]["tracked"]):
+            return None
+        nav = self.navigation
+        cup_axis_local = nav.app.to_local(nav.tools["Reamer"].pose[:3, :3] @ CUP_AXIS_IN_REAMER)
+        return -(self.patch_axes.T @ cup_axis_local)
+
+    # ---- inputs -------------------------------------------------------------------------------
+
+    def apply_pose(self, device: str, pose: np.ndarray, time_s: float) -> None:
+        self.navigation.apply_pose(device, pose, time_s)
+
+    def apply_force(self, newton: float, time_s: float) -> None:
+        if not (math.isfinite(newton) and 0.0 <= newton <= c.MAX_FORCE_N):
+            raise ThrsimInputError(f"force reading {newton!r} N outside [0, {c.MAX_FORCE_N:g}]")
+        self.sensor_force_n = float(newton)
+        self._sensor_time = time_s
+        self.navigation.apply_force(newton, time_s)
+
+    def apply_control(self, control: c._Control, time_s: float) -> str:
+        if isinstance(control, c.RunControl):
+            return self._run_control(control.action, time_s)
+        if isinstance(control, c.ForceControl):
+            self.page_force_n = control.newton
+            return f"push {control.newton:g} N"
+        if isinstance(control, c.SideControl):
+            ack = self.navigation.apply_control(control, time_s)
+            self._reset_run()
+            self._event(time_s, "side_changed", control.value)
+            return ack
+        return self.navigation.apply_control(control, time_s)
+
+    def _run_control(self, action: str, time_s: float) -> str:
+        if self.simulator is None:
+            raise ThrsimInputError(f"reaming is unavailable: {self.unavailable}")
+        if action == "start":
+            self.running = True
+            self._last_tick = time_s
+            self._event(time_s, "start")
+            return "reaming"
+        if action == "pause":
+            self.running = False
+            self._event(time_s, "pause")
+            return "paused"
+        if action == "reset":
+            self._reset_run()
+            self._event(time_s, "reset")
+            return "bone restored"
+        if not self._history:
+            return "nothing to undo"
+        back = self._history[0]
+        self.simulator.restore(back)
+        self._reamer_position = None if back.centre is None else back.centre.copy()
+        undone = self.frames_run - back.frame
+        self.frames_run = back.frame
+        self.running_s = self.frames_run / FRAME_RATE_HZ
+        self._history.clear()
+        self._history.append(back)
+        self.running = False
+        self._event(time_s, "undo", f"{undone} frames")
+        return f"undid {undone} frames"
+
+    def _event(self, time_s: float, kind: str, detail: str = "") -> None:
+        event = {"time_s": time_s, "kind": kind, "detail": detail, "frame": self.frames_run}
+        self.events.append(event)
+        self._pending_events.append(event)
+
+    # ---- stepping -----------------------------------------------------------------------------
+
+    def step(self, time_s: float) -> dict:
+        nav_state = self.navigation.step(time_s)
+        axis = self.reamer_axis(nav_state)
+        force, force_source = self.force_n(time_s)
+        note = ""
+        if self.running and self.simulator is not None:
+            if self._last_tick is not None:
+                self.running_s += max(0.0, time_s - self._last_tick)
+            self._last_tick = time_s
+            due = int(self.running_s * FRAME_RATE_HZ + 1e-9) - self.frames_run
+            if axis is None:
+                note = "reamer not measured: reaming holds"
+                self.running_s = self.frames_run / FRAME_RATE_HZ  # the held time is not owed
+            else:
+                for _ in range(min(due, self.max_frames_per_tick)):
+                    self._step_frame(time_s, axis, force, nav_state)
+                if due > self.max_frames_per_tick:
+                    self.behind_frames += due - self.max_frames_per_tick
+                    self.running_s = self.frames_run / FRAME_RATE_HZ  # do not burst to catch up
+        return self._state(time_s, nav_state, axis, force, force_source, note)
+
+    def _step_frame(self, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> None:
+        if not self._history or self._history[-1].frame != self.simulator.frame:
+            self._history.append(self.simulator.snapshot())
+        result = self.simulator.step(axis, force)
+        self._history.append(self.simulator.snapshot())
+        self.frames_run = result.frame
+        self._last_step_ms = result.seconds * 1e3
+        self._reamer_position = result.reamer_position
+        trace = self.trace
+        trace.time.append(time_s)
+        trace.frame.append(result.frame)
+        trace.force_n.append(force)
+        trace.axis.append(tuple(float(v) for v in axis))
+        trace.position_m.append(tuple(float(v) for v in result.reamer_position))
+        trace.removed.append(int(result.removed.sum()))
+        trace.removed_volume_mm3.append(result.removed_volume_m3 * 1e9)
+        trace.depth_mm.append(self.simulator.depth_m * 1e3)
+        angles, zone = nav_state.get("angles"), nav_state.get("zone")
+        trace.angles.append((math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"]))
+
+    def display_levels(self) -> np.ndarray:
+        """uint8 per element for viewers: 0 removed, 1..DISPLAY_LEVELS α from the threshold to 1."""
+        if self.simulator is None:
+            return np.zeros(0, dtype=np.uint8)
+        alpha = self.simulator.alpha
+        threshold = self.simulator.model.threshold
+        levels = 1 + np.minimum(DISPLAY_LEVELS - 1, ((alpha - threshold) * (DISPLAY_LEVELS / (1.0 - threshold))).astype(np.int64))
+        return np.where(alpha < threshold, 0, levels).astype(np.uint8)
+
+    def _state(self, time_s: float, nav_state: dict, axis, force: float, force_source: str, note: str) -> dict:
+        sim = self.simulator
+        gamma = theta = None
+        if axis is not None:
+            gamma, theta = angles_of(axis)
+            if gamma > TRAINED_GAMMA_DEG:
+                note = note or f"reamer {gamma:.0f}° off the acetabular axis: beyond what the model learned ({TRAINED_GAMMA_DEG:g}°)"
+        events, self._pending_events = self._pending_events, []
+        reaming = {
+            "available": sim is not None,
+            "unavailable": self.unavailable,
+            "running": self.running,
+            "frame": self.frames_run,
+            "time_s": self.frames_run / FRAME_RATE_HZ,
+            "behind_frames": self.behind_frames,
+            "force_n": force,
+            "force_source": force_source,
+            "gamma_deg": gamma,
+            "theta_deg": theta,
+            "removed": 0 if sim is None else int(sim.removed.sum()),
+            "removed_volume_mm3": 0.0 if sim is None else sim.removed_volume_m3 * 1e9,
+            "depth_mm": 0.0 if sim is None else sim.depth_m * 1e3,
+            "step_ms": None if math.isnan(self._last_step_ms) else self._last_step_ms,
+            "reamer_centre": None if self._reamer_position is None else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
+            "note": note,
+            "events": events,
+        }
+        return {**nav_state, "mode": self.mode, "reaming": reaming}
+
+    # ---- what the page and the session file get -----------------------------------------------
+
+    def scene(self) -> dict:
+        scene = self.navigation.scene()
+        sim = self.simulator
+        scene["reaming"] = {
+            "available": sim is not None,
+            "unavailable": self.unavailable,
+            "patch_to_model": self.patch_to_model.ravel().tolist(),
+            "elements": 0 if sim is None else sim.n_elements,
+            "mesh": "/api/reaming/mesh",
+            "display_levels": DISPLAY_LEVELS,
+            "teeth_radius_m": None if sim is None else sim.model.teeth_radius_m,
+            "trained_gamma_deg": TRAINED_GAMMA_DEG,
+        }
+        return scene
+
+    def settings(self) -> dict:
+        sim = self.simulator
+        return {
+            **self.navigation.settings(),
+            "max_frames_per_tick": self.max_frames_per_tick,
+            "undo_frames": self.undo_frames,
+            "model": None if sim is None else {"path": str(sim.model.path), "mesh_digest": sim.model.graph.digest, "data_digest": sim.model.card["data"]["digest"]},
+        }
+
+    def record(self) -> ReamingRecord:
+        sim = self.simulator
+        t = self.trace
+        return ReamingRecord(
+            side=self.side,
+            zone=self.zone.model_dump(),
+            mesh_digest="" if sim is None else sim.model.graph.digest,
+            patch_to_model=self.patch_to_model,
+            time=np.array(t.time, dtype=float),
+            frame=np.array(t.frame, dtype=np.int64),
+            force_n=np.array(t.force_n, dtype=float),
+            axis=np.array(t.axis, dtype=float).reshape(-1, 3),
+            position_m=np.array(t.position_m, dtype=float).reshape(-1, 3),
+            removed=np.array(t.removed, dtype=np.int64),
+            removed_volume_mm3=np.array(t.removed_volume_mm3, dtype=float),
+            depth_mm=np.array(t.depth_mm, dtype=float),
+            angles=np.array(t.angles, dtype=float).reshape(-1, 3),
+            events=list(self.events),
+            final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
+            behind_frames=self.behind_frames,
+            navigation=self.navigation.record(),
+        )
+
+    def write(self, group) -> None:
+        write_reaming(group, self.record(), self.settings())
+

@@ -1,0 +1,91 @@
+"""The reaming mode's group of a session file: what was reamed, how, and the final cavity.
+
+Group ``/reaming``: attrs ``side``, ``zone`` and ``settings`` (JSON), ``mesh_digest`` (the
+model's mesh: a report of this session needs that mesh), ``behind_frames`` (frames the
+simulation could not keep up with); ``patch_to_model`` (4×4, the bone patch in the pelvis
+model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), ``frame``,
+``force_n``, ``axis`` (F×3, reamer axis D in the patch frame), ``position_m`` (F×3, reamer
+centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
+(F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
+the reamer was not measured); ``events/`` ``time``, ``kind``, ``detail``, ``frame``;
+``final_alpha`` (E, α of every element at the end); ``navigation/`` the composed navigation
+trainer's group (:mod:`thrsim.session.navigation`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+
+import h5py
+import numpy as np
+
+from thrsim.errors import ThrsimInputError
+from thrsim.session.navigation import NavigationRecord, read_navigation, write_navigation
+
+_TEXT = h5py.string_dtype()
+_TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
+
+
+@dataclass
+class ReamingRecord:
+    side: str
+    zone: dict
+    mesh_digest: str
+    patch_to_model: np.ndarray
+    time: np.ndarray
+    frame: np.ndarray
+    force_n: np.ndarray
+    axis: np.ndarray
+    position_m: np.ndarray
+    removed: np.ndarray
+    removed_volume_mm3: np.ndarray
+    depth_mm: np.ndarray
+    angles: np.ndarray
+    events: list[dict]
+    final_alpha: np.ndarray
+    behind_frames: int
+    navigation: NavigationRecord
+
+
+def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> None:
+    group.attrs.update(
+        side=record.side,
+        zone=json.dumps(record.zone),
+        settings=json.dumps(settings),
+        mesh_digest=record.mesh_digest,
+        behind_frames=int(record.behind_frames),
+    )
+    group.create_dataset("patch_to_model", data=np.asarray(record.patch_to_model, dtype=float))
+    trace = group.create_group("trace")
+    for name in _TRACE:
+        trace.create_dataset(name, data=getattr(record, name))
+    events = group.create_group("events")
+    events.create_dataset("time", data=np.array([e["time_s"] for e in record.events], dtype=float))
+    events.create_dataset("frame", data=np.array([e["frame"] for e in record.events], dtype=np.int64))
+    for key in ("kind", "detail"):
+        events.create_dataset(key, data=np.array([e[key] for e in record.events], dtype=object).astype(_TEXT))
+    group.create_dataset("final_alpha", data=np.asarray(record.final_alpha, dtype=np.float32), compression="gzip")
+    write_navigation(group.create_group("navigation"), record.navigation, settings)
+
+
+def read_reaming(group: dict) -> ReamingRecord:
+    """The reaming group as read by :func:`thrsim.session.read_session` (nested dicts)."""
+    try:
+        attrs, trace, events = group["attrs"], group["trace"], group["events"]
+        return ReamingRecord(
+            side=str(attrs["side"]),
+            zone=json.loads(attrs["zone"]),
+            mesh_digest=str(attrs["mesh_digest"]),
+            patch_to_model=np.asarray(group["patch_to_model"], dtype=float).reshape(4, 4),
+            **{name: np.asarray(trace[name]) for name in _TRACE},
+            events=[
+                {"time_s": float(t), "kind": str(k), "detail": str(d), "frame": int(f)}
+                for t, k, d, f in zip(events["time"], events["kind"], events["detail"], events["frame"])
+            ],
+            final_alpha=np.asarray(group["final_alpha"], dtype=np.float32),
+            behind_frames=int(attrs["behind_frames"]),
+            navigation=read_navigation(group["navigation"]),
+        )
+    except (KeyError, TypeError, ValueError) as error:
+        raise ThrsimInputError(f"session file's reaming group is incomplete or garbled ({error})") from None

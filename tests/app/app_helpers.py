@@ -90,6 +90,13 @@ def reamer_to_reference(trainer_side_targets: dict, inclination_deg: float, ante
     return pose
 
 
+def send_force(port: int, newton: float, device: str = "ForceSensor", timeout: float = 5.0) -> igtl.Message:
+    """Send one SENSOR message of a push force (N) and return the reply."""
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as sock:
+        sock.sendall(igtl.encode_message(igtl.Message("SENSOR", device, igtl.pack_sensor([newton]))))
+        return read_message(sock)
+
+
 def send_transform(port: int, device: str, pose_m: np.ndarray, count: int = 1, interval_s: float = 0.0, timeout: float = 5.0) -> igtl.Message:
     """Send TRANSFORM message(s) of a pose in metres (the codec writes mm) and return the last reply."""
     with socket.create_connection(("127.0.0.1", port), timeout=timeout) as sock:
@@ -117,10 +124,13 @@ def read_message(sock: socket.socket) -> igtl.Message:
 
 
 def next_of_type(ws, kind: str, limit: int = 2000, timeout: float = 10.0) -> dict:
-    """The next message of ``kind`` on a websockets sync connection (bounded)."""
+    """The next JSON message of ``kind`` on a websockets sync connection (bounded; binary frames skipped)."""
     deadline = time.monotonic() + timeout
     for _ in range(limit):
-        message = json.loads(ws.recv(timeout=max(0.01, deadline - time.monotonic())))
+        raw = ws.recv(timeout=max(0.01, deadline - time.monotonic()))
+        if isinstance(raw, bytes):
+            continue
+        message = json.loads(raw)
         if message["type"] == kind:
             return message
     raise AssertionError(f"no {kind} message in {limit} messages")

@@ -2,6 +2,8 @@
 
 Times given to the trainer are seconds since the session started; inputs are logged before the
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
+The server steps sessions on a worker thread while inputs arrive on its event loop: every entry
+point holds the session's lock, so an input lands between two steps, never inside one.
 """
 
 from __future__ import annotations
@@ -9,6 +11,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import secrets
+import threading
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
@@ -53,6 +56,7 @@ class LiveSession:
         self.origin = clock()
         self.started_utc = dt.datetime.now(dt.UTC)
         self.last_state: dict | None = None
+        self.lock = threading.RLock()
 
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
@@ -60,29 +64,33 @@ class LiveSession:
     def control(self, message: object) -> tuple[object, str]:
         """Validate, log and apply one control; ThrsimInputError (logged first) when refused."""
         control = self.mode.parse_control(message)
-        now = self.elapsed()
-        self.inputs.control(now, control.model_dump())
-        if control.type == "end_session":  # the app's to act on: it saves this session
-            return control, "session ending"
-        return control, self.trainer.apply_control(control, now)
+        with self.lock:
+            now = self.elapsed()
+            self.inputs.control(now, control.model_dump())
+            if control.type == "end_session":  # the app's to act on: it saves this session
+                return control, "session ending"
+            return control, self.trainer.apply_control(control, now)
 
     def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:
-        now = self.elapsed(clock_time)
-        self.inputs.pose(now, device, pose)
-        self.trainer.apply_pose(device, pose, now)
+        with self.lock:
+            now = self.elapsed(clock_time)
+            self.inputs.pose(now, device, pose)
+            self.trainer.apply_pose(device, pose, now)
 
     def force(self, newton: float, clock_time: float) -> None:
-        now = self.elapsed(clock_time)
-        self.inputs.force(now, newton)
-        self.trainer.apply_force(newton, now)
+        with self.lock:
+            now = self.elapsed(clock_time)
+            self.inputs.force(now, newton)
+            self.trainer.apply_force(newton, now)
 
     def tick(self) -> dict:
-        now = self.elapsed()
-        self.inputs.tick(now)
-        state = self.trainer.step(now)
-        state["session"] = {"id": self.id, "elapsed_s": now}
-        self.last_state = state
-        return state
+        with self.lock:
+            now = self.elapsed()
+            self.inputs.tick(now)
+            state = self.trainer.step(now)
+            state["session"] = {"id": self.id, "elapsed_s": now}
+            self.last_state = state
+            return state
 
     def save(self, folder: Path) -> Path:
         ended = dt.datetime.now(dt.UTC)
@@ -95,4 +103,5 @@ class LiveSession:
             "settings": json.dumps({"mode": self.mode.name, **self.settings}),  # as started: a replay starts here
             "versions": json.dumps(versions()),
         }
-        return write_session(folder / f"{self.id}.h5", attrs, self.inputs, {self.mode.name: self.trainer.write})
+        with self.lock:
+            return write_session(folder / f"{self.id}.h5", attrs, self.inputs, {self.mode.name: self.trainer.write})

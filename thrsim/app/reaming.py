@@ -116,6 +116,11 @@ class ReamingTrainer:
         self._reamer_position: np.ndarray | None = None  # patch frame, m
         if self.simulator is not None:
             self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
+        self._publish()
+
+    def _publish(self) -> None:
+        """Replace (never mutate) the levels viewers read: a sender holding the old array stays consistent."""
+        self.levels = self.display_levels()
 
     @property
     def side(self) -> str:
@@ -195,6 +200,7 @@ class ReamingTrainer:
         self._history.clear()
         self._history.append(back)
         self.running = False
+        self._publish()
         self._event(time_s, "undo", f"{undone} frames")
         return f"undid {undone} frames"
 
@@ -221,6 +227,8 @@ class ReamingTrainer:
             else:
                 for _ in range(min(due, self.max_frames_per_tick)):
                     self._step_frame(time_s, axis, force, nav_state)
+                if due > 0:
+                    self._publish()
                 if due > self.max_frames_per_tick:
                     self.behind_frames += due - self.max_frames_per_tick
                     self.running_s = self.frames_run / FRAME_RATE_HZ  # do not burst to catch up

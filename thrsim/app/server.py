@@ -1,8 +1,11 @@
 """The trainer's web app: pages, a WebSocket per mode, the OpenIGTLink listener, the ticker.
 
 One process serves everything. Every ``1/tick_hz`` s the ticker steps each mode's live session
-and hands the state to each viewer's sender; a viewer's queue holds only the newest state, so a
-slow viewer skips frames instead of slowing the others or growing memory. Tracker poses reach
+on a worker thread (a reaming frame costs tens of milliseconds; the event loop keeps serving
+meanwhile) and hands the state to each viewer's sender; a viewer's queue holds only the newest
+state, so a slow viewer skips frames instead of slowing the others or growing memory. The
+reaming mode's bone goes to each viewer as binary frames of what changed since what that viewer
+last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach
 the live sessions through the OpenIGTLink server's session object (its public ``session=``
 hook). A session ends when a viewer asks (or the server stops): it is written atomically to
 ``sessions_dir`` and a fresh one starts at once.
@@ -29,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
 
+import numpy as np
 from fastapi import FastAPI, HTTPException, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -67,6 +71,7 @@ class ServeSettings:
     seed: int | None = None  # None: a fresh one per session
     tick_hz: float = 60.0
     igtl: bool = True
+    model: Path | None = None  # the reaming mode's model folder (None: the shipped model)
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -77,6 +82,8 @@ class ServeSettings:
             raise ThrsimInputError(f"--side must be right or left, got {self.side!r}")
         if not self.sessions_dir.is_dir():
             raise ThrsimInputError(f"sessions folder {self.sessions_dir} does not exist")
+        if self.model is not None and not self.model.is_dir():
+            raise ThrsimInputError(f"--model {self.model}: no such model folder")
 
 
 class _TokenGate:
@@ -138,6 +145,8 @@ class _Viewer:
     socket: WebSocket
     queue: asyncio.Queue = field(default_factory=lambda: asyncio.Queue(maxsize=1))
     sent: int = 0
+    levels_sent: np.ndarray | None = None  # the bone as this viewer last received it (reaming)
+    bone_bytes: int = 0
 
     def offer(self, text: str) -> None:
         if self.queue.full():
@@ -159,7 +168,10 @@ class TrainerHub:
 
     def _start(self, mode: Mode) -> LiveSession:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
-        return LiveSession(mode, {"side": self.settings.side, "seed": seed}, self.clock)
+        settings = {"side": self.settings.side, "seed": seed}
+        if self.settings.model is not None:
+            settings["model"] = str(self.settings.model)
+        return LiveSession(mode, settings, self.clock)
 
     def on_pose(self, device: str, pose, clock_time: float) -> None:
         for session in self.sessions.values():
@@ -175,18 +187,24 @@ class TrainerHub:
             except ThrsimInputError as error:
                 log.warning("force reading refused: %s", error)
 
-    def tick(self) -> None:
+    def tick(self) -> dict[str, str]:
+        """Step every mode's session (on the ticker's worker thread); the state texts to publish."""
         self.ticks += 1
-        for name, session in self.sessions.items():
+        texts = {}
+        for name, session in list(self.sessions.items()):
             try:
                 state = session.tick()
-                text = json.dumps(state, allow_nan=False) if self.viewers[name] else ""
+                if self.viewers[name]:
+                    texts[name] = json.dumps(state, allow_nan=False)
             except Exception:  # a trainer bug must not stop the other modes or lose the session
                 log.exception("%s step failed", name)
-                continue
-            if text:
-                for viewer in self.viewers[name]:
-                    viewer.offer(text)
+        return texts
+
+    def publish(self, texts: dict[str, str]) -> None:
+        """Hand the states to the viewers' senders (on the event loop)."""
+        for name, text in texts.items():
+            for viewer in self.viewers[name]:
+                viewer.offer(text)
 
     def end(self, name: str) -> Path:
         """Save the mode's session and start a fresh one."""
@@ -225,7 +243,7 @@ async def _ticker(hub: TrainerHub, period: float) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time()
     while True:
-        hub.tick()
+        hub.publish(await asyncio.to_thread(hub.tick))
         deadline += period
         delay = deadline - loop.time()
         if delay < -period:
@@ -293,6 +311,19 @@ def create_app(settings: ServeSettings) -> FastAPI:
     def modes() -> dict:
         return {"modes": [{"name": m.name, "path": m.path, "title": m.title} for m in MODES.values()]}
 
+    mesh_bytes: dict[str, bytes] = {}
+
+    @app.get("/api/reaming/mesh")
+    def reaming_mesh() -> Response:
+        simulator = getattr(hub.sessions["reaming"].trainer, "simulator", None)
+        if simulator is None:
+            raise HTTPException(404, hub.sessions["reaming"].trainer.unavailable or "no reaming model")
+        if simulator.model.graph.digest not in mesh_bytes:
+            from thrsim.app.bone_stream import mesh_payload
+
+            mesh_bytes[simulator.model.graph.digest] = mesh_payload(simulator.right_mesh)
+        return Response(mesh_bytes[simulator.model.graph.digest], media_type="application/octet-stream")
+
     @app.get("/api/health")
     def health() -> dict:
         return {"ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "viewers": {k: len(v) for k, v in hub.viewers.items()}}
@@ -331,7 +362,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         await socket.accept()
         viewer = _Viewer(socket)
         hub.viewers[mode_name].add(viewer)
-        sender = asyncio.create_task(_send_states(viewer))
+        sender = asyncio.create_task(_send_states(viewer, hub, mode_name))
         try:
             await socket.send_text(json.dumps(hub.hello(mode_name)))
             while True:
@@ -384,8 +415,19 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
     return [("one", {"type": "ack", "message": ack})]
 
 
-async def _send_states(viewer: _Viewer) -> None:
+async def _send_states(viewer: _Viewer, hub: TrainerHub, mode_name: str) -> None:
+    from thrsim.app.bone_stream import update
+
     with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
         while True:
             await viewer.socket.send_text(await viewer.queue.get())
             viewer.sent += 1
+            trainer = hub.sessions[mode_name].trainer
+            levels = getattr(trainer, "levels", None)
+            if levels is None or len(levels) == 0:
+                continue
+            message = update(trainer.frames_run, viewer.levels_sent, levels)
+            if message is not None:
+                await viewer.socket.send_bytes(message)
+                viewer.levels_sent = levels  # the trainer replaces its array, never mutates it
+                viewer.bone_bytes += len(message)

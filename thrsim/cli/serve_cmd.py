@@ -38,6 +38,7 @@ def serve(
     sessions: Path = typer.Option(Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"),
     side: str = typer.Option("right", "--side", help="operated hip at start: right or left"),
     seed: int | None = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
+    model: Path | None = typer.Option(None, "--model", help="the reaming mode's learned-simulator model (default: the shipped model)", metavar="MODEL_DIR"),
 ) -> None:
     """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
     import uvicorn
@@ -50,7 +51,7 @@ def serve(
         if not sessions.parent.is_dir():
             raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
         sessions.mkdir()
-    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed)
+    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model)
     app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET

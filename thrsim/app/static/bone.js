@@ -1,0 +1,125 @@
+// The acetabular bone patch being reamed: the remaining bone's boundary faces, coloured by α.
+// The mesh arrives once (GET /api/reaming/mesh: nodes in mm in the patch frame, tets, face
+// neighbours); after that each element is one byte (0 removed, 1..levels α from the removal
+// threshold to 1), kept up to date by the binary keyframes and deltas the server streams
+// (thrsim/app/bone_stream.py). A face is drawn when its tet remains and the tet across it does
+// not (or there is none): the same boundary the offscreen renderer draws.
+import * as THREE from "three";
+
+// Outward faces of a positively oriented tet, opposite vertex 0, 1, 2, 3 (thrsim.geometry.tet_metrics).
+const FACES = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
+
+// viridis at 8 stops, from the removal threshold (dark) to α = 1 (light), as the offscreen renderer.
+const VIRIDIS = [[0.267, 0.005, 0.329], [0.275, 0.194, 0.497], [0.213, 0.359, 0.552], [0.153, 0.498, 0.558],
+  [0.122, 0.632, 0.531], [0.29, 0.758, 0.428], [0.626, 0.854, 0.223], [0.993, 0.906, 0.144]];
+
+function palette(levels) {
+  const colours = [[0, 0, 0]];
+  for (let k = 1; k <= levels; k++) {
+    const x = ((k - 0.5) / levels) * (VIRIDIS.length - 1);
+    const i = Math.min(VIRIDIS.length - 2, Math.floor(x)), t = x - i;
+    colours.push(VIRIDIS[i].map((c, j) => c + t * (VIRIDIS[i + 1][j] - c)));
+  }
+  return colours;
+}
+
+export function parseMesh(buffer) {
+  const view = new DataView(buffer);
+  const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
+  if (magic !== "THRM") throw new Error(`not a thrsim reaming mesh (${magic})`);
+  const nodes = view.getUint32(8, true), tets = view.getUint32(12, true);
+  let offset = 16;
+  const positions = new Float32Array(buffer.slice(offset, offset + nodes * 12)); offset += nodes * 12;
+  const indices = new Uint32Array(buffer.slice(offset, offset + tets * 16)); offset += tets * 16;
+  const neighbours = new Int32Array(buffer.slice(offset, offset + tets * 16));
+  return { nodes, tets, positions, indices, neighbours };
+}
+
+export class BonePatch {
+  constructor(mesh, placementRowMajor, levels) {
+    this.mesh = mesh;
+    this.levels = new Uint8Array(mesh.tets);
+    this.colours = palette(levels);
+    this.frame = -1;
+    this.visibleFaces = 0;
+    const capacity = mesh.tets * 4 * 3;
+    this.positions = new Float32Array(capacity * 3);
+    this.normals = new Float32Array(capacity * 3);
+    this.rgb = new Float32Array(capacity * 3);
+    const geometry = new THREE.BufferGeometry();
+    geometry.setAttribute("position", new THREE.BufferAttribute(this.positions, 3).setUsage(THREE.DynamicDrawUsage));
+    geometry.setAttribute("normal", new THREE.BufferAttribute(this.normals, 3).setUsage(THREE.DynamicDrawUsage));
+    geometry.setAttribute("color", new THREE.BufferAttribute(this.rgb, 3).setUsage(THREE.DynamicDrawUsage));
+    geometry.setDrawRange(0, 0);
+    this.object = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide }));
+    this.object.matrixAutoUpdate = false;
+    // patch frame (mm) → pelvis model frame (m): the server's placement, mirrored for a left hip
+    this.object.matrix.set(...placementRowMajor).multiply(new THREE.Matrix4().makeScale(1e-3, 1e-3, 1e-3));
+    this.object.frustumCulled = false;
+  }
+
+  // Apply one binary frame (keyframe or delta); returns the frame number.
+  apply(buffer) {
+    const view = new DataView(buffer);
+    const kind = String.fromCharCode(view.getUint8(0));
+    const frame = view.getUint32(1, true), count = view.getUint32(5, true);
+    if (kind === "K") {
+      if (count !== this.levels.length) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
+      this.levels.set(new Uint8Array(buffer, 9, count));
+    } else if (kind === "D") {
+      const wide = this.levels.length >= 65536;
+      const ids = wide ? new Uint32Array(buffer.slice(9, 9 + 4 * count)) : new Uint16Array(buffer.slice(9, 9 + 2 * count));
+      const values = new Uint8Array(buffer, 9 + ids.byteLength, count);
+      for (let i = 0; i < count; i++) this.levels[ids[i]] = values[i];
+    } else {
+      throw new Error(`unknown bone frame ${kind}`);
+    }
+    this.frame = frame;
+    this.rebuild();
+    return frame;
+  }
+
+  // Every boundary face of the remaining bone, with its tet's colour and a flat normal.
+  rebuild() {
+    const { positions: nodes, indices, neighbours } = this.mesh;
+    const levels = this.levels, pos = this.positions, nor = this.normals, rgb = this.rgb;
+    let w = 0;
+    for (let tet = 0; tet < levels.length; tet++) {
+      const level = levels[tet];
+      if (level === 0) continue;
+      const colour = this.colours[level];
+      for (let f = 0; f < 4; f++) {
+        const across = neighbours[4 * tet + f];
+        if (across >= 0 && levels[across] !== 0) continue;
+        const face = FACES[f];
+        const a = 3 * indices[4 * tet + face[0]], b = 3 * indices[4 * tet + face[1]], c = 3 * indices[4 * tet + face[2]];
+        const ux = nodes[b] - nodes[a], uy = nodes[b + 1] - nodes[a + 1], uz = nodes[b + 2] - nodes[a + 2];
+        const vx = nodes[c] - nodes[a], vy = nodes[c + 1] - nodes[a + 1], vz = nodes[c + 2] - nodes[a + 2];
+        let nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+        const length = Math.hypot(nx, ny, nz) || 1;
+        nx /= length; ny /= length; nz /= length;
+        for (const node of [a, b, c]) {
+          pos[w] = nodes[node]; pos[w + 1] = nodes[node + 1]; pos[w + 2] = nodes[node + 2];
+          nor[w] = nx; nor[w + 1] = ny; nor[w + 2] = nz;
+          rgb[w] = colour[0]; rgb[w + 1] = colour[1]; rgb[w + 2] = colour[2];
+          w += 3;
+        }
+      }
+    }
+    this.visibleFaces = w / 9;
+    const geometry = this.object.geometry;
+    geometry.setDrawRange(0, w / 3);
+    for (const name of ["position", "normal", "color"]) {
+      const attribute = geometry.attributes[name];
+      attribute.clearUpdateRanges();
+      attribute.addUpdateRange(0, w);
+      attribute.needsUpdate = true;
+    }
+  }
+
+  removedCount() {
+    let n = 0;
+    for (const level of this.levels) if (level === 0) n++;
+    return n;
+  }
+}

@@ -1,0 +1,284 @@
+// The reaming trainer page: connects to /ws/reaming, draws the pelvis, the reamer and the bone
+// as it is removed (binary frames of what changed), and sends the run, force and aim controls.
+// The server owns the session, the simulator and the recording; this page only shows and asks.
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { BonePatch, parseMesh } from "./bone.js";
+import { NavigationScene } from "./scene.js";
+
+const $ = (id) => document.getElementById(id);
+const canvas = $("view");
+const view = new NavigationScene(canvas);
+const orbit = new OrbitControls(view.camera, canvas);
+orbit.enableDamping = false;
+
+// Figures the end-to-end tests and the benchmark read.
+const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false, visibleFaces: 0, removed: 0 };
+let bone = null;
+window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
+
+let socket = null;
+let steer = { inclination_deg: 40, anteversion_deg: 15 };
+let force = 230;
+let running = false;
+let dirty = true;
+let pendingBone = [];
+
+function resize() { view.resize(window.innerWidth, window.innerHeight); dirty = true; }
+window.addEventListener("resize", resize);
+resize();
+
+function toast(text, kind = "") {
+  const item = document.createElement("div");
+  item.className = `toast ${kind}`;
+  item.textContent = text;
+  $("toasts").appendChild(item);
+  setTimeout(() => item.remove(), kind === "error" ? 5000 : 2500);
+}
+
+function send(message) {
+  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
+}
+
+function connect() {
+  const scheme = location.protocol === "https:" ? "wss" : "ws";
+  socket = new WebSocket(`${scheme}://${location.host}/ws/reaming`);
+  socket.binaryType = "arraybuffer";
+  socket.onopen = () => {
+    stats.connected = true;
+    $("connection").textContent = "connected";
+    $("connection").className = "pill ok";
+    sendSteer();
+    send({ type: "force", newton: force });
+  };
+  socket.onclose = () => {
+    stats.connected = false;
+    $("connection").textContent = "disconnected — retrying";
+    $("connection").className = "pill bad";
+    setTimeout(connect, 1000);
+  };
+  socket.onmessage = (event) => {
+    if (event.data instanceof ArrayBuffer) receiveBone(event.data);
+    else receive(JSON.parse(event.data));
+  };
+}
+
+function receiveBone(buffer) {
+  stats.boneBytes += buffer.byteLength;
+  if (!bone) { pendingBone.push(buffer); return; }  // the mesh is still on its way
+  bone.apply(buffer);
+  stats.boneFrames += 1;
+  stats.visibleFaces = bone.visibleFaces;
+  stats.removed = bone.removedCount();
+  dirty = true;
+}
+
+async function loadBone(scene) {
+  const info = scene.reaming;
+  if (!info.available) {
+    $("unavailable").textContent = `Reaming is unavailable: ${info.unavailable}`;
+    $("unavailable").classList.remove("hidden");
+    return;
+  }
+  $("unavailable").classList.add("hidden");
+  const previous = bone;
+  const response = await fetch(info.mesh);
+  if (!response.ok) { toast(`bone mesh: ${response.status}`, "error"); return; }
+  bone = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
+  // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
+  // other hip, a new session) starts from the levels this page already holds.
+  if (previous && previous.levels.length === bone.levels.length) {
+    bone.levels.set(previous.levels);
+    bone.frame = previous.frame;
+    bone.rebuild();
+  }
+  view.content.add(bone.object);
+  for (const buffer of pendingBone.splice(0)) receiveBone(buffer);
+  dirty = true;
+}
+
+function translucentReamer() {
+  // The reamer's head sits in the cavity: seen through, the bone under it stays visible.
+  const reamer = view.tools?.Reamer;
+  if (!reamer) return;
+  reamer.group.traverse((part) => {
+    if (part.isMesh && part !== reamer.ray && part.material.vertexColors) {
+      part.material.transparent = true;
+      part.material.opacity = 0.3;
+      part.material.depthWrite = false;
+    }
+  });
+}
+
+function receive(message) {
+  if (message.type === "state") {
+    stats.states += 1;
+    stats.last = message;
+    view.apply(message);
+    placeReamer(message.reaming);
+    if (!stats.framed && bone) frameView();
+    showState(message);
+    for (const e of message.reaming.events) feedback(e);
+    dirty = true;
+  } else if (message.type === "hello" || message.type === "scene") {
+    if (message.type === "hello") {
+      stats.hello = message;
+      $("session-id").textContent = `session ${message.session}`;
+      $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
+    }
+    view.build(message.scene);
+    translucentReamer();
+    $("side").value = message.scene.side;
+    stats.framed = false;
+    loadBone(message.scene);
+  } else if (message.type === "ack") {
+    stats.acks.push(message.message);
+  } else if (message.type === "error") {
+    stats.errors.push(message.message);
+    toast(message.message, "error");
+  } else if (message.type === "session_saved") {
+    stats.saved = message;
+    const box = $("saved");
+    box.classList.remove("hidden");
+    box.innerHTML = "";
+    const link = document.createElement("a");
+    link.href = message.report;
+    link.target = "_blank";
+    link.id = "report-link";
+    link.textContent = "Open the assessment report";
+    box.append("Session saved: ", link);
+    toast("session saved", "good");
+  }
+}
+
+// The reamer head follows the simulated centre (it advances as bone goes): the tool's pose is the
+// steered or tracked one, moved along its axis to where the simulation has it.
+function placeReamer(reaming) {
+  const reamer = view.tools?.Reamer;
+  if (!reamer || !reaming.reamer_centre || !view.sceneInfo) return;
+  const tip = view.sceneInfo.tool_tips.Reamer;
+  const m = reamer.group.matrix.elements;
+  const headNow = [0, 1, 2].map((i) => m[i] * tip[0] + m[4 + i] * tip[1] + m[8 + i] * tip[2] + m[12 + i]);
+  for (let i = 0; i < 3; i++) m[12 + i] += reaming.reamer_centre[i] - headNow[i];
+}
+
+function feedback(event) {
+  const text = { start: "reaming", pause: "paused", reset: "bone restored", undo: `undone: ${event.detail}`, side_changed: `${event.detail} hip` }[event.kind];
+  if (text) toast(text, event.kind === "start" ? "good" : "");
+}
+
+const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
+
+function setText(id, text) {
+  const element = $(id);
+  if (element.textContent !== text) element.textContent = text;
+}
+let shownTools = "";
+
+function showState(s) {
+  const r = s.reaming;
+  const angles = s.angles ? s.angles[s.definition] : null;
+  const boxClass = `angles ${s.zone ? s.zone.colour : "unknown"}`;
+  if ($("angles").className !== boxClass) $("angles").className = boxClass;
+  setText("inclination", angles ? `${angles[0].toFixed(1)}°` : "—");
+  setText("anteversion", angles ? `${angles[1].toFixed(1)}°` : "—");
+  setText("zone-text", !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`);
+  setText("removed-volume", `${r.removed_volume_mm3.toFixed(1)} mm³ (${r.removed} elements)`);
+  setText("depth", `${r.depth_mm.toFixed(2)} mm`);
+  setText("push", `${r.force_n.toFixed(0)} N (${r.force_source})`);
+  setText("sim-time", `${r.time_s.toFixed(1)} s` + (r.behind_frames ? ` · ${r.behind_frames} frames behind` : ""));
+  setText("step-ms", r.step_ms === null ? "—" : `${r.step_ms.toFixed(1)} ms per frame`);
+  setText("note", r.note || (s.zone ? s.note : ""));
+  running = r.running;
+  setText("run", running ? "Pause reaming" : "Start reaming");
+  const tools = JSON.stringify(Object.entries(s.tools).map(([name, t]) => [name, t.reason, t.tracked]));
+  if (tools !== shownTools) {
+    shownTools = tools;
+    const list = $("tools");
+    list.innerHTML = "";
+    for (const [name, t] of Object.entries(s.tools)) {
+      const li = document.createElement("li");
+      const dot = document.createElement("span");
+      dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
+      li.append(dot, `${name}: ${REASONS[t.reason] ?? t.reason}`);
+      li.dataset.tool = name;
+      list.appendChild(li);
+    }
+  }
+}
+
+function frameView() {
+  stats.framed = true;
+  // Close to the hip, looking into the acetabulum along its opening (the patch's +z, the safe
+  // zone's centre) from a little above: the reamed cavity fills the view.
+  const p = view.sceneInfo.reaming.patch_to_model;
+  const focus = view.focus.clone();
+  view.camera.position.set(focus.x + 0.16 * p[2], focus.y + 0.16 * p[6] + 0.04, focus.z + 0.16 * p[10]);
+  orbit.target.copy(focus);
+  orbit.update();
+}
+
+// ---- controls ---------------------------------------------------------------------------------
+
+function sendSteer() {
+  $("steer-inc").value = steer.inclination_deg;
+  $("steer-ant").value = steer.anteversion_deg;
+  $("steer-inc-value").textContent = `${steer.inclination_deg}°`;
+  $("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
+  send({ type: "reamer", ...steer });
+}
+function sendForce() {
+  $("force").value = force;
+  $("force-value").textContent = `${force} N`;
+  send({ type: "force", newton: force });
+}
+$("steer-inc").addEventListener("input", (e) => { steer.inclination_deg = Number(e.target.value); sendSteer(); });
+$("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number(e.target.value); sendSteer(); });
+$("force").addEventListener("input", (e) => { force = Number(e.target.value); sendForce(); });
+$("run").addEventListener("click", () => send({ type: "run", action: running ? "pause" : "start" }));
+$("undo").addEventListener("click", () => send({ type: "run", action: "undo" }));
+$("reset").addEventListener("click", () => send({ type: "run", action: "reset" }));
+$("end").addEventListener("click", () => send({ type: "end_session" }));
+$("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
+$("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
+$("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
+$("force").value = force;
+$("force-value").textContent = `${force} N`;
+$("steer-inc").value = steer.inclination_deg;
+$("steer-ant").value = steer.anteversion_deg;
+$("steer-inc-value").textContent = `${steer.inclination_deg}°`;
+$("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
+
+const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
+document.addEventListener("keydown", (e) => {
+  if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
+  if (e.target instanceof HTMLSelectElement) return;
+  const step = e.shiftKey ? 5 : 1;
+  const handled = {
+    " ": () => $("run").click(),
+    u: () => $("undo").click(),
+    Backspace: () => $("undo").click(),
+    r: () => $("reset").click(),
+    "+": () => { force = clamp(force + 10, 0, 400); sendForce(); },
+    "=": () => { force = clamp(force + 10, 0, 400); sendForce(); },
+    "-": () => { force = clamp(force - 10, 0, 400); sendForce(); },
+    ArrowUp: () => { steer.inclination_deg = clamp(steer.inclination_deg + step, 0, 90); sendSteer(); },
+    ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
+    ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
+    ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    h: () => $("help").classList.toggle("hidden"),
+  }[e.key.length === 1 ? e.key.toLowerCase() : e.key];
+  if (handled) { e.preventDefault(); handled(); }
+});
+
+// Draw when something changed (a state, a bone frame, the view moved).
+orbit.addEventListener("change", () => { dirty = true; });
+function frame() {
+  if (dirty) {
+    dirty = false;
+    stats.frames += 1;
+    view.render();
+  }
+  requestAnimationFrame(frame);
+}
+requestAnimationFrame(frame);
+connect();

@@ -4,6 +4,7 @@ conftest) so test files import it by a unique name."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -143,3 +144,19 @@ def wait_for(predicate, timeout: float = 10.0, step: float = 0.05) -> bool:
             return True
         time.sleep(step)
     return False
+
+
+def picture(page) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("RGB"), dtype=np.int16)
+
+
+def changed_fraction(before: np.ndarray, after: np.ndarray) -> float:
+    return float(np.mean(np.abs(before - after).sum(axis=2) > 30))
+
+
+def keys(page, key: str) -> None:
+    """A key press as a user makes it, with no control focused (Space must not click a button)."""
+    page.evaluate("document.activeElement && document.activeElement.blur()")
+    page.keyboard.press(key)

@@ -4,13 +4,12 @@ the safe-zone colour, landmark registration through the page's controls, the rep
 
 from __future__ import annotations
 
-import io
 import shutil
 import time
 
 import numpy as np
 import pytest
-from app_helpers import ServedTrainer, reamer_to_reference, send_transform
+from app_helpers import ServedTrainer, changed_fraction, keys, picture, reamer_to_reference, send_transform
 
 from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS
 from thrsim.app.navigation import NavigationTrainer
@@ -44,22 +43,6 @@ def page(served):
         page.problems = problems
         yield page
         browser.close()
-
-
-def picture(page) -> np.ndarray:
-    from PIL import Image
-
-    return np.asarray(Image.open(io.BytesIO(page.locator("#view").screenshot())).convert("RGB"), dtype=np.int16)
-
-
-def changed_fraction(before: np.ndarray, after: np.ndarray) -> float:
-    return float(np.mean(np.abs(before - after).sum(axis=2) > 30))
-
-
-def keys(page, key: str) -> None:
-    """A key press as a user makes it, with no control focused (Space must not click a button)."""
-    page.evaluate("document.activeElement && document.activeElement.blur()")
-    page.keyboard.press(key)
 
 
 def wait_state(page, expression: str, timeout_ms: int = 30_000) -> None:

@@ -1,6 +1,7 @@
 // The reaming trainer page: connects to /ws/reaming, draws the pelvis, the reamer and the bone
 // as it is removed (binary frames of what changed), and sends the run, force and aim controls.
 // The server owns the session, the simulator and the recording; this page only shows and asks.
+import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
 import { NavigationScene } from "./scene.js";
@@ -84,6 +85,8 @@ async function loadBone(scene) {
   const response = await fetch(info.mesh);
   if (!response.ok) { toast(`bone mesh: ${response.status}`, "error"); return; }
   bone = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
+  bone.object.layers.enable(1); // also in the cavity inset
+  view.scene.traverse((object) => { if (object.isLight) object.layers.enable(1); });
   // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
   // other hip, a new session) starts from the levels this page already holds.
   if (previous && previous.levels.length === bone.levels.length) {
@@ -127,6 +130,11 @@ function receive(message) {
     }
     view.build(message.scene);
     translucentReamer();
+    // No registration here: the landmark points would only clutter the rim.
+    view.landmarks.visible = false;
+    view.content.getObjectByName("sockets").visible = false;
+    view.nextLandmark.visible = false;
+    view.pulsing = () => false;
     $("side").value = message.scene.side;
     stats.framed = false;
     loadBone(message.scene);
@@ -208,13 +216,42 @@ function showState(s) {
 
 function frameView() {
   stats.framed = true;
-  // Close to the hip, looking into the acetabulum along its opening (the patch's +z, the safe
-  // zone's centre) from a little above: the reamed cavity fills the view.
+  // The main view: the hip from outside, 35° off the acetabulum's opening (the patch's +z, the
+  // safe zone's centre) toward the feet, the reamer and its ray in view.
   const p = view.sceneInfo.reaming.patch_to_model;
-  const focus = view.focus.clone();
-  view.camera.position.set(focus.x + 0.16 * p[2], focus.y + 0.16 * p[6] + 0.04, focus.z + 0.16 * p[10]);
-  orbit.target.copy(focus);
+  opening.set(p[2], p[6], p[10]).normalize();
+  const aside = new THREE.Vector3().crossVectors(opening, new THREE.Vector3(0, 0, 1)).cross(opening).normalize().negate();
+  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.35);
+  view.camera.position.copy(view.focus).add(eye);
+  orbit.target.copy(view.focus);
   orbit.update();
+  // The inset: the cavity seen along the opening, the bone patch alone (layer 1). The patch lies
+  // in the socket's floor, an inner radius (22 mm) in from the acetabular centre.
+  const floor = view.focus.clone().addScaledVector(opening, -0.022);
+  cavity.position.copy(floor).addScaledVector(opening, 0.06);
+  cavity.up.set(0, 0, 1);
+  cavity.lookAt(floor);
+}
+
+// Close-up of the cavity in the lower right corner: it shows what the reamer hides in the main view.
+const opening = new THREE.Vector3();
+const cavity = new THREE.PerspectiveCamera(18, 1, 0.005, 1);
+cavity.layers.set(1);
+const INSET = 0.36; // of the window's height
+
+function render() {
+  const renderer = view.renderer;
+  const width = window.innerWidth, height = window.innerHeight;
+  renderer.setScissorTest(false);
+  renderer.setViewport(0, 0, width, height);
+  view.render();
+  if (!bone || !stats.framed) return;
+  const size = Math.round(INSET * height);
+  renderer.setScissorTest(true);
+  renderer.setViewport(width - size - 8, 8, size, size);
+  renderer.setScissor(width - size - 8, 8, size, size);
+  renderer.render(view.scene, cavity);
+  renderer.setScissorTest(false);
 }
 
 // ---- controls ---------------------------------------------------------------------------------
@@ -276,7 +313,7 @@ function frame() {
   if (dirty) {
     dirty = false;
     stats.frames += 1;
-    view.render();
+    render();
   }
   requestAnimationFrame(frame);
 }

@@ -99,7 +99,9 @@ function buildPelvis(scene) {
     bone.push(tube([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
   }
   group.add(new THREE.Mesh(merge(bone), BONE));
-  group.add(new THREE.Mesh(merge(cups), new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide })));
+  const sockets = new THREE.Mesh(merge(cups), new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide }));
+  sockets.name = "sockets"; // the reaming page hides them: its bone patch is the operated socket
+  group.add(sockets);
   return group;
 }
 

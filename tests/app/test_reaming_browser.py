@@ -1,0 +1,57 @@
+"""The reaming page in a real headless Chromium (Debian's, driven by Playwright) against a real
+``thrsim serve`` with a (tiny) trained model: the bone is drawn, reaming removes it on screen."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+from app_helpers import ServedTrainer, changed_fraction, keys, picture
+
+from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS
+
+pytestmark = [
+    pytest.mark.skipif(shutil.which(CHROMIUM) is None, reason="Debian chromium is not installed (./install.sh installs it)"),
+    pytest.mark.timeout(240),
+]
+
+
+@pytest.fixture(scope="module")
+def page(tmp_path_factory, tiny_model):
+    from playwright.sync_api import sync_playwright
+
+    served = ServedTrainer(tmp_path_factory.mktemp("sessions"), "--model", str(tiny_model))
+    try:
+        with sync_playwright() as playwright:
+            browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_FLAGS, "--no-first-run"])
+            page = browser.new_page(viewport={"width": 1100, "height": 720})
+            problems: list[str] = []
+            page.on("pageerror", lambda error: problems.append(str(error)))
+            page.goto(served.url + "/reaming", timeout=30_000)
+            page.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.visibleFaces > 0 && trainer.stats.frames > 2", timeout=60_000)
+            page.problems = problems
+            yield page
+            browser.close()
+    finally:
+        served.stop()
+
+
+def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
+    stats = page.evaluate("trainer.stats")
+    assert stats["removed"] == 0 and stats["visibleFaces"] > 50
+    before = picture(page)
+    assert len(np.unique(before.reshape(-1, 3), axis=0)) > 50
+    keys(page, "Space")  # start
+    page.wait_for_function("trainer.stats.removed > 20 && trainer.stats.last.reaming.running", timeout=30_000)
+    keys(page, "Space")  # pause
+    page.wait_for_function("!trainer.stats.last.reaming.running", timeout=10_000)
+    page.wait_for_function("trainer.stats.removed === trainer.stats.last.reaming.removed", timeout=10_000)
+    page.wait_for_timeout(300)
+    after = picture(page)
+    assert changed_fraction(before, after) > 0.002  # the removed bone is gone from the picture
+    figures = page.evaluate("[document.getElementById('removed-volume').textContent, document.getElementById('depth').textContent]")
+    assert not figures[0].startswith("0.0 ") and figures[1] != "0.00 mm"
+    keys(page, "r")  # restore the bone
+    page.wait_for_function("trainer.stats.removed === 0 && trainer.stats.last.reaming.removed === 0", timeout=10_000)
+    assert page.problems == []

@@ -166,3 +166,44 @@ def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tiny_model, t
     assert [e["kind"] for e in record.events] == ["start"] and record.navigation.side == "left"
     outcome = replay_session(path)
     assert outcome.reproduced and outcome.refused_controls == 1
+
+
+def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tiny_model, tmp_path):
+    from thrsim.app.live import LiveSession
+    from thrsim.config import BonePatchConfig
+    from thrsim.geometry.bone_patch import generate_bone_patch
+    from thrsim.report import build_report
+    from thrsim.report.reaming import cavity_map
+    from thrsim.session.reaming import ReamingRecord
+
+    mesh = generate_bone_patch(BonePatchConfig(element_size_mm=0.45))
+    centroids = mesh.centroids
+    radius = np.linalg.norm(centroids, axis=1)
+    outer = np.isin(mesh.tets, mesh.node_sets["outer"]).sum(axis=1) >= 3
+    geometry = {"centroids_m": centroids, "outer": outer, "inner_radius_m": 0.022, "outer_radius_m": 0.024, "teeth_radius_m": 0.0229, "threshold": 0.3}
+
+    def record(removed: np.ndarray) -> ReamingRecord:
+        empty = np.zeros((0, 3))
+        nav = ReamingTrainer().navigation.record()
+        return ReamingRecord("right", {}, "", np.eye(4), np.zeros(0), np.zeros(0, int), np.zeros(0), empty, empty, np.zeros(0, int),
+                             np.zeros(0), np.zeros(0), empty, [], np.where(removed, 0.0, 0.8).astype(np.float32), 0, nav, geometry)
+
+    planned = cavity_map(record(radius < 0.0229))
+    assert planned["fractions"]["on plan"] > 0.9 and planned["fractions"]["perforated"] == 0
+    assert np.nanmedian(planned["depth_mm"]) == pytest.approx(0.9, abs=0.45)
+    shallow = cavity_map(record(radius < 0.0223))
+    assert shallow["fractions"]["under-reamed"] + shallow["fractions"]["not reached"] > 0.9
+    through = cavity_map(record((radius < 0.0229) | (np.linalg.norm(centroids[:, :2], axis=1) < 2e-3)))
+    assert 0 < through["fractions"]["perforated"] < 0.2 and through["fractions"]["on plan"] > 0.6
+
+    now = [0.0]
+    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1, "model": str(tiny_model)}, lambda: now[0])
+    session.control('{"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20}')
+    session.control('{"type": "run", "action": "start"}')
+    for _ in range(30):
+        now[0] += STEP
+        session.tick()
+    report = build_report(session.save(tmp_path))
+    for title in ("Reaming: removal, depth and push", "Reaming: the final cavity", "Reaming: orientation while cutting", "no perforation", "safe zone while cutting"):
+        assert title in report
+    assert report.count("data:image/png;base64,") >= 2

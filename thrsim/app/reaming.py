@@ -31,6 +31,7 @@ from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import SafeZone
 from thrsim.errors import ThrsimInputError
+from thrsim.geometry.mesh import INNER, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot, angles_of
 from thrsim.nav.anatomy import local_axis_from_angles
 from thrsim.nav.session import CUP_AXIS_IN_REAMER
@@ -94,6 +95,7 @@ class ReamingTrainer:
         self.max_frames_per_tick = max_frames_per_tick
         self.undo_frames = max(1, int(round(undo_s * FRAME_RATE_HZ)))
         self.zone = zone
+        self._cavity_geometry: dict | None = None
         self.patch_axes = patch_in_app(zone)
         self.page_force_n = DEFAULT_FORCE_N
         self.sensor_force_n: float | None = None
@@ -339,7 +341,26 @@ class ReamingTrainer:
             final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
             behind_frames=self.behind_frames,
             navigation=self.navigation.record(),
+            cavity={} if sim is None else self._cavity(),
         )
+
+    def _cavity(self) -> dict:
+        """The patch's geometry as the report's depth map reads it (computed once per model)."""
+        if self._cavity_geometry is None:
+            mesh = self.simulator.right_mesh
+            radii = np.linalg.norm(mesh.nodes, axis=1)
+            outer_nodes = np.zeros(mesh.n_nodes, dtype=bool)
+            outer_nodes[mesh.node_sets.get(OUTER, np.flatnonzero(radii >= radii.max() - 1e-9))] = True
+            inner = mesh.node_sets.get(INNER)
+            self._cavity_geometry = {
+                "centroids_m": mesh.centroids,
+                "outer": outer_nodes[mesh.tets].sum(axis=1) >= 3,  # a face on the outer surface
+                "inner_radius_m": float(np.median(radii[inner])) if inner is not None and len(inner) else float(radii.min()),
+                "outer_radius_m": float(np.median(radii[outer_nodes])),
+                "teeth_radius_m": self.simulator.model.teeth_radius_m,
+                "threshold": self.simulator.model.threshold,
+            }
+        return self._cavity_geometry
 
     def write(self, group) -> None:
         write_reaming(group, self.record(), self.settings())

@@ -1,7 +1,7 @@
 """Assessment report of a recorded trainer session: one self-contained HTML page.
 
-Sections come from :data:`thrsim.report.document.SECTIONS`, one provider per mode group of the
-session file (navigation now; reaming adds its provider when its mode exists), each with its
+Sections come from the providers in :mod:`thrsim.report.document`, one per mode group of the
+session file (:mod:`thrsim.report.navigation`, :mod:`thrsim.report.reaming`), each with its
 plots and its scoring criteria; the summary adds up every section's criteria.
 """
 

@@ -58,8 +58,9 @@ def table(header: list[str], rows: list[list[object]]) -> str:
 
 def _providers() -> list[SectionProvider]:
     from thrsim.report.navigation import navigation_sections
+    from thrsim.report.reaming import reaming_sections
 
-    return [navigation_sections]
+    return [navigation_sections, reaming_sections]
 
 
 _STYLE = """

@@ -8,8 +8,11 @@ model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), `
 centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
 (F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
 the reamer was not measured); ``events/`` ``time``, ``kind``, ``detail``, ``frame``;
-``final_alpha`` (E, α of every element at the end); ``navigation/`` the composed navigation
-trainer's group (:mod:`thrsim.session.navigation`).
+``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
+needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
+face on the bone's outer surface), attrs ``inner_radius_m``, ``outer_radius_m`` (the shell),
+``teeth_radius_m`` (the reamer), ``threshold`` (α below it is removed); ``navigation/`` the
+composed navigation trainer's group (:mod:`thrsim.session.navigation`).
 """
 
 from __future__ import annotations
@@ -46,6 +49,7 @@ class ReamingRecord:
     final_alpha: np.ndarray
     behind_frames: int
     navigation: NavigationRecord
+    cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold (empty without a model)
 
 
 def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> None:
@@ -66,6 +70,11 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     for key in ("kind", "detail"):
         events.create_dataset(key, data=np.array([e[key] for e in record.events], dtype=object).astype(_TEXT))
     group.create_dataset("final_alpha", data=np.asarray(record.final_alpha, dtype=np.float32), compression="gzip")
+    cavity = group.create_group("cavity")
+    if record.cavity:
+        cavity.create_dataset("centroids_m", data=np.asarray(record.cavity["centroids_m"], dtype=np.float32), compression="gzip")
+        cavity.create_dataset("outer", data=np.asarray(record.cavity["outer"], dtype=bool), compression="gzip")
+        cavity.attrs.update({k: float(record.cavity[k]) for k in ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")})
     write_navigation(group.create_group("navigation"), record.navigation, settings)
 
 
@@ -86,6 +95,11 @@ def read_reaming(group: dict) -> ReamingRecord:
             final_alpha=np.asarray(group["final_alpha"], dtype=np.float32),
             behind_frames=int(attrs["behind_frames"]),
             navigation=read_navigation(group["navigation"]),
+            cavity={} if "centroids_m" not in group["cavity"] else {
+                "centroids_m": np.asarray(group["cavity"]["centroids_m"], dtype=float),
+                "outer": np.asarray(group["cavity"]["outer"], dtype=bool),
+                **{k: float(group["cavity"]["attrs"][k]) for k in ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")},
+            },
         )
     except (KeyError, TypeError, ValueError) as error:
         raise ThrsimInputError(f"session file's reaming group is incomplete or garbled ({error})") from None

@@ -43,7 +43,7 @@ _PAGE_INFO = """() => {
 }"""
 
 
-def _chromium_cpu_seconds() -> float | None:
+def chromium_cpu_seconds() -> float | None:
     """CPU seconds (user + system) used so far by this process's Chromium descendants (Linux)."""
     proc = Path("/proc")
     if not (proc / "self" / "stat").exists():
@@ -72,11 +72,12 @@ def _chromium_cpu_seconds() -> float | None:
     return ticks / os.sysconf("SC_CLK_TCK")
 
 
-def _serve(sessions: Path) -> tuple[subprocess.Popen, str]:
+def serve_child(sessions: Path, *extra: str) -> tuple[subprocess.Popen, str]:
+    """``thrsim serve`` of this code in a child process on free ports; (process, page URL)."""
     code_root = str(Path(thrsim.__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in [code_root, os.environ.get("PYTHONPATH", "")] if p), "PYTHONUNBUFFERED": "1"}
     process = subprocess.Popen(
-        [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7"],
+        [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7", *extra],
         stdout=subprocess.PIPE,
         stderr=subprocess.DEVNULL,
         text=True,
@@ -94,12 +95,12 @@ def _serve(sessions: Path) -> tuple[subprocess.Popen, str]:
 
     threading.Thread(target=read, daemon=True).start()
     if not announced.wait(60):
-        _stop(process)
+        stop_child(process)
         raise RuntimeError("thrsim serve did not start within 60 s")
     return process, found[0]
 
 
-def _stop(process: subprocess.Popen) -> None:
+def stop_child(process: subprocess.Popen) -> None:
     if process.poll() is None:
         process.send_signal(signal.SIGTERM)
         try:
@@ -109,17 +110,24 @@ def _stop(process: subprocess.Popen) -> None:
             process.wait(5)
 
 
+def check_browser(chromium: str = CHROMIUM) -> None:
+    """Playwright and Chromium are there, or a one-line error saying how to get them."""
+    try:
+        import playwright.sync_api  # noqa: F401
+    except ImportError:
+        raise ThrsimInputError("page benchmarks need Playwright for Python (pip install playwright; ./install.sh installs it)") from None
+    if not Path(chromium).exists():
+        raise ThrsimInputError(f"page benchmarks need Chromium at {chromium} (./install.sh installs Debian's)")
+
+
 def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
     """Frames per second the trainer page draws with its reamer moving every frame."""
-    try:
-        from playwright.sync_api import sync_playwright
-    except ImportError:
-        raise ThrsimInputError("--browser needs Playwright for Python (pip install playwright; ./install.sh installs it)") from None
-    if not Path(chromium).exists():
-        raise ThrsimInputError(f"--browser needs Chromium at {chromium} (./install.sh installs Debian's)")
+    from playwright.sync_api import sync_playwright
+
+    check_browser(chromium)
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:
-        process, url = _serve(Path(folder))
+        process, url = serve_child(Path(folder))
         try:
             with sync_playwright() as playwright:
                 browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
@@ -128,17 +136,17 @@ def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, ch
                     page.goto(url + "/?continuous=1", timeout=60_000)
                     page.wait_for_function("window.trainer && trainer.stats.states > 10 && trainer.stats.frames > 10", timeout=60_000)
                     page.wait_for_timeout(2000)  # warm-up: shaders compiled, caches filled
-                    cpu_first = _chromium_cpu_seconds()
+                    cpu_first = chromium_cpu_seconds()
                     first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
                     page.wait_for_timeout(seconds * 1000)
                     last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
-                    cpu_last = _chromium_cpu_seconds()
+                    cpu_last = chromium_cpu_seconds()
                     info = page.evaluate(_PAGE_INFO)
                     chromium_version = browser.version
                 finally:
                     browser.close()
         finally:
-            _stop(process)
+            stop_child(process)
     elapsed = (last[0] - first[0]) / 1000
     frames = last[1] - first[1]
     cpu_ms = None if cpu_first is None or not frames else 1e3 * (cpu_last - cpu_first) / frames

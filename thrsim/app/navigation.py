@@ -222,14 +222,18 @@ class NavigationTrainer:
         centre = field_centre + _OCCLUDER_STANDOFF_M * (camera - field_centre) / np.linalg.norm(camera - field_centre)
         return [Box(centre - _OCCLUDER_HALF_SIZE, centre + _OCCLUDER_HALF_SIZE)]
 
-    def _set_page_reamer(self, time_s: float) -> None:
-        axis_model = self.true_app_model.to_world(
-            local_axis_from_angles(self._reamer_angles["inclination_deg"], self._reamer_angles["anteversion_deg"])
-        )
+    def reamer_pose(self, inclination_deg: float, anteversion_deg: float) -> np.ndarray:
+        """T_reference←reamer of a reamer in the acetabulum at radiographic angles in the true APP
+        (what a tracker would send as ``ReamerToReference``)."""
+        axis_model = self.true_app_model.to_world(local_axis_from_angles(inclination_deg, anteversion_deg))
         head = self.acetabulum_model  # the reamer sits in the acetabulum
         rotation = _frame_with_z(axis_model, np.array([0.0, 0.0, 1.0]))
         origin = head - rotation @ REAMER.tip  # the head centre is the tool's tip
-        self.tools["Reamer"] = _ToolPose(self.model_to_reference @ make_pose(rotation, origin), "page", time_s)
+        return self.model_to_reference @ make_pose(rotation, origin)
+
+    def _set_page_reamer(self, time_s: float) -> None:
+        pose = self.reamer_pose(self._reamer_angles["inclination_deg"], self._reamer_angles["anteversion_deg"])
+        self.tools["Reamer"] = _ToolPose(pose, "page", time_s)
 
     def _set_page_probe(self, landmark: str, time_s: float) -> None:
         tip = self.targets[landmark] + self._probe_offset

@@ -19,11 +19,12 @@ def bench(
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
     browser_seconds: float = typer.Option(10.0, "--browser-seconds", min=1.0, help="how long to count the page's frames", metavar="S"),
+    reaming_page: bool = typer.Option(False, "--reaming-page", help="also time the reaming page (simulator frames delivered, bytes per frame, pose-to-page latency, drawing) with --model or the shipped model"),
 ) -> None:
-    """Time mesh generation and the explicit solver (and the trainer page's drawing); print one JSON object."""
+    """Time mesh generation and the explicit solver (and the trainer pages); print one JSON object."""
     if browser_only:
         if learned:
-            raise ThrsimInputError("--browser-only times only the page: drop --learned")
+            raise ThrsimInputError("--browser-only times only the pages: drop --learned")
         import os
         import platform
 
@@ -31,7 +32,10 @@ def bench(
         from thrsim.app.live import versions
 
         machine = {"cpu_count": os.cpu_count(), "platform": platform.platform()}
-        print_json({"machine": machine, "versions": versions(), "browser": time_drawing(browser_seconds)})
+        result = {"machine": machine, "versions": versions(), "browser": time_drawing(browser_seconds)}
+        if reaming_page:
+            result["reaming_page"] = _reaming_page(model, browser_seconds)
+        print_json(result)
         return
     from thrsim.bench import run_benchmarks  # Numba and gmsh: loaded only when benchmarking
 
@@ -49,4 +53,14 @@ def bench(
         torch.set_num_threads(1)
         loaded = load_model(model) if model is not None else None
         result["learned"] = run_learned_benchmarks(loaded, solver_seconds_per_frame=result["solver"]["seconds_per_frame"])
+    if reaming_page:
+        result["reaming_page"] = _reaming_page(model, browser_seconds)
     print_json(result)
+
+
+def _reaming_page(model: Path | None, seconds: float) -> dict:
+    from thrsim.app.reaming_bench import time_reaming_page
+    from thrsim.learn.model_dir import load_model
+
+    load_model(model)  # a missing or wrong model is refused here, in one line, before any browser starts
+    return time_reaming_page(model, seconds)

@@ -14,6 +14,9 @@ orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
 const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false, visibleFaces: 0, removed: 0 };
+// Latency probe (`thrsim bench --reaming-page`): when the measured inclination changes, when that
+// state arrived and when it was first drawn (performance.now(), ms).
+stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 let bone = null;
 window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
 
@@ -116,6 +119,8 @@ function receive(message) {
   if (message.type === "state") {
     stats.states += 1;
     stats.last = message;
+    const inclination = message.angles ? message.angles.radiographic[0] : null;
+    if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);
     placeReamer(message.reaming);
     if (!stats.framed && bone) frameView();
@@ -314,6 +319,7 @@ function frame() {
     dirty = false;
     stats.frames += 1;
     render();
+    if (stats.probe.arrived && !stats.probe.drawn) stats.probe.drawn = performance.now();
   }
   requestAnimationFrame(frame);
 }

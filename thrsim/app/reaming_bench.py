@@ -1,0 +1,147 @@
+"""The reaming page under load (``thrsim bench --reaming-page``): what a trainee's browser gets.
+
+A real ``thrsim serve`` child with the model, Debian's headless Chromium on ``/reaming`` (the
+flags and helpers of :mod:`thrsim.app.drawing_bench`), and a tracker streaming the reamer's pose
+over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee reams. Reported:
+
+* simulator frames per second delivered to the page (the state's frame counter over the window),
+  the bone's binary frames received and their mean size against sending every element's α as
+  float32 (the whole array), states per second;
+* frames drawn per second (the page draws whenever a state or a bone frame arrived) and
+  Chromium's CPU per drawn frame;
+* latency from an OpenIGTLink pose to the page: the reamer is re-aimed by a TRANSFORM message
+  and the page timestamps the state showing the new angle and its first drawing (median, p90).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import statistics
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS, check_browser, chromium_cpu_seconds, serve_child, stop_child
+from thrsim.app.navigation import NavigationTrainer
+from thrsim.io import igtl
+
+_SEED = 7  # serve_child starts the server with --seed 7: the same pelvis placement here
+
+
+class _Tracker:
+    """One OpenIGTLink connection sending ReamerToReference poses (and reading each reply)."""
+
+    def __init__(self, port: int):
+        self.sock = socket.create_connection(("127.0.0.1", port), timeout=10)
+        self.lock = threading.Lock()
+
+    def send(self, pose_m: np.ndarray) -> None:
+        with self.lock:
+            self.sock.sendall(igtl.encode_message(igtl.Message("TRANSFORM", "ReamerToReference", igtl.pack_transform(pose_m))))
+            header = igtl.parse_header(self._exactly(igtl.HEADER_SIZE))
+            self._exactly(header.body_size)
+
+    def _exactly(self, size: int) -> bytes:
+        data = b""
+        while len(data) < size:
+            chunk = self.sock.recv(size - len(data))
+            if not chunk:
+                raise ConnectionError("OpenIGTLink connection closed")
+            data += chunk
+        return data
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
+    from playwright.sync_api import sync_playwright
+
+    check_browser(chromium)
+    aim = NavigationTrainer(side="right", seed=_SEED)
+    poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
+    load_before = os.getloadavg()
+    extra = ("--model", str(model)) if model is not None else ()
+    with tempfile.TemporaryDirectory() as folder:
+        process, url = serve_child(Path(folder), *extra)
+        try:
+            with sync_playwright() as playwright:
+                browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
+                try:
+                    page = browser.new_page(viewport={"width": width, "height": height})
+                    page.goto(url + "/reaming", timeout=60_000)
+                    page.wait_for_function("window.trainer && trainer.stats.hello && trainer.stats.states > 10", timeout=60_000)
+                    if not page.evaluate("trainer.stats.hello.scene.reaming.available"):
+                        raise RuntimeError("reaming unavailable: " + str(page.evaluate("trainer.stats.hello.scene.reaming.unavailable")))
+                    page.wait_for_function("trainer.stats.visibleFaces > 0", timeout=60_000)
+                    igtl_port = int(page.evaluate("trainer.stats.hello.igtl[1]"))
+                    elements = int(page.evaluate("trainer.stats.hello.scene.reaming.elements"))
+                    tracker = _Tracker(igtl_port)
+                    streaming = {"pose": poses[40.0], "on": True}
+
+                    def stream() -> None:
+                        while streaming["on"]:
+                            tracker.send(streaming["pose"])
+                            time.sleep(1 / 60)
+
+                    thread = threading.Thread(target=stream, daemon=True)
+                    thread.start()
+                    page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
+                    page.evaluate("trainer.send({type: 'run', action: 'start'})")
+                    page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
+                    page.wait_for_timeout(1000)
+                    probe = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
+                    cpu_first = chromium_cpu_seconds()
+                    first = page.evaluate(probe)
+                    page.wait_for_timeout(seconds * 1000)
+                    last = page.evaluate(probe)
+                    cpu_last = chromium_cpu_seconds()
+                    reaming = page.evaluate("trainer.stats.last.reaming")
+                    arrived, drawn = [], []
+                    for k in range(latency_trials):
+                        target = 38.0 if k % 2 == 0 else 42.0
+                        sent_at = page.evaluate("performance.now()")
+                        streaming["pose"] = poses[target]
+                        page.wait_for_function(f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000)
+                        timing = page.evaluate("trainer.stats.probe")
+                        arrived.append(timing["arrived"] - sent_at)
+                        drawn.append(timing["drawn"] - sent_at)
+                        page.wait_for_timeout(150)
+                    streaming["on"] = False
+                    thread.join(2)
+                    tracker.close()
+                    chromium_version = browser.version
+                finally:
+                    browser.close()
+        finally:
+            stop_child(process)
+    elapsed = (last[0] - first[0]) / 1000
+    drawn_frames = last[1] - first[1]
+    bone_frames = last[3] - first[3]
+    bytes_per_frame = (last[4] - first[4]) / bone_frames if bone_frames else None
+    return {
+        "what": "the reaming page with a tracker streaming the reamer at 60 Hz while reaming at the safe zone's centre",
+        "simulator_frames_per_s": (last[5] - first[5]) / elapsed,
+        "states_per_s": (last[2] - first[2]) / elapsed,
+        "bone_frames_per_s": bone_frames / elapsed,
+        "bone_bytes_per_frame": bytes_per_frame,
+        "whole_alpha_bytes": 4 * elements,
+        "bone_bytes_fraction_of_whole": None if bytes_per_frame is None else bytes_per_frame / (4 * elements),
+        "fps": drawn_frames / elapsed,
+        "chromium_cpu_ms_per_frame": None if cpu_first is None or not drawn_frames else 1e3 * (cpu_last - cpu_first) / drawn_frames,
+        "pose_to_state_ms": {"median": statistics.median(arrived), "p90": float(np.percentile(arrived, 90))},
+        "pose_to_drawn_ms": {"median": statistics.median(drawn), "p90": float(np.percentile(drawn, 90))},
+        "latency_trials": latency_trials,
+        "step_ms_last": reaming.get("step_ms"),
+        "behind_frames": reaming.get("behind_frames"),
+        "removed_at_end": reaming.get("removed"),
+        "elements": elements,
+        "seconds": elapsed,
+        "viewport": [width, height],
+        "chromium": chromium_version,
+        "load_average_1min": [load_before[0], os.getloadavg()[0]],
+    }

@@ -30,3 +30,19 @@ def checkout_env(base: dict[str, str] | None = None, **extra: str) -> dict[str, 
 def run_thrsim(*args: str, cwd: Path | None = None, timeout: float = 120, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     """``thrsim ARGS`` from this checkout → CompletedProcess with text stdout/stderr."""
     return subprocess.run([*THRSIM, *args], cwd=cwd, capture_output=True, text=True, timeout=timeout, env=checkout_env(env))
+
+
+def run_main(monkeypatch, capsys, *args: str) -> tuple[int, str, str]:
+    """This checkout's ``thrsim.cli.main`` in process (the console script's entry point, same exit
+    codes and one-line errors, without an interpreter start-up): (exit code, stdout, stderr)."""
+    from thrsim.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["thrsim", *args])
+    capsys.readouterr()
+    code = 0
+    try:
+        main()
+    except SystemExit as exit_:
+        code = exit_.code or 0
+    out, err = capsys.readouterr()
+    return code, out, err

@@ -6,15 +6,13 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import h5py
 import pytest
-from checkout_cli import THRSIM, checkout_env
+from checkout_cli import THRSIM, checkout_env, run_main
 
-from thrsim.cli import main
 from thrsim.data.case_file import validate_case
 from thrsim.data.generate import read_manifest
 
@@ -23,31 +21,20 @@ pytestmark = pytest.mark.timeout(120)
 SMALL = ["--inclinations", "0,30", "--anteversions", "0:90:90", "--frames", "3", "--extra-forces", "none", "--solver", "synthetic"]
 
 
-def run_cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["thrsim", *args])
-    code = 0
-    try:
-        main()
-    except SystemExit as exit_:
-        code = exit_.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
 def test_dataset_then_info(tmp_path, monkeypatch, capsys):
     root = tmp_path / "ds"
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--workers", "2", "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--workers", "2", "--json")
     assert code == 0, err
     summary = json.loads(out)
     assert summary["cases"] == 3 and summary["generated"] == 3 and summary["failed"] == 0
     assert summary["frames_generated"] == 9 and summary["frames_per_second"] > 0
     assert any("one physical case" in n for n in summary["notes"])
 
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")
     assert code == 0 and json.loads(out)["skipped"] == 3
 
     png = tmp_path / "alpha.png"
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(root), "--plot", str(png), "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "info", str(root), "--plot", str(png), "--json")
     assert code == 0, err
     info = json.loads(out)
     assert info["cases"] == 3 and info["frames"] == 9
@@ -56,16 +43,16 @@ def test_dataset_then_info(tmp_path, monkeypatch, capsys):
     assert info["peeq_range"][0] == 0.0 and info["von_mises_range_pa"][1] > 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(root))  # rich table
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "info", str(root))  # rich table
     assert code == 0 and "removed fraction" in out
 
     # without --json, every finished case gets its own line: a sweep logged to a file shows progress
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "logged"), *SMALL)
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "logged"), *SMALL)
     assert code == 0, err
     lines = [line for line in err.splitlines() if "tets removed" in line]
     assert len(lines) == 3 and any(line.startswith("g030.0_t090.0_f230N: 3 frames recorded, completed, ") for line in lines)
 
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "plan"), "--dry-run", "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "plan"), "--dry-run", "--json")
     plan = json.loads(out)
     assert plan["cases"] == 60 and not (tmp_path / "plan").exists()
 
@@ -82,7 +69,7 @@ def test_dataset_then_info(tmp_path, monkeypatch, capsys):
 )
 def test_dataset_bad_input(tmp_path, monkeypatch, capsys, args, message):
     base = [a for a in SMALL]
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *base, *args)
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *base, *args)
     assert code == 2 and out == ""
     assert err.startswith("thrsim: error:") and message in err and err.count("\n") == 1
     assert not (tmp_path / "ds").exists()
@@ -98,7 +85,7 @@ def test_dataset_out_that_cannot_be_created_is_refused_by_dry_run_and_run(tmp_pa
     else:
         (tmp_path / "data").write_text("not a folder")
     for extra in (["--dry-run"], []):
-        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", "data/default", *SMALL, *extra)
+        code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", "data/default", *SMALL, *extra)
         assert code == 2 and out == "", (extra, err)
         assert err.startswith("thrsim: error: data/default: cannot create the dataset folder: data is ") and err.count("\n") == 1, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]
@@ -106,8 +93,8 @@ def test_dataset_out_that_cannot_be_created_is_refused_by_dry_run_and_run(tmp_pa
 
 def test_dataset_dry_run_refuses_what_the_run_refuses(tmp_path, monkeypatch, capsys):
     root = tmp_path / "ds"
-    assert run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--frames", "5", "--dry-run")
+    assert run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--frames", "5", "--dry-run")
     assert code == 2 and "different configuration" in err
 
 
@@ -118,7 +105,7 @@ def test_dataset_solver_is_one_of_thrsims_own_and_no_module_is_imported(tmp_path
     monkeypatch.syspath_prepend(str(tmp_path))
     args = [a for a in SMALL if a not in ("--solver", "synthetic")]
     for solver in ("not_thrsim_solver:run", "os:system", "nope"):
-        code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *args, "--solver", solver, *extra)
+        code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *args, "--solver", solver, *extra)
         assert code == 2 and out == "" and err == f"thrsim: error: --solver must be one of fem, synthetic, got {solver!r}\n"
     assert not marker.exists() and not (tmp_path / "ds").exists()
 
@@ -134,7 +121,7 @@ def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypat
     wider = tmp_path / "wider.json"
     wider.write_text(json.dumps({"bone": {"half_angle_deg": 30.0}, "damage": {"displacement_at_failure_m": 3e-4}}))
     root = tmp_path / "ds"
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--config", str(wider), "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--config", str(wider), "--json")
     assert code == 0, err
     for entry in read_manifest(root)["cases"].values():
         with h5py.File(root / entry["file"]) as case:
@@ -142,7 +129,7 @@ def test_dataset_config_sets_every_case_and_names_the_folder(tmp_path, monkeypat
         assert config["bone"]["half_angle_deg"] == 30.0 and config["damage"]["displacement_at_failure_m"] == 3e-4
     # the same folder without the file is another configuration: refused, nothing touched
     before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL)
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL)
     assert code == 2 and "different configuration" in err and "half_angle_deg" in err
     assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
 
@@ -160,21 +147,21 @@ def test_dataset_bad_config(tmp_path, monkeypatch, capsys, content, message):
     config = tmp_path / "case.json"
     if content is not None:
         config.write_text(content)
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *SMALL, "--config", str(config))
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "ds"), *SMALL, "--config", str(config))
     assert code == 2 and out == "" and message in err and err.count("\n") == 1
     assert not (tmp_path / "ds").exists()
 
 
 def test_dataset_refuses_other_configuration_and_missing_out(tmp_path, monkeypatch, capsys):
     root = tmp_path / "ds"
-    assert run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
+    assert run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
     before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL[:-4], "--frames", "5", "--extra-forces", "none", "--solver", "synthetic")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL[:-4], "--frames", "5", "--extra-forces", "none", "--solver", "synthetic")
     assert code == 2 and "different configuration" in err and "frames" in err
     assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", *SMALL)
+    code, out, err = run_main(monkeypatch, capsys, "dataset", *SMALL)
     assert code == 2 and "--out" in err
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "info", str(tmp_path / "nothing"))
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "info", str(tmp_path / "nothing"))
     assert code == 2 and "no such dataset" in err
 
 

@@ -9,6 +9,7 @@ import sys
 import h5py
 import numpy as np
 import pytest
+from checkout_cli import run_main
 
 from thrsim.cli import main
 from thrsim.config import LabelConfig
@@ -20,17 +21,6 @@ from thrsim.learn.cases import load_cases
 pytestmark = pytest.mark.timeout(180)
 
 SWEEP = ["--inclinations", "0,15,30", "--anteversions", "0,45,90", "--frames", "8", "--extra-forces", "none", "--solver", "synthetic", "--element-sizes", "1.0"]
-
-
-def run_cli(monkeypatch, capsys, *args):
-    monkeypatch.setattr(sys, "argv", ["thrsim", *args])
-    code = 0
-    try:
-        main()
-    except SystemExit as exit_:
-        code = exit_.code or 0
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +36,7 @@ def dataset(tmp_path_factory):
 
 def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, capsys):
     pack = tmp_path / "learning.h5"
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
     assert code == 0, err
     summary = json.loads(out)
     assert summary["cases"] == 7 and summary["kept"] == 0 and len(summary["added"]) == 7
@@ -75,35 +65,35 @@ def test_packs_gather_a_sweep_run_in_parts(dataset, tmp_path, monkeypatch, capsy
         manifest["cases"][case_id]["status"] = "pending"
     write_manifest(part, manifest)
     pack = tmp_path / "learning.h5"
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(part), "--out", str(pack), "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(part), "--out", str(pack), "--json")
     assert code == 0 and json.loads(out)["cases"] == 4, err
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack), "--json")
     assert code == 0, err
     summary = json.loads(out)
     assert summary["kept"] == 4 and summary["added"] == held_back and summary["cases"] == 7
 
     before = pack.read_bytes()
     other_frames = tmp_path / "other-frames"  # another identity: the frame count is part of it
-    code, _, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(other_frames), *SWEEP[:4], "--frames", "6", *SWEEP[6:], "--json")
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(other_frames), *SWEEP[:4], "--frames", "6", *SWEEP[6:], "--json")
     assert code == 0, err
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(other_frames), "--out", str(pack))
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(other_frames), "--out", str(pack))
     assert code != 0 and "another dataset" in err and err.count("\n") == 1
     other_mesh = tmp_path / "other-mesh"  # per-case element sizes stay out of the identity: the mesh check refuses
-    code, _, err = run_cli(monkeypatch, capsys, "dataset", "--out", str(other_mesh), *SWEEP[:-2], "--element-sizes", "2.0", "--inclinations", "0", "--anteversions", "0", "--json")
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(other_mesh), *SWEEP[:-2], "--element-sizes", "2.0", "--inclinations", "0", "--anteversions", "0", "--json")
     assert code == 0, err
-    code, out, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(other_mesh), "--out", str(pack))
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(other_mesh), "--out", str(pack))
     assert code != 0 and "mesh differs" in err and err.count("\n") == 1
     assert pack.read_bytes() == before  # a refused merge leaves the pack as it was
 
 
 def test_bad_targets_and_sources_get_one_line(dataset, tmp_path, monkeypatch, capsys):
-    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(tmp_path / "nothing"), "--out", str(tmp_path / "p.h5"))
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(tmp_path / "nothing"), "--out", str(tmp_path / "p.h5"))
     assert code != 0 and "not a thrsim dataset" in err and err.count("\n") == 1
-    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(dataset / "manifest.json"))
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(dataset / "manifest.json"))
     assert code != 0 and "not a learning pack" in err and err.count("\n") == 1
     assert json.loads((dataset / "manifest.json").read_text())["format"] == "thrsim-dataset"
     pack = tmp_path / "p.h5"
-    code, _, err = run_cli(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))
     assert code == 0, err
     with pytest.raises(ThrsimInputError, match="label constants"):
         read_pack(pack, labels=LabelConfig(mu=0.5))

@@ -12,6 +12,7 @@ load, though not independent of it, so both are reported.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import signal
@@ -120,33 +121,40 @@ def check_browser(chromium: str = CHROMIUM) -> None:
         raise ThrsimInputError(f"page benchmarks need Chromium at {chromium} (./install.sh installs Debian's)")
 
 
-def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
-    """Frames per second the trainer page draws with its reamer moving every frame."""
+@contextlib.contextmanager
+def served_page(path: str, width: int, height: int, *serve_args: str, chromium: str = CHROMIUM):
+    """A ``thrsim serve`` child and a headless Chromium page on ``path`` of it: yields (browser, page)."""
     from playwright.sync_api import sync_playwright
 
     check_browser(chromium)
-    load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as folder:
-        process, url = serve_child(Path(folder))
+        process, url = serve_child(Path(folder), *serve_args)
         try:
             with sync_playwright() as playwright:
                 browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
                 try:
                     page = browser.new_page(viewport={"width": width, "height": height})
-                    page.goto(url + "/?continuous=1", timeout=60_000)
-                    page.wait_for_function("window.trainer && trainer.stats.states > 10 && trainer.stats.frames > 10", timeout=60_000)
-                    page.wait_for_timeout(2000)  # warm-up: shaders compiled, caches filled
-                    cpu_first = chromium_cpu_seconds()
-                    first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
-                    page.wait_for_timeout(seconds * 1000)
-                    last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
-                    cpu_last = chromium_cpu_seconds()
-                    info = page.evaluate(_PAGE_INFO)
-                    chromium_version = browser.version
+                    page.goto(url + path, timeout=60_000)
+                    yield browser, page
                 finally:
                     browser.close()
         finally:
             stop_child(process)
+
+
+def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
+    """Frames per second the trainer page draws with its reamer moving every frame."""
+    load_before = os.getloadavg()
+    with served_page("/?continuous=1", width, height, chromium=chromium) as (browser, page):
+        page.wait_for_function("window.trainer && trainer.stats.states > 10 && trainer.stats.frames > 10", timeout=60_000)
+        page.wait_for_timeout(2000)  # warm-up: shaders compiled, caches filled
+        cpu_first = chromium_cpu_seconds()
+        first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        page.wait_for_timeout(seconds * 1000)
+        last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        cpu_last = chromium_cpu_seconds()
+        info = page.evaluate(_PAGE_INFO)
+        chromium_version = browser.version
     elapsed = (last[0] - first[0]) / 1000
     frames = last[1] - first[1]
     cpu_ms = None if cpu_first is None or not frames else 1e3 * (cpu_last - cpu_first) / frames

@@ -18,15 +18,15 @@ from __future__ import annotations
 import os
 import socket
 import statistics
-import tempfile
 import threading
 import time
 from pathlib import Path
 
 import numpy as np
 
-from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS, check_browser, chromium_cpu_seconds, serve_child, stop_child
+from thrsim.app.drawing_bench import CHROMIUM, chromium_cpu_seconds, served_page
 from thrsim.app.navigation import NavigationTrainer
+from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
 
 _SEED = 7  # serve_child starts the server with --seed 7: the same pelvis placement here
@@ -59,66 +59,53 @@ class _Tracker:
 
 
 def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
-    from playwright.sync_api import sync_playwright
-
-    check_browser(chromium)
     aim = NavigationTrainer(side="right", seed=_SEED)
     poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
     load_before = os.getloadavg()
     extra = ("--model", str(model)) if model is not None else ()
-    with tempfile.TemporaryDirectory() as folder:
-        process, url = serve_child(Path(folder), *extra)
+    with served_page("/reaming", width, height, *extra, chromium=chromium) as (browser, page):
+        page.wait_for_function("window.trainer && trainer.stats.hello && trainer.stats.states > 10", timeout=60_000)
+        if not page.evaluate("trainer.stats.hello.scene.reaming.available"):
+            raise ThrsimInputError("reaming unavailable: " + str(page.evaluate("trainer.stats.hello.scene.reaming.unavailable")))
+        page.wait_for_function("trainer.stats.visibleFaces > 0", timeout=60_000)
+        elements = int(page.evaluate("trainer.stats.hello.scene.reaming.elements"))
+        tracker = _Tracker(int(page.evaluate("trainer.stats.hello.igtl[1]")))
+        streaming = {"pose": poses[40.0], "on": True}
+
+        def stream() -> None:
+            while streaming["on"]:
+                tracker.send(streaming["pose"])
+                time.sleep(1 / 60)
+
+        thread = threading.Thread(target=stream, daemon=True)
+        thread.start()
         try:
-            with sync_playwright() as playwright:
-                browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
-                try:
-                    page = browser.new_page(viewport={"width": width, "height": height})
-                    page.goto(url + "/reaming", timeout=60_000)
-                    page.wait_for_function("window.trainer && trainer.stats.hello && trainer.stats.states > 10", timeout=60_000)
-                    if not page.evaluate("trainer.stats.hello.scene.reaming.available"):
-                        raise RuntimeError("reaming unavailable: " + str(page.evaluate("trainer.stats.hello.scene.reaming.unavailable")))
-                    page.wait_for_function("trainer.stats.visibleFaces > 0", timeout=60_000)
-                    igtl_port = int(page.evaluate("trainer.stats.hello.igtl[1]"))
-                    elements = int(page.evaluate("trainer.stats.hello.scene.reaming.elements"))
-                    tracker = _Tracker(igtl_port)
-                    streaming = {"pose": poses[40.0], "on": True}
-
-                    def stream() -> None:
-                        while streaming["on"]:
-                            tracker.send(streaming["pose"])
-                            time.sleep(1 / 60)
-
-                    thread = threading.Thread(target=stream, daemon=True)
-                    thread.start()
-                    page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
-                    page.evaluate("trainer.send({type: 'run', action: 'start'})")
-                    page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
-                    page.wait_for_timeout(1000)
-                    probe = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
-                    cpu_first = chromium_cpu_seconds()
-                    first = page.evaluate(probe)
-                    page.wait_for_timeout(seconds * 1000)
-                    last = page.evaluate(probe)
-                    cpu_last = chromium_cpu_seconds()
-                    reaming = page.evaluate("trainer.stats.last.reaming")
-                    arrived, drawn = [], []
-                    for k in range(latency_trials):
-                        target = 38.0 if k % 2 == 0 else 42.0
-                        sent_at = page.evaluate("performance.now()")
-                        streaming["pose"] = poses[target]
-                        page.wait_for_function(f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000)
-                        timing = page.evaluate("trainer.stats.probe")
-                        arrived.append(timing["arrived"] - sent_at)
-                        drawn.append(timing["drawn"] - sent_at)
-                        page.wait_for_timeout(150)
-                    streaming["on"] = False
-                    thread.join(2)
-                    tracker.close()
-                    chromium_version = browser.version
-                finally:
-                    browser.close()
+            page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
+            page.evaluate("trainer.send({type: 'run', action: 'start'})")
+            page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
+            page.wait_for_timeout(1000)
+            probe = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
+            cpu_first = chromium_cpu_seconds()
+            first = page.evaluate(probe)
+            page.wait_for_timeout(seconds * 1000)
+            last = page.evaluate(probe)
+            cpu_last = chromium_cpu_seconds()
+            reaming = page.evaluate("trainer.stats.last.reaming")
+            arrived, drawn = [], []
+            for k in range(latency_trials):
+                target = 38.0 if k % 2 == 0 else 42.0
+                sent_at = page.evaluate("performance.now()")
+                streaming["pose"] = poses[target]
+                page.wait_for_function(f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000)
+                timing = page.evaluate("trainer.stats.probe")
+                arrived.append(timing["arrived"] - sent_at)
+                drawn.append(timing["drawn"] - sent_at)
+                page.wait_for_timeout(150)
         finally:
-            stop_child(process)
+            streaming["on"] = False
+            thread.join(2)
+            tracker.close()
+        chromium_version = browser.version
     elapsed = (last[0] - first[0]) / 1000
     drawn_frames = last[1] - first[1]
     bone_frames = last[3] - first[3]

@@ -1,9 +1,9 @@
 // The navigation trainer page: connects to /ws/navigation, draws each state, sends controls.
 // The server owns the session (and records it); this page only shows and asks.
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { $, commonMessage, connectMode, setText, showAngles, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
-const $ = (id) => document.getElementById(id);
 const canvas = $("view");
 const view = new NavigationScene(canvas);
 const orbit = new OrbitControls(view.camera, canvas);
@@ -13,7 +13,6 @@ orbit.enableDamping = false;
 const stats = { frames: 0, states: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false };
 window.trainer = { stats, view, send: (message) => send(message) };
 
-let socket = null;
 let state = null;
 let steer = { inclination_deg: 60, anteversion_deg: 10 };
 let camera = { azimuth_deg: 50, elevation_deg: -37, distance_mm: 1600 };
@@ -24,14 +23,6 @@ function resize() {
 }
 window.addEventListener("resize", resize);
 resize();
-
-function toast(text, kind = "") {
-  const item = document.createElement("div");
-  item.className = `toast ${kind}`;
-  item.textContent = text;
-  $("toasts").appendChild(item);
-  setTimeout(() => item.remove(), kind === "error" ? 5000 : 2500);
-}
 
 function beep(frequency, duration = 0.12) {
   if (!$("sound").checked) return;
@@ -47,28 +38,6 @@ function beep(frequency, duration = 0.12) {
   } catch (error) {
     // No audio device (a headless browser): feedback stays visual.
   }
-}
-
-function send(message) {
-  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
-}
-
-function connect() {
-  const scheme = location.protocol === "https:" ? "wss" : "ws";
-  socket = new WebSocket(`${scheme}://${location.host}/ws/navigation`);
-  socket.onopen = () => {
-    stats.connected = true;
-    $("connection").textContent = "connected";
-    $("connection").className = "pill ok";
-    sendViewer();
-  };
-  socket.onclose = () => {
-    stats.connected = false;
-    $("connection").textContent = "disconnected — retrying";
-    $("connection").className = "pill bad";
-    setTimeout(connect, 1000);
-  };
-  socket.onmessage = (event) => receive(JSON.parse(event.data));
 }
 
 function receive(message) {
@@ -91,23 +60,8 @@ function receive(message) {
   } else if (message.type === "scene") {
     view.build(message.scene);
     $("side").value = message.scene.side;
-  } else if (message.type === "ack") {
-    stats.acks.push(message.message);
-  } else if (message.type === "error") {
-    stats.errors.push(message.message);
-    toast(message.message, "error");
-  } else if (message.type === "session_saved") {
-    stats.saved = message;
-    const box = $("saved");
-    box.classList.remove("hidden");
-    box.innerHTML = "";
-    const link = document.createElement("a");
-    link.href = message.report;
-    link.target = "_blank";
-    link.id = "report-link";
-    link.textContent = "Open the assessment report";
-    box.append("Session saved: ", link);
-    toast("session saved", "good");
+  } else {
+    commonMessage(message, stats);
   }
 }
 
@@ -131,30 +85,10 @@ function feedback(event) {
   }
 }
 
-const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
-
-// States arrive at 60 Hz and mostly repeat what is shown: the panels are written only where a
-// value changed, since each write has the browser lay out and repaint them (CPU the drawing needs).
-function setText(id, text) {
-  const element = $(id);
-  if (element.textContent !== text) element.textContent = text;
-}
-let shownTools = "";
-
 function showState(s) {
-  const angles = s.angles ? s.angles[s.definition] : null;
-  const box = $("angles");
-  const boxClass = `angles ${s.zone ? s.zone.colour : "unknown"}`;
-  if (box.className !== boxClass) box.className = boxClass;
-  setText("inclination", angles ? `${angles[0].toFixed(1)}°` : "—");
-  setText("anteversion", angles ? `${angles[1].toFixed(1)}°` : "—");
-  setText("zone-text", !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`);
+  showAngles(s);
   setText("note", s.zone ? s.note : "");
-  const tools = JSON.stringify(Object.entries(s.tools).map(([name, t]) => [name, t.reason, t.tracked, t.angle_deg?.toFixed(0)]));
-  if (tools !== shownTools) {
-    shownTools = tools;
-    showTools(s.tools);
-  }
+  showTools(s.tools);
   const reg = s.registration;
   setText("reg-count", `${reg.acquired.length} / ${reg.total}`);
   const bar = `${(100 * reg.acquired.length) / reg.total}%`;
@@ -175,21 +109,6 @@ function showState(s) {
     }
   }
   if ($("occluder").checked !== s.occluder.present) $("occluder").checked = s.occluder.present;
-}
-
-function showTools(states) {
-  const list = $("tools");
-  list.innerHTML = "";
-  for (const [name, t] of Object.entries(states)) {
-    const li = document.createElement("li");
-    const dot = document.createElement("span");
-    dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
-    li.append(dot, `${name}: ${REASONS[t.reason] ?? t.reason}`);
-    if (t.angle_deg !== null) li.append(` (${t.angle_deg.toFixed(0)}°)`);
-    li.dataset.tool = name;
-    li.dataset.reason = t.reason;
-    list.appendChild(li);
-  }
 }
 
 function frameView() {
@@ -301,4 +220,4 @@ function frame(now) {
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);
-connect();
+const send = connectMode("navigation", stats, { onText: receive, onOpen: () => sendViewer() });

@@ -4,9 +4,9 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
+import { $, commonMessage, connectMode, setText, showAngles, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
-const $ = (id) => document.getElementById(id);
 const canvas = $("view");
 const view = new NavigationScene(canvas);
 const orbit = new OrbitControls(view.camera, canvas);
@@ -20,7 +20,6 @@ stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 let bone = null;
 window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
 
-let socket = null;
 let steer = { inclination_deg: 40, anteversion_deg: 15 };
 let force = 230;
 let running = false;
@@ -30,41 +29,6 @@ let pendingBone = [];
 function resize() { view.resize(window.innerWidth, window.innerHeight); dirty = true; }
 window.addEventListener("resize", resize);
 resize();
-
-function toast(text, kind = "") {
-  const item = document.createElement("div");
-  item.className = `toast ${kind}`;
-  item.textContent = text;
-  $("toasts").appendChild(item);
-  setTimeout(() => item.remove(), kind === "error" ? 5000 : 2500);
-}
-
-function send(message) {
-  if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
-}
-
-function connect() {
-  const scheme = location.protocol === "https:" ? "wss" : "ws";
-  socket = new WebSocket(`${scheme}://${location.host}/ws/reaming`);
-  socket.binaryType = "arraybuffer";
-  socket.onopen = () => {
-    stats.connected = true;
-    $("connection").textContent = "connected";
-    $("connection").className = "pill ok";
-    sendSteer();
-    send({ type: "force", newton: force });
-  };
-  socket.onclose = () => {
-    stats.connected = false;
-    $("connection").textContent = "disconnected — retrying";
-    $("connection").className = "pill bad";
-    setTimeout(connect, 1000);
-  };
-  socket.onmessage = (event) => {
-    if (event.data instanceof ArrayBuffer) receiveBone(event.data);
-    else receive(JSON.parse(event.data));
-  };
-}
 
 function receiveBone(buffer) {
   stats.boneBytes += buffer.byteLength;
@@ -143,23 +107,8 @@ function receive(message) {
     $("side").value = message.scene.side;
     stats.framed = false;
     loadBone(message.scene);
-  } else if (message.type === "ack") {
-    stats.acks.push(message.message);
-  } else if (message.type === "error") {
-    stats.errors.push(message.message);
-    toast(message.message, "error");
-  } else if (message.type === "session_saved") {
-    stats.saved = message;
-    const box = $("saved");
-    box.classList.remove("hidden");
-    box.innerHTML = "";
-    const link = document.createElement("a");
-    link.href = message.report;
-    link.target = "_blank";
-    link.id = "report-link";
-    link.textContent = "Open the assessment report";
-    box.append("Session saved: ", link);
-    toast("session saved", "good");
+  } else {
+    commonMessage(message, stats);
   }
 }
 
@@ -179,22 +128,9 @@ function feedback(event) {
   if (text) toast(text, event.kind === "start" ? "good" : "");
 }
 
-const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
-
-function setText(id, text) {
-  const element = $(id);
-  if (element.textContent !== text) element.textContent = text;
-}
-let shownTools = "";
-
 function showState(s) {
   const r = s.reaming;
-  const angles = s.angles ? s.angles[s.definition] : null;
-  const boxClass = `angles ${s.zone ? s.zone.colour : "unknown"}`;
-  if ($("angles").className !== boxClass) $("angles").className = boxClass;
-  setText("inclination", angles ? `${angles[0].toFixed(1)}°` : "—");
-  setText("anteversion", angles ? `${angles[1].toFixed(1)}°` : "—");
-  setText("zone-text", !s.zone ? s.note : s.zone.inside ? "inside the safe zone" : `${s.zone.distance_deg.toFixed(1)}° outside the safe zone`);
+  showAngles(s);
   setText("removed-volume", `${r.removed_volume_mm3.toFixed(1)} mm³ (${r.removed} elements)`);
   setText("depth", `${r.depth_mm.toFixed(2)} mm`);
   setText("push", `${r.force_n.toFixed(0)} N (${r.force_source})`);
@@ -203,20 +139,7 @@ function showState(s) {
   setText("note", r.note || (s.zone ? s.note : ""));
   running = r.running;
   setText("run", running ? "Pause reaming" : "Start reaming");
-  const tools = JSON.stringify(Object.entries(s.tools).map(([name, t]) => [name, t.reason, t.tracked]));
-  if (tools !== shownTools) {
-    shownTools = tools;
-    const list = $("tools");
-    list.innerHTML = "";
-    for (const [name, t] of Object.entries(s.tools)) {
-      const li = document.createElement("li");
-      const dot = document.createElement("span");
-      dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
-      li.append(dot, `${name}: ${REASONS[t.reason] ?? t.reason}`);
-      li.dataset.tool = name;
-      list.appendChild(li);
-    }
-  }
+  showTools(s.tools);
 }
 
 function frameView() {
@@ -324,4 +247,8 @@ function frame() {
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);
-connect();
+const send = connectMode("reaming", stats, {
+  onText: receive,
+  onBinary: receiveBone,
+  onOpen: () => { sendSteer(); send({ type: "force", newton: force }); },
+});

@@ -166,6 +166,12 @@ def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tiny_model, t
     assert [e["kind"] for e in record.events] == ["start"] and record.navigation.side == "left"
     outcome = replay_session(path)
     assert outcome.reproduced and outcome.refused_controls == 1
+    import h5py
+
+    with h5py.File(path, "r+") as f:  # as if reamed on another mesh
+        f["reaming"].attrs["mesh_digest"] = "0" * 64
+    with pytest.raises(ThrsimInputError, match="reamed on mesh 000000000000"):
+        replay_session(path)
 
 
 def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tiny_model, tmp_path):

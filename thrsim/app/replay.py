@@ -44,6 +44,10 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
     if mode is None:
         raise ThrsimInputError(f"{path}: recorded in mode {settings.get('mode')!r}, which this thrsim does not have")
     trainer = mode.make_trainer(settings)
+    if mode.name not in session.groups:
+        raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
+    recorded = mode.read_record(session.groups[mode.name])
+    _check_same_mesh(path, recorded, trainer)
     refused = 0
     for kind, time_s, payload in session.inputs.replay():
         if kind == "tick":
@@ -66,9 +70,6 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
                 trainer.apply_control(mode.parse_control(payload), time_s)
             except ThrsimInputError:
                 refused += 1  # refused live too: the same input, the same answer
-    if mode.name not in session.groups:
-        raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
-    recorded = mode.read_record(session.groups[mode.name])
     replayed = trainer.record()
     strip = lambda events: [(e["kind"], e.get("landmark") or e.get("detail"), round(e["time_s"], 9)) for e in events]
     same_shape = recorded.angles.shape == replayed.angles.shape
@@ -85,3 +86,15 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
         trace_match=trace_match,
         max_angle_difference_deg=difference,
     )
+
+
+def _check_same_mesh(path, recorded, trainer) -> None:
+    """A reaming session replays only on the mesh it was reamed on (the model's)."""
+    wanted = getattr(recorded, "mesh_digest", "")
+    if not wanted:
+        return
+    model = trainer.settings().get("model")
+    if model is None:
+        raise ThrsimInputError(f"{path}: a reaming session needs its model to replay; none could be loaded ({trainer.unavailable})")
+    if model["mesh_digest"] != wanted:
+        raise ThrsimInputError(f"{path}: reamed on mesh {wanted[:12]}, but the model at {model['path']} has mesh {model['mesh_digest'][:12]}")

@@ -110,6 +110,19 @@ def test_ream_refuses_bad_input_and_writes_nothing(tiny_model, tmp_path, args, m
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 
+def test_ream_defaults_to_the_default_case_and_creates_its_folder(tiny_model, tmp_path):
+    out = tmp_path / "runs" / "first" / "ream"
+    result = run_thrsim("ream", "--frames", "2", "--model", str(tiny_model), "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert (summary["inclination_deg"], summary["anteversion_deg"], summary["force_n"]) == (15.0, 30.0, 230.0)
+    assert (out / "ream.json").is_file()
+    blocked = tmp_path / "a-file"
+    blocked.write_text("")
+    result = run_thrsim("ream", "--frames", "1", "--model", str(tiny_model), "--out", str(blocked / "ream"))
+    assert result.returncode == 2 and "is not a folder" in result.stderr
+
+
 def test_ream_refuses_a_folder_that_is_not_a_model(tmp_path):
     result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--model", str(tmp_path), "--out", str(tmp_path / "ream"))
     assert result.returncode == 2 and "not a thrsim model directory" in result.stderr

@@ -11,9 +11,9 @@ from thrsim.cli.output import print_json, print_table
 
 
 def ream(
-    inclination: float = typer.Option(..., "--inclination", help="reamer inclination γ in degrees [0, 90]", metavar="DEG"),
-    anteversion: float = typer.Option(..., "--anteversion", help="reamer anteversion θ in degrees [0, 360]", metavar="DEG"),
-    out: Path = typer.Option(..., "--out", help="output folder: ream.pvd, bone_*.vtu, reamer_*.vtu, ream.json", metavar="DIR"),
+    inclination: float = typer.Option(15.0, "--inclination", help="reamer inclination γ in degrees [0, 90], from the patch's axis (the default case's)", metavar="DEG"),
+    anteversion: float = typer.Option(30.0, "--anteversion", help="reamer anteversion θ in degrees [0, 360] (the default case's)", metavar="DEG"),
+    out: Path = typer.Option(Path("runs/ream"), "--out", help="output folder (created, with its parents): ream.pvd, bone_*.vtu, reamer_*.vtu, ream.json", metavar="DIR"),
     force: float = typer.Option(230.0, "--force", help="axial push force in N", metavar="N"),
     frames: int = typer.Option(120, "--frames", help="frames at 60 per second", metavar="N"),
     side: str = typer.Option("right", "--side", help="hip side: right or left"),

@@ -31,8 +31,12 @@ def check_out(out: Path) -> None:
     if out.is_dir() and any(out.iterdir()) and not (out / SUMMARY).is_file():
         raise ThrsimInputError(f"{out}: folder is not empty and holds no earlier ream output; choose another --out")
     parent = out.parent if str(out.parent) else Path(".")
-    if not parent.is_dir():
-        raise ThrsimInputError(f"{out}: parent folder {parent} does not exist")
+    if parent.exists() and not parent.is_dir():
+        raise ThrsimInputError(f"{out}: {parent} is not a folder")
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise ThrsimInputError(f"{out}: cannot create folder {parent} ({error.strerror or error})") from None
     if not os.access(parent, os.W_OK):
         raise ThrsimInputError(f"{out}: parent folder {parent} is not writable")
 
@@ -52,9 +56,9 @@ def ream(
         raise ThrsimInputError(f"--inclination must lie in [0, 90] degrees, got {inclination_deg:g}")
     if not (0 <= anteversion_deg <= 360 and np.isfinite(anteversion_deg)):
         raise ThrsimInputError(f"--anteversion must lie in [0, 360] degrees, got {anteversion_deg:g}")
-    check_out(out)
     if png is not None and Path(png).suffix.lower() != ".png":
         raise ThrsimInputError(f"{png}: --png writes a PNG; give a .png name")
+    check_out(out)
     simulator = ReamingSimulator(model_dir)
     simulator.reset(side)
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)

@@ -15,6 +15,8 @@ from typing import ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from thrsim import portable_math as pm
+
 Side = Literal["right", "left"]
 
 
@@ -220,7 +222,7 @@ class Orientation(_Frozen):
     def reamer_axis(self) -> tuple[float, float, float]:
         g = math.radians(self.inclination_deg)
         t = math.radians(self.anteversion_deg)
-        return (math.sin(g) * math.cos(t), math.sin(g) * math.sin(t), -math.cos(g))
+        return (pm.sin(g) * pm.cos(t), pm.sin(g) * pm.sin(t), -pm.cos(g))
 
 
 def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> tuple[float, ...]:

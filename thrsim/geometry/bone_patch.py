@@ -29,6 +29,8 @@ from thrsim.geometry.tet_metrics import signed_volumes
 
 _GMSH_TET = 4  # gmsh element type code of the 4-node tetrahedron
 _SEED = 20406
+#: node coordinates are snapped to multiples of 1/NODE_GRID_PER_MM mm (1 nm)
+NODE_GRID_PER_MM = 1e6
 
 
 def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
@@ -82,7 +84,9 @@ def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
         index_of[used] = np.arange(len(used))
         position = np.empty((int(node_tags.max()) + 1, 3))
         position[np.asarray(node_tags, dtype=np.int64)] = coords
-        nodes_m = position[used] * 1e-3
+        # gmsh's coordinates differ in the last bits between CPUs (its libm is dispatched by CPU
+        # feature); snapping to a 1 nm grid gives every machine the same mesh
+        nodes_m = np.rint(position[used] * NODE_GRID_PER_MM) / (NODE_GRID_PER_MM * 1e3)
         tets = index_of[tet_tags]
 
         node_sets = {}

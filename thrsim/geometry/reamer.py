@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from thrsim.config import ReamerConfig
+from thrsim import portable_math as pm
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
@@ -109,5 +110,5 @@ def frame_rotation(axis: np.ndarray, spin_angle: float = 0.0) -> np.ndarray:
     e1 = helper - d * float((helper * d).sum())
     e1 /= math.sqrt(float((e1 * e1).sum()))
     e2 = np.cross(d, e1)
-    c, s = math.cos(spin_angle), math.sin(spin_angle)
+    c, s = pm.cos(spin_angle), pm.sin(spin_angle)
     return np.stack([c * e1 + s * e2, -s * e1 + c * e2, d], axis=1)

@@ -80,6 +80,7 @@ import numpy as np
 from numba import njit, prange
 
 from thrsim.config import STICK_FRACTION
+from thrsim import portable_math as pm
 
 
 
@@ -142,8 +143,8 @@ def tooth_contact(qx, qy, qz, e1, e2, axis, teeth):
         if abs(across) >= teeth.edge_radius:
             continue
         along = lx * teeth.tooth_cos[k] + ly * teeth.tooth_sin[k]
-        polar = min(max(math.atan2(along, lz), teeth.tooth_start[k]), teeth.tooth_end[k])
-        sin_polar, cos_polar = math.sin(polar), math.cos(polar)
+        polar = min(max(pm.atan2(along, lz), teeth.tooth_start[k]), teeth.tooth_end[k])
+        sin_polar, cos_polar = pm.sin(polar), pm.cos(polar)
         d_along = along - teeth.edge_axis_radius * sin_polar
         d_z = lz - teeth.edge_axis_radius * cos_polar
         # offset from the closest axis point: outward (radial), along the arc (beyond its ends)

@@ -21,8 +21,10 @@ import math
 import numpy as np
 from numba import njit
 
+from thrsim import portable_math as pm
+
 #: smallest plastic increment considered, as ln Δ
-_LOG_FLOOR = math.log(1e-300)
+_LOG_FLOOR = pm.log(1e-300)
 _RETURN_ITERATIONS = 100
 _RETURN_TOLERANCE = 1e-12
 
@@ -30,9 +32,9 @@ _RETURN_TOLERANCE = 1e-12
 @njit(cache=True, inline="always")
 def jc_yield_stress(peeq: float, peeq_rate: float, a: float, b: float, n: float, c: float, rate0: float) -> float:
     """Johnson–Cook flow stress (Pa) at equivalent plastic strain and its rate (1/s)."""
-    hardening = a + b * peeq**n if peeq > 0.0 else a
+    hardening = a + b * pm.pow(peeq, n) if peeq > 0.0 else a
     if peeq_rate > rate0:
-        hardening *= 1.0 + c * math.log(peeq_rate / rate0)
+        hardening *= 1.0 + c * pm.log(peeq_rate / rate0)
     return hardening
 
 
@@ -47,16 +49,16 @@ def jc_radial_return(q_trial: float, peeq: float, dt: float, shear_modulus: floa
     """
     if q_trial <= jc_yield_stress(peeq, 0.0, a, b, n, c, rate0):
         return 0.0
-    z_lo, z_hi = _LOG_FLOOR, math.log(q_trial / (3.0 * shear_modulus))
+    z_lo, z_hi = _LOG_FLOOR, pm.log(q_trial / (3.0 * shear_modulus))
     # start from the elastic-perfectly-plastic estimate, itself an upper bound of the root
     excess = q_trial - jc_yield_stress(peeq, 0.0, a, b, n, c, rate0)
-    z = min(math.log(excess / (3.0 * shear_modulus)), z_hi)
+    z = min(pm.log(excess / (3.0 * shear_modulus)), z_hi)
     for _ in range(_RETURN_ITERATIONS):
-        x = math.exp(z)
+        x = pm.exp(z)
         p = peeq + x
         rate = x / dt
-        rate_factor = 1.0 + c * math.log(rate / rate0) if rate > rate0 else 1.0
-        static = a + b * p**n
+        rate_factor = 1.0 + c * pm.log(rate / rate0) if rate > rate0 else 1.0
+        static = a + b * pm.pow(p, n)
         g = q_trial - 3.0 * shear_modulus * x - static * rate_factor
         if abs(g) <= _RETURN_TOLERANCE * q_trial:
             return x
@@ -65,22 +67,22 @@ def jc_radial_return(q_trial: float, peeq: float, dt: float, shear_modulus: floa
         else:
             z_hi = z
         # dg/dz = −Δ·(3G + ∂σ_y/∂Δ): hardening slope b·n·pⁿ⁻¹ and rate slope static·c/Δ
-        slope = x * (3.0 * shear_modulus + b * n * p ** (n - 1.0) * rate_factor)
+        slope = x * (3.0 * shear_modulus + b * n * pm.pow(p, n - 1.0) * rate_factor)
         if rate > rate0:
             slope += static * c
         newton = z + g / slope
         z = newton if z_lo < newton < z_hi else 0.5 * (z_lo + z_hi)
         if z_hi - z_lo <= _RETURN_TOLERANCE:
             break
-    return math.exp(z)
+    return pm.exp(z)
 
 
 @njit(cache=True, inline="always")
 def jc_fracture_strain(triaxiality: float, peeq_rate: float, d1: float, d2: float, d3: float, d4: float, rate0: float) -> float:
     """ε_f(η, ε̇ᵖ); may be ≤ 0 (then damage initiates at first yield, see module docstring)."""
-    strain = d1 + d2 * math.exp(d3 * triaxiality)
+    strain = d1 + d2 * pm.exp(d3 * triaxiality)
     if peeq_rate > rate0:
-        strain *= 1.0 + d4 * math.log(peeq_rate / rate0)
+        strain *= 1.0 + d4 * pm.log(peeq_rate / rate0)
     return strain
 
 
@@ -104,4 +106,4 @@ def flow_curve(peeq: np.ndarray, peeq_rate: float, a: float, b: float, n: float,
 
 def characteristic_length(volume: np.ndarray) -> np.ndarray:
     """L_e for damage evolution: edge of the regular tet with the element's volume, (6√2·V)^(1/3)."""
-    return np.cbrt(6.0 * np.sqrt(2.0) * np.abs(volume))
+    return pm.cbrt_array(6.0 * math.sqrt(2.0) * np.abs(np.asarray(volume, dtype=np.float64)))

@@ -58,6 +58,7 @@ import numpy as np
 from numba import njit
 
 from thrsim.config import ReamingCaseConfig
+from thrsim import portable_math as pm
 from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import SIDE, TetMesh
@@ -164,7 +165,7 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
     for i in range(3):
         axis[i] = rotation[i, 2]
     for _ in range(steps):
-        spin_cos, spin_sin = math.cos(omega * time), math.sin(omega * time)
+        spin_cos, spin_sin = pm.cos(omega * time), pm.sin(omega * time)
         position, speed = reamer[POSITION], reamer[SPEED]
         for i in range(3):
             centre[i] = position * axis[i]
@@ -222,8 +223,8 @@ class ReamingSimulation:
         self.omega = case.reamer.omega_rad_s
         self.teeth = ReamerTeeth(
             head_radius=self.reamer.head_radius, edge_axis_radius=self.reamer.edge_axis_radius,
-            edge_radius=self.reamer.edge_radius, tooth_cos=np.cos(self.reamer.tooth_azimuth),
-            tooth_sin=np.sin(self.reamer.tooth_azimuth), tooth_start=self.reamer.tooth_polar_start,
+            edge_radius=self.reamer.edge_radius, tooth_cos=pm.cos_array(self.reamer.tooth_azimuth),
+            tooth_sin=pm.sin_array(self.reamer.tooth_azimuth), tooth_start=self.reamer.tooth_polar_start,
             tooth_end=self.reamer.tooth_polar_end,
         )  # fmt: skip
         self.contact_law = ContactLaw(

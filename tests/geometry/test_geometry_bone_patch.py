@@ -14,7 +14,9 @@ from thrsim.geometry.mesh import INNER, OUTER, SIDE
 
 from geometry_helpers import COARSE_MM
 
-TOL_M = 1e-9  # gmsh puts boundary nodes on the exact OpenCASCADE surfaces
+TOL_M = 1e-9  # gmsh puts boundary nodes on the exact OpenCASCADE surfaces, then snapped to a 1 nm grid
+#: the grid moves a node by ≤ √3/2 nm, ≤ 2.3e-6° seen from the centre 22 mm away
+TOL_DEG = 5e-6
 
 
 def polar_from_minus_z_deg(points):
@@ -27,10 +29,10 @@ def test_node_sets_lie_on_their_surfaces(coarse_patch):
     assert set(mesh.node_sets) == {INNER, OUTER, SIDE}
     np.testing.assert_allclose(radius[mesh.node_sets[OUTER]], 24e-3, atol=TOL_M)
     np.testing.assert_allclose(radius[mesh.node_sets[INNER]], 22e-3, atol=TOL_M)
-    np.testing.assert_allclose(polar_from_minus_z_deg(mesh.nodes[mesh.node_sets[SIDE]]), 19.0, atol=1e-6)
+    np.testing.assert_allclose(polar_from_minus_z_deg(mesh.nodes[mesh.node_sets[SIDE]]), 19.0, atol=TOL_DEG)
     # every node inside the shell and the cone; the patch sits around −z
     assert radius.min() >= 22e-3 - TOL_M and radius.max() <= 24e-3 + TOL_M
-    assert polar_from_minus_z_deg(mesh.nodes).max() <= 19.0 + 1e-6
+    assert polar_from_minus_z_deg(mesh.nodes).max() <= 19.0 + TOL_DEG
     assert np.all(mesh.nodes[:, 2] < 0)
     # the pole of both spheres is meshed: surfaces are complete, not just rims
     assert len(mesh.node_sets[INNER]) > 50 and len(mesh.node_sets[OUTER]) > 50

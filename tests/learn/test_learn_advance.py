@@ -1,28 +1,31 @@
-"""The reamer-advance regressor: grid search over four kinds, plain-array export equal to scikit-learn."""
+"""The reamer-advance regressor: grid search over four kinds, plain-array export equal to scikit-learn,
+predictions clipped to the training targets."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
+from safetensors.numpy import load_file, save_file
 
 from thrsim.learn.advance import KINDS, ArrayRegressor, _candidates, export, fit_advance
 
 
 def _data(n=120, seed=0):
     rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.normal(0, 1, (n, 3)), rng.uniform(0, 20, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n)])
-    y = 0.01 * X[:, 3] + 0.002 * X[:, 4] + 0.0005 * X[:, 6] + rng.normal(0, 0.01, n)
+    X = np.column_stack([rng.uniform(0, 3, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n)])
+    y = 0.01 * X[:, 0] + 0.002 * X[:, 1] + 0.0005 * X[:, 3] + rng.normal(0, 0.01, n)
     return X, y
 
 
 @pytest.mark.parametrize("kind", KINDS)
-def test_exported_arrays_predict_like_scikit_learn(kind):
+def test_exported_arrays_predict_like_scikit_learn_after_a_safetensors_round_trip(kind, tmp_path):
     X, y = _data()
     estimator, _ = _candidates(0, trees=20)[kind]
     estimator.fit(X, y)
-    exported = export(kind, estimator)
+    exported = export(kind, estimator, (-np.inf, np.inf))
     assert all(isinstance(v, np.ndarray) and v.dtype != object for v in exported.arrays.values())
-    fresh = ArrayRegressor(kind, {k: v.copy() for k, v in exported.arrays.items()})
+    save_file({k: np.ascontiguousarray(v) for k, v in exported.arrays.items()}, str(tmp_path / "advance.safetensors"))
+    fresh = ArrayRegressor(kind, load_file(str(tmp_path / "advance.safetensors")))
     X_new, _ = _data(40, seed=1)
     expected = estimator.predict(X_new)
     # same leaves / coefficients; only the order of the final sums may differ
@@ -41,6 +44,22 @@ def test_grid_search_tables_every_kind_and_keeps_the_lowest_cross_validated_erro
         assert row["held_out_samples"] == 30 and row["held_out_mae_mm"] >= 0
     # a linear truth: the linear kinds fit it far better than a constant
     assert table["models"]["linear"]["held_out_mse_mm2"] < 0.2 * np.var(held_y)
+
+
+@pytest.mark.parametrize("kind", ("linear", "random_forest"))
+def test_predictions_stay_within_the_advances_seen_in_training(kind):
+    X, y = _data()
+    estimator, _ = _candidates(0, trees=20)[kind]
+    estimator.fit(X, y)
+    regressor = export(kind, estimator, (float(y.min()), float(y.max())))
+    far = X[:5].copy()
+    far[:, 0] = [-1e3, -50, 0, 200, 1e4]  # depths far outside the data
+    predicted = regressor.predict(far)
+    assert (predicted >= y.min()).all() and (predicted <= y.max()).all()
+    # the linear kind would leave the range without the clip: the clip is what holds it
+    if kind == "linear":
+        unclipped = estimator.predict(far)
+        assert unclipped.max() > y.max() and unclipped.min() < y.min()
 
 
 def test_unknown_kind_is_refused():

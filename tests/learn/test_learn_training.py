@@ -69,7 +69,7 @@ def _rollout_alpha(model, cases):
     step = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
     out = []
     for case in cases:
-        masks, centres = rollout(step, case, 0, case.frames - 1, model.threshold, model.advance, model.graph.volumes)
+        masks, centres = rollout(step, case, 0, case.frames - 1, model.threshold, model.advance)
         out.append((np.array(masks), centres))
     return out
 

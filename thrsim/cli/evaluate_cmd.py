@@ -34,12 +34,13 @@ def evaluate(
         raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
     import torch
 
+    from thrsim.data.pack import is_pack
     from thrsim.learn.cases import load_cases
     from thrsim.learn.evaluation import evaluate as run_evaluation
     from thrsim.learn.model_dir import load_model
 
     torch.set_num_threads(threads)
-    splits = None if split == "all" or data.is_file() else (split,)
+    splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
     mesh, cases = load_cases(data, splits=splits)
     loaded = load_model(model, expect_mesh=mesh)
     report = run_evaluation(loaded, cases, start_stride=start_stride, on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"))

@@ -77,7 +77,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         for start, keys, length in windows(case.frames, start_stride):
             initial = truth_removed[start]
             for mode, (step, advance) in steppers.items():
-                masks, _ = rollout(step, case, start, length, threshold, advance, volumes)
+                masks, _ = rollout(step, case, start, length, threshold, advance)
                 for key in keys:
                     k = length if key == "end" else int(key)
                     counts[mode][g][key].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)

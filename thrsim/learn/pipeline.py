@@ -77,7 +77,7 @@ def train_model(
         on_start({"train_cases": len(train), "validation_cases": len(validation), "pairs": len(trainer.samples), "elements": mesh.n_tets, "resumed_at_epoch": trainer.epoch if resumed else None})
     trainer.run(checkpoint, on_epoch, on_batch)
     started = time.perf_counter()
-    advance, advance_table = train_advance(train, held_out, graph.volumes, labels.removed_threshold, settings.train.seed, settings.train.advance_trees)
+    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees)
     advance_seconds = time.perf_counter() - started
     history = trainer.history
     card = {

@@ -71,7 +71,7 @@ class GeometricStep:
         return np.where(inside, np.float32(0.0), alpha).astype(np.float32)
 
 
-def rollout(step, case, start: int, frames: int, threshold: float, advance: ArrayRegressor | None, volumes_m3: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
+def rollout(step, case, start: int, frames: int, threshold: float, advance: ArrayRegressor | None) -> tuple[list[np.ndarray], np.ndarray]:
     """Run ``frames`` steps from the ground truth at ``start``; (removed masks at start+1 … start+frames, centres).
 
     With ``advance`` the reamer moves by the regressor (autonomous); without, it follows the
@@ -79,20 +79,16 @@ def rollout(step, case, start: int, frames: int, threshold: float, advance: Arra
     """
     alpha = case.alpha[start].copy()
     centre = case.positions[start].copy()
-    previous_removed = (case.alpha[start - 1] < threshold) if start > 0 else (alpha < threshold)
-    last_removed_m3 = float(((alpha < threshold) & ~previous_removed) @ volumes_m3)
     masks, centres = [], []
     for k in range(1, frames + 1):
         if advance is None:
             new_centre = case.positions[start + k]
         else:
-            row = feature_row(centre, last_removed_m3, case.inclination_deg, case.anteversion_deg, case.force_n)
+            row = feature_row(float((centre - case.positions[0]) @ case.axis), case.inclination_deg, case.anteversion_deg, case.force_n)
             new_centre = centre + float(advance.predict(row)[0]) * 1e-3 * case.axis
         moved = float((new_centre - centre) @ case.axis)
-        before = alpha < threshold
         alpha = step(alpha, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
         removed = alpha < threshold
-        last_removed_m3 = float((removed & ~before) @ volumes_m3)
         centre = new_centre
         masks.append(removed)
         centres.append(centre)

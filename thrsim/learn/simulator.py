@@ -52,7 +52,6 @@ class SimulatorSnapshot:
     alpha: np.ndarray
     centre: np.ndarray | None
     start: np.ndarray | None
-    last_removed_m3: float
 
 
 def angles_of(axis: np.ndarray) -> tuple[float, float]:
@@ -144,18 +143,17 @@ class ReamingSimulator:
         self.alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
-        self._last_removed_m3 = 0.0
 
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
         copy = lambda v: None if v is None else v.copy()  # noqa: E731
-        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), copy(self._centre), copy(self._start), self._last_removed_m3)
+        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), copy(self._centre), copy(self._start))
 
     def restore(self, snapshot: SimulatorSnapshot) -> None:
         """Go back to a state taken by :meth:`snapshot` (same model)."""
         if snapshot.alpha.shape != self.alpha.shape:
             raise ThrsimInputError(f"snapshot of {snapshot.alpha.size} elements, this model's mesh has {self.alpha.size}")
-        self.side, self.frame, self._last_removed_m3 = snapshot.side, snapshot.frame, snapshot.last_removed_m3
+        self.side, self.frame = snapshot.side, snapshot.frame
         self.alpha = snapshot.alpha.copy()
         self._centre = None if snapshot.centre is None else snapshot.centre.copy()
         self._start = None if snapshot.start is None else snapshot.start.copy()
@@ -194,14 +192,13 @@ class ReamingSimulator:
             if self._centre is None:
                 self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
             gamma, theta = angles_of(axis)
-            row = feature_row(self._centre, self._last_removed_m3, gamma, theta, force)
+            row = feature_row(float((self._centre - self._start) @ axis), gamma, theta, force)
             new_centre = self._centre + float(self.model.advance.predict(row)[0]) * 1e-3 * axis
         advance = float((new_centre - self._centre) @ axis)
         before = self.removed
         self.alpha = self._step(self.alpha, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed
         newly = np.flatnonzero(after & ~before)
-        self._last_removed_m3 = float(self.model.graph.volumes[newly].sum())
         self._centre = new_centre
         self.frame += 1
         return StepResult(

@@ -151,7 +151,7 @@ class Trainer:
         counts = Counts()
         for case in self.validation:
             horizon = min(self.settings.train.validation_horizon, case.frames - 1)
-            masks, _ = rollout(step, case, 0, horizon, self.threshold, None, self.graph.volumes)
+            masks, _ = rollout(step, case, 0, horizon, self.threshold, None)
             start = case.alpha[0] < self.threshold
             counts.add(masks[-1] & ~start, (case.alpha[horizon] < self.threshold) & ~start)
         self.gn.train()
@@ -220,14 +220,14 @@ class Trainer:
         return time.perf_counter() - started
 
 
-def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], volumes_m3: np.ndarray, threshold: float, seed: int, trees: int = 100):
+def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100):
     """Fit the advance regressor on the training cases; the table scores the held-out ones."""
-    parts = [case_samples(c, volumes_m3, threshold) for c in train]
+    parts = [case_samples(c) for c in train]
     X = np.concatenate([p[0] for p in parts])
     y = np.concatenate([p[1] for p in parts])
     groups = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)])
     if held_out:
-        held = [case_samples(c, volumes_m3, threshold) for c in held_out]
+        held = [case_samples(c) for c in held_out]
         held_X, held_y = np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])
     else:
         held_X = held_y = None

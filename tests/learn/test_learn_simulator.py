@@ -11,7 +11,8 @@ import pytest
 from checkout_cli import checkout_env
 from learn_helpers import REPO
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.simulator import ReamingSimulator, angles_of, start_position
+from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, angles_of, start_position
+from thrsim.physics.reaming import tip_exit_depth
 
 AXIS = np.array([np.sin(np.radians(15)) * np.cos(np.radians(30)), np.sin(np.radians(15)) * np.sin(np.radians(30)), -np.cos(np.radians(15))])
 
@@ -138,3 +139,23 @@ def test_only_the_region_near_the_reamer_changes(simulator):
     assert np.array_equal(out[outside], alpha[outside])
     far = step(alpha, centre - 0.05 * AXIS, AXIS, 230.0, 0.0, 136.0)
     assert np.array_equal(far, alpha)
+
+
+def test_a_rollout_ends_where_the_solver_ends_its_cases(simulator):
+    mesh = simulator.model.mesh
+    teeth = simulator.model.teeth_radius_m
+    pole = np.array([0.0, 0.0, -1.0])
+    exit_depth = tip_exit_depth(mesh, pole)
+    assert exit_depth is not None  # the patch lies under the pole
+    simulator.reset("right")
+    short = simulator.step(pole, 230.0, reamer_position=(exit_depth - teeth - 1e-4) * pole)
+    assert short.end_reason is None
+    assert simulator.step(pole, 230.0, reamer_position=(exit_depth - teeth + 1e-4) * pole).end_reason == PERFORATED
+    # a reamer tilted past the patch has no bone under its tip: it ends only when its path is clear
+    tilted = np.array([np.sin(np.radians(60)), 0.0, -np.cos(np.radians(60))])
+    assert tip_exit_depth(mesh, tilted) is None
+    simulator.reset("right")
+    start = simulator.reamer_start(tilted)
+    assert simulator.step(tilted, 230.0, reamer_position=start).end_reason is None
+    beyond = start + 0.06 * tilted  # the head's equatorial plane past every node
+    assert simulator.step(tilted, 230.0, reamer_position=beyond).end_reason == PASSED_THROUGH

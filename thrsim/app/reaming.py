@@ -228,7 +228,8 @@ class ReamingTrainer:
                 self.running_s = self.frames_run / FRAME_RATE_HZ  # the held time is not owed
             else:
                 for _ in range(min(due, self.max_frames_per_tick)):
-                    self._step_frame(time_s, axis, force, nav_state)
+                    if not self._step_frame(time_s, axis, force, nav_state):
+                        break
                 if due > 0:
                     self._publish()
                 if due > self.max_frames_per_tick:
@@ -236,7 +237,9 @@ class ReamingTrainer:
                     self.running_s = self.frames_run / FRAME_RATE_HZ  # do not burst to catch up
         return self._state(time_s, nav_state, axis, force, force_source, note)
 
-    def _step_frame(self, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> None:
+    def _step_frame(self, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> bool:
+        """One simulator frame, traced; False when the frame ended the reaming (perforation, or no
+        bone left in the reamer's path): reaming pauses there, and undo or reset go on from it."""
         if not self._history or self._history[-1].frame != self.simulator.frame:
             self._history.append(self.simulator.snapshot())
         result = self.simulator.step(axis, force)
@@ -255,6 +258,11 @@ class ReamingTrainer:
         trace.depth_mm.append(self.simulator.depth_m * 1e3)
         angles, zone = nav_state.get("angles"), nav_state.get("zone")
         trace.angles.append((math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"]))
+        if result.end_reason is not None:
+            self.running = False
+            self._event(time_s, result.end_reason, "reaming paused: undo (U) or reset (R) to go on")
+            return False
+        return True
 
     def display_levels(self) -> np.ndarray:
         """uint8 per element for viewers: 0 removed, 1..DISPLAY_LEVELS α from the threshold to 1."""

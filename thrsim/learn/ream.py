@@ -1,5 +1,9 @@
 """``thrsim ream``: a learned rollout at one orientation and force, written as a time series and a summary.
 
+The rollout ends early, as the solver's cases do, when the reamer perforates the bone or no bone
+is left in its path (``end_reason`` in the summary); frames past that would only move the reamer
+through empty space.
+
 The output folder is assembled under a temporary name beside its target and renamed into place
 when complete, so a failed run leaves nothing (and a rerun replaces an earlier ream output).
 """
@@ -79,13 +83,17 @@ def ream(
             step_ms.append((time.perf_counter() - t0) * 1e3)
             states.append(state)
             entries.append((k * frame_dt, *write_frame(staging, k, mesh, state.alpha, state.removed, state.reamer_position, axis, teeth)))
+            if state.end_reason is not None:  # as the solver's cases end: nothing is left to ream
+                break
         write_pvd(staging / "ream.pvd", entries)
         summary = {
             "inclination_deg": inclination_deg,
             "anteversion_deg": anteversion_deg,
             "force_n": force,
             "side": side,
-            "frames": frames,
+            "frames": len(states),
+            "frames_requested": frames,
+            "end_reason": states[-1].end_reason or "completed",
             "elements": simulator.n_elements,
             "removed": int(states[-1].removed.sum()),
             "removed_volume_mm3": states[-1].removed_volume_m3 * 1e9,

@@ -25,7 +25,10 @@ from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import feature_row
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import LearnedStep
-from thrsim.physics.reaming import INITIAL_GAP_M  # start where the solver's cases start
+from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
+
+#: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
+PERFORATED, PASSED_THROUGH = "perforated", "passed_through"
 _MIRROR = np.array([-1.0, 1.0, 1.0])
 
 
@@ -41,6 +44,9 @@ class StepResult:
     removed_volume_m3: float
     advance_m: float
     seconds: float
+    #: None while there is bone to ream; PERFORATED when the teeth's tip has passed the outer face
+    #: where bone is under it, PASSED_THROUGH when no bone is left in the reamer's path
+    end_reason: str | None = None
 
 
 @dataclass(frozen=True)
@@ -118,6 +124,7 @@ class ReamingSimulator:
         self.model = model if model is not None else load_model(model_dir)
         self._step = LearnedStep(self.model.gn, self.model.graph, self.model.settings.features, self.model.teeth_radius_m)
         self._threshold = self.model.threshold
+        self._tip_exit: tuple[tuple[float, ...], float | None] | None = None  # (axis, depth) of the last axis seen
         self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
         self.reset()
 
@@ -201,6 +208,7 @@ class ReamingSimulator:
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre
         self.frame += 1
+        end_reason = self._end_reason(axis, after)
         return StepResult(
             frame=self.frame,
             alpha=self.alpha.copy(),
@@ -210,7 +218,23 @@ class ReamingSimulator:
             removed_volume_m3=float(after @ self.model.graph.volumes),
             advance_m=advance,
             seconds=time.perf_counter() - started,
+            end_reason=end_reason,
         )
+
+    def _end_reason(self, axis: np.ndarray, removed: np.ndarray) -> str | None:
+        """The solver's end conditions, checked on the learned state (right-side frame)."""
+        key = tuple(axis.tolist())
+        if self._tip_exit is None or self._tip_exit[0] != key:
+            self._tip_exit = (key, tip_exit_depth(self.model.mesh, axis))
+        exit_depth = self._tip_exit[1]
+        teeth = self.model.teeth_radius_m
+        if exit_depth is not None and float(self._centre @ axis) + teeth > exit_depth:
+            return PERFORATED
+        attached = np.zeros(self.model.mesh.n_nodes, dtype=bool)
+        attached[self.model.mesh.tets[~removed]] = True
+        if not bone_in_path(self.model.mesh.nodes[attached], self._centre, axis, teeth):
+            return PASSED_THROUGH
+        return None
 
     @property
     def depth_m(self) -> float:

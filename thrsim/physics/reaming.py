@@ -243,7 +243,7 @@ class ReamingSimulation:
         self.frame_stats = np.zeros(FRAME_STATS_SIZE)
         self._scratch = np.zeros(4)
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
-        self.tip_exit_depth = self._tip_exit_depth()
+        self.tip_exit_depth = tip_exit_depth(self.mesh, self.axis)
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
 
@@ -255,21 +255,6 @@ class ReamingSimulation:
     def contact_omega_dt(self) -> float:
         """ω·Δt of any node on its contact spring: √β by construction (k_i = β·m_i/Δt²)."""
         return math.sqrt(self.contact_law.penalty_factor)
-
-    def _tip_exit_depth(self) -> float | None:
-        """How far along D the outer face lies under the teeth's tip; None when no bone is under it.
-
-        Bone is under the tip when outer-face nodes lie within one mean edge length of the axis
-        line s·D; the outermost of them (largest x·D) is where the tip leaves the bone.
-        """
-        outer = self.mesh.fixed_nodes
-        if len(outer) == 0:
-            return None
-        points = self.mesh.nodes[outer]
-        along = _along(points, self.axis)
-        lateral = np.linalg.norm(points - along[:, None] * self.axis, axis=1)
-        under_tip = lateral <= float(rms_edge_lengths(self.mesh.nodes, self.mesh.tets).mean())
-        return float(along[under_tip].max()) if under_tip.any() else None
 
     def _initial_position(self) -> float:
         """Axial coordinate s where the teeth clear the nearest bone node by the initial gap."""
@@ -403,10 +388,7 @@ class ReamingSimulation:
     def bone_in_path(self) -> bool:
         """Whether any attached node lies where the advancing dome can still meet it."""
         alive = self.solid.alive_nodes
-        relative = self.mesh.nodes[alive] + self.solid.displacement[alive] - self.centre
-        along = _along(relative, self.axis)
-        lateral_sq = (relative * relative).sum(axis=1) - along**2
-        return bool(np.any((along > 0.0) & (lateral_sq < self.reamer.outer_radius**2)))
+        return bone_in_path(self.mesh.nodes[alive] + self.solid.displacement[alive], self.centre, self.axis, self.reamer.outer_radius)
 
     def run(self, frames: int, progress: Callable[[int, int], None] | None = None) -> tuple[FrameLog, dict]:
         log = FrameLog()
@@ -517,3 +499,29 @@ def _stalled(log: FrameLog) -> bool:
 def _along(points: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """points·axis written elementwise: no BLAS in anything that feeds the solver's decisions."""
     return points[..., 0] * axis[0] + points[..., 1] * axis[1] + points[..., 2] * axis[2]
+
+
+def tip_exit_depth(mesh: TetMesh, axis: np.ndarray) -> float | None:
+    """How far along D the outer face lies under the teeth's tip; None when no bone is under it.
+
+    Bone is under the tip when outer-face nodes lie within one mean edge length of the axis
+    line s·D; the outermost of them (largest x·D) is where the tip leaves the bone. Shared by the
+    solver and the learned simulator, so both end a case at the same place.
+    """
+    outer = mesh.fixed_nodes
+    if len(outer) == 0:
+        return None
+    points = mesh.nodes[outer]
+    along = _along(points, axis)
+    lateral = np.linalg.norm(points - along[:, None] * axis, axis=1)
+    under_tip = lateral <= float(rms_edge_lengths(mesh.nodes, mesh.tets).mean())
+    return float(along[under_tip].max()) if under_tip.any() else None
+
+
+def bone_in_path(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, outer_radius: float) -> bool:
+    """Whether any of ``points`` (attached bone nodes, m) lies where the advancing dome can still meet it:
+    in front of the head's equatorial plane and within the teeth's reach of the axis."""
+    relative = points - centre
+    along = _along(relative, axis)
+    lateral_sq = (relative * relative).sum(axis=1) - along**2
+    return bool(np.any((along > 0.0) & (lateral_sq < outer_radius**2)))

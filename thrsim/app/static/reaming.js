@@ -124,8 +124,12 @@ function placeReamer(reaming) {
 }
 
 function feedback(event) {
-  const text = { start: "reaming", pause: "paused", reset: "bone restored", undo: `undone: ${event.detail}`, side_changed: `${event.detail} hip` }[event.kind];
-  if (text) toast(text, event.kind === "start" ? "good" : "");
+  const text = {
+    start: "reaming", pause: "paused", reset: "bone restored", undo: `undone: ${event.detail}`, side_changed: `${event.detail} hip`,
+    perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
+    passed_through: `no bone left in the reamer's path; ${event.detail}`,
+  }[event.kind];
+  if (text) toast(text, event.kind === "start" ? "good" : event.kind === "perforated" ? "error" : "");
 }
 
 function showState(s) {

@@ -1,5 +1,5 @@
 """The reaming page in a real headless Chromium (Debian's, driven by Playwright) against a real
-``thrsim serve`` with a (tiny) trained model: the bone is drawn, reaming removes it on screen."""
+``thrsim serve`` with the shipped model: the bone is drawn, reaming removes it on screen."""
 
 from __future__ import annotations
 
@@ -18,10 +18,10 @@ pytestmark = [
 
 
 @pytest.fixture(scope="module")
-def page(tmp_path_factory, tiny_model):
+def page(tmp_path_factory):
     from playwright.sync_api import sync_playwright
 
-    served = ServedTrainer(tmp_path_factory.mktemp("sessions"), "--model", str(tiny_model))
+    served = ServedTrainer(tmp_path_factory.mktemp("sessions"))  # the shipped model
     try:
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_FLAGS, "--no-first-run"])

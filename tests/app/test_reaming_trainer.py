@@ -32,9 +32,16 @@ class Clock:
         return self.trainer.apply_control(parse_reaming_control(message), self.now)
 
 
+@pytest.fixture(scope="module")
+def shipped_simulator():
+    return ReamingSimulator(threads=1)
+
+
 @pytest.fixture
-def clock(tiny_model):
-    trainer = ReamingTrainer(simulator=ReamingSimulator(tiny_model, threads=1))
+def clock(shipped_simulator):
+    # the shipped model on the default mesh: its patch lasts for seconds of reaming near the axis
+    shipped_simulator.reset()
+    trainer = ReamingTrainer(simulator=shipped_simulator)
     clock = Clock(trainer)
     clock.control({"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20})
     return clock
@@ -139,14 +146,14 @@ def test_without_a_model_the_mode_says_why_and_navigation_still_works():
     assert trainer.apply_control(parse_reaming_control({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}), STEP) == "reamer steered"
 
 
-def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tiny_model, tmp_path):
+def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tmp_path):
     from thrsim.app.live import LiveSession
     from thrsim.app.replay import replay_session
     from thrsim.session.file import read_session
     from thrsim.session.reaming import read_reaming
 
     now = [0.0]
-    session = LiveSession(MODES["reaming"], {"side": "left", "seed": 3, "model": str(tiny_model)}, lambda: now[0])
+    session = LiveSession(MODES["reaming"], {"side": "left", "seed": 3}, lambda: now[0])
     session.control('{"type": "reamer", "inclination_deg": 42, "anteversion_deg": 18}')
     session.control('{"type": "run", "action": "start"}')
     for k in range(40):
@@ -174,7 +181,7 @@ def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tiny_model, t
         replay_session(path)
 
 
-def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tiny_model, tmp_path):
+def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
     from thrsim.app.live import LiveSession
     from thrsim.config import BonePatchConfig
     from thrsim.geometry.bone_patch import generate_bone_patch
@@ -203,7 +210,7 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tiny_model, t
     assert 0 < through["fractions"]["perforated"] < 0.2 and through["fractions"]["on plan"] > 0.6
 
     now = [0.0]
-    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1, "model": str(tiny_model)}, lambda: now[0])
+    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1}, lambda: now[0])
     session.control('{"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20}')
     session.control('{"type": "run", "action": "start"}')
     for _ in range(30):
@@ -213,3 +220,19 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tiny_model, t
     for title in ("Reaming: removal, depth and push", "Reaming: the final cavity", "Reaming: orientation while cutting", "no perforation", "safe zone while cutting"):
         assert title in report
     assert report.count("data:image/png;base64,") >= 2
+
+
+def test_reaming_pauses_where_the_shipped_model_reams_through_the_bone(shipped_simulator):
+    # aimed 15° off the patch's axis: the solver's γ 15° cases at 230 N break through after 92-99 frames
+    shipped_simulator.reset()
+    clock = Clock(ReamingTrainer(simulator=shipped_simulator))
+    clock.control({"type": "reamer", "inclination_deg": 55, "anteversion_deg": 15})
+    assert clock.run(0.1)["reaming"]["gamma_deg"] == pytest.approx(15.0, abs=1.0)
+    clock.control({"type": "run", "action": "start"})
+    state = clock.run(3.0)
+    trainer = clock.trainer
+    ends = [e for e in trainer.events if e["kind"] in ("perforated", "passed_through")]
+    assert len(ends) == 1 and not state["reaming"]["running"]
+    assert 60 <= trainer.frames_run <= 150 and ends[0]["frame"] == trainer.frames_run
+    assert clock.run(0.5)["reaming"]["frame"] == trainer.frames_run  # holds there
+    assert clock.control({"type": "run", "action": "undo"}).startswith("undid 60")

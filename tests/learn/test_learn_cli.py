@@ -11,6 +11,7 @@ from PIL import Image
 
 from learn_helpers import run_thrsim
 from thrsim.learn.evaluation import windows
+from thrsim.learn.model_dir import SHIPPED_MODEL
 
 
 def test_train_writes_a_model_directory_and_refuses_to_overwrite_it(synthetic_dataset, settings_file, tmp_path):
@@ -127,3 +128,16 @@ def test_ream_refuses_a_folder_that_is_not_a_model(tmp_path):
     result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--model", str(tmp_path), "--out", str(tmp_path / "ream"))
     assert result.returncode == 2 and "not a thrsim model directory" in result.stderr
     assert not (tmp_path / "ream").exists()
+
+
+def test_the_shipped_model_reams_a_tilted_case_through_and_stops_there(tmp_path):
+    # the held-out γ 45°, θ 45° case: the solver's reamer swept through the whole patch in 12 frames
+    out = tmp_path / "ream"
+    result = run_thrsim("ream", "--inclination", "45", "--anteversion", "45", "--frames", "60", "--out", str(out), "--json")
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert summary["model"]["path"] == str(SHIPPED_MODEL)
+    assert summary["end_reason"] == "passed_through" and summary["frames_requested"] == 60
+    assert 6 <= summary["frames"] <= 24 and len(summary["removed_per_frame"]) == summary["frames"]
+    assert summary["removed"] >= 0.9 * summary["elements"]
+    assert (out / "ream.pvd").read_text().count("<DataSet") == 2 * (summary["frames"] + 1)

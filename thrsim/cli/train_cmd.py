@@ -23,6 +23,7 @@ def train(
     settings_file: Optional[Path] = typer.Option(None, "--settings", help="JSON of settings (arch / features / train sections, nested) over the --arch preset", metavar="FILE"),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace a finished model in MODEL_DIR"),
+    advance_only: bool = typer.Option(False, "--advance-only", help="refit only the reamer regressor of the trained model in MODEL_DIR, on the data it was trained on"),
     as_json: bool = typer.Option(False, "--json", help="print the model card as one JSON object on stdout"),
 ) -> None:
     """Train the learned simulator on a dataset's training split; write weights, regressor, mesh and card."""
@@ -42,6 +43,15 @@ def train(
         if value is not None:
             settings["train"][key] = value
     model_settings = ModelSettings.model_validate(settings)
+    if advance_only:
+        from thrsim.learn.pipeline import refit_advance
+
+        card = refit_advance(data, out)
+        if as_json:
+            print_json(card)
+        else:
+            _print_advance(card)
+        return
 
     import torch
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -92,4 +102,9 @@ def train(
             "advance regressor": advance["chosen"],
         },
     )
-    err_console.print("advance regressor (mm per frame): " + json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "best_params"} for k, v in advance["models"].items()}))
+    _print_advance(card)
+
+
+def _print_advance(card: dict) -> None:
+    advance = card["advance"]
+    err_console.print(f"advance regressor ({advance['chosen']} chosen; mm per frame): " + json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "best_params"} for k, v in advance["models"].items()}))

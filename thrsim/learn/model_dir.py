@@ -97,18 +97,36 @@ def save_model(out: Path, card: dict, gn: LearnedSimulator, mlp: LearnedSimulato
     with atomic_path(out / NETWORK) as tmp:
         save_tensors(network_tensors(gn, mlp), str(tmp))
         os.chmod(tmp, 0o644)
-    with atomic_path(out / ADVANCE) as tmp:
-        save_arrays({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, str(tmp), metadata={"kind": advance.kind})
-        os.chmod(tmp, 0o644)
     with atomic_path(out / MESH) as tmp:
         save_arrays(mesh_arrays(mesh), str(tmp))
         os.chmod(tmp, 0o644)
+    card = {**card, "mesh": {**card.get("mesh", {}), "digest": mesh_digest(mesh), "elements": mesh.n_tets, "nodes": mesh.n_nodes}}
+    return save_advance(out, card, advance)
+
+
+def save_advance(out: Path, card: dict, advance: ArrayRegressor) -> Path:
+    """Write the regressor, then the card (last, so a directory with a card is complete)."""
+    with atomic_path(out / ADVANCE) as tmp:
+        save_arrays({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, str(tmp), metadata={"kind": advance.kind})
+        os.chmod(tmp, 0o644)
     card = {**card, "format": MODEL_FORMAT, "format_version": MODEL_FORMAT_VERSION}
-    card["mesh"] = {**card.get("mesh", {}), "digest": mesh_digest(mesh), "elements": mesh.n_tets, "nodes": mesh.n_nodes}
     card["advance"] = {**card.get("advance", {}), "chosen": advance.kind}
     with atomic_path(out / CARD) as tmp:
         tmp.write_text(json.dumps(card, indent=2, sort_keys=True, default=_json_default))
     return out
+
+
+def read_mesh(path: str | os.PathLike) -> TetMesh:
+    """The mesh a model directory belongs to, checked against its card."""
+    path = Path(path)
+    card = read_card(path)
+    try:
+        mesh = mesh_from_arrays(load_arrays(str(path / MESH)))
+    except (OSError, ValueError, KeyError) as error:
+        raise ThrsimInputError(f"{path}: unreadable model files ({error})") from None
+    if mesh_digest(mesh) != card.get("mesh", {}).get("digest"):
+        raise ThrsimInputError(f"{path}: {MESH} does not match the card's mesh digest (mixed model files)")
+    return mesh
 
 
 def _json_default(value):
@@ -152,8 +170,8 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
     for name in (NETWORK, ADVANCE, MESH):
         if not (path / name).is_file():
             raise ThrsimInputError(f"{path}: incomplete model directory (no {name})")
+    mesh = read_mesh(path)
     try:
-        mesh = mesh_from_arrays(load_arrays(str(path / MESH)))
         tensors = load_tensors(str(path / NETWORK))
         with safe_open(str(path / ADVANCE), framework="numpy") as handle:
             kind = (handle.metadata() or {}).get("kind", "")
@@ -161,8 +179,6 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
     except (OSError, ValueError, KeyError) as error:
         raise ThrsimInputError(f"{path}: unreadable model files ({error})") from None
     digest = mesh_digest(mesh)
-    if digest != card.get("mesh", {}).get("digest"):
-        raise ThrsimInputError(f"{path}: {MESH} does not match the card's mesh digest (mixed model files)")
     if expect_mesh is not None and mesh_digest(expect_mesh) != digest:
         raise ThrsimInputError(
             f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "

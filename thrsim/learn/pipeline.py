@@ -23,8 +23,8 @@ from thrsim.config import LabelConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.data.pack import ALPHA_LEVELS, is_pack
 from thrsim.learn.cases import CaseArrays, load_cases
-from thrsim.learn.graph import StaticGraph
-from thrsim.learn.model_dir import CARD, save_model
+from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.learn.model_dir import CARD, read_card, read_mesh, save_advance, save_model
 from thrsim.learn.settings import ModelSettings
 from thrsim.learn.training import CHECKPOINT, EpochReport, Trainer, train_advance
 from thrsim.provenance import package_versions
@@ -116,4 +116,33 @@ def train_model(
     }
     save_model(out, card, trainer.gn, trainer.mlp, advance, mesh)
     shutil.rmtree(checkpoint, ignore_errors=True)
+    return card
+
+
+def refit_advance(data: str | os.PathLike, out: str | os.PathLike) -> dict:
+    """Refit the reamer regressor of the trained model in ``out`` on the data it was trained on,
+    keeping its networks (minutes of training) untouched; return the updated card."""
+    out = Path(out)
+    card = read_card(out)
+    mesh = read_mesh(out)
+    labels = LabelConfig(**card["labels"])
+    data_mesh, cases = load_cases(data, labels=labels)
+    if mesh_digest(data_mesh) != mesh_digest(mesh):
+        raise ThrsimInputError(f"{data}: another mesh than the model in {out}")
+    if data_identity(cases) != card["data"]["digest"]:
+        raise ThrsimInputError(f"{data}: not the data the model in {out} was trained on (its card names {card['data']['source']})")
+    train = [c for c in cases if c.split == "train"]
+    held_out = [c for c in cases if c.split in ("validation", "test")]
+    settings = ModelSettings.model_validate(card["settings"])
+    started = time.perf_counter()
+    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees)
+    card = {
+        **card,
+        "advance": advance_table,
+        "advance_refit_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "thrsim_version": package_versions()["thrsim"],
+        "versions": package_versions(),
+        "training": {**card["training"], "advance_seconds": time.perf_counter() - started},
+    }
+    save_advance(out, card, advance)
     return card

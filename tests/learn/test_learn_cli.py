@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import meshio
 import numpy as np
@@ -24,6 +25,21 @@ def test_train_writes_a_model_directory_and_refuses_to_overwrite_it(synthetic_da
     again = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(out), "--settings", str(settings_file))
     assert again.returncode == 2
     assert again.stderr.count("\n") == 1 and "already holds a trained model" in again.stderr
+
+
+def test_advance_only_refits_the_regressor_and_keeps_the_networks(tiny_model, synthetic_dataset, real_case, tmp_path):
+    model = tmp_path / "model"
+    shutil.copytree(tiny_model, model)
+    (model / "advance.safetensors").unlink()
+    networks = (model / "network.safetensors").read_bytes()
+    result = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(model), "--advance-only", "--json")
+    assert result.returncode == 0, result.stderr
+    card = json.loads(result.stdout)
+    assert card["advance"]["chosen"] in card["advance"]["models"] and "advance_refit_utc" in card
+    assert (model / "network.safetensors").read_bytes() == networks
+    assert json.loads((model / "card.json").read_text()) == card
+    other = run_thrsim("train", "--data", str(real_case.parent), "--out", str(model), "--advance-only")
+    assert other.returncode == 2 and other.stderr.count("\n") == 1
 
 
 def test_train_refuses_a_folder_that_is_not_a_dataset(tmp_path):

@@ -23,11 +23,12 @@ def _random_graph(n=30, m=90, seed=0, widths=WIDTHS["full"]):
 
 
 @pytest.mark.parametrize("arch", [ArchSettings(), thesis_arch()], ids=["production", "thesis"])
-def test_one_logit_per_node(arch):
+@pytest.mark.parametrize("outputs", [1, 2])
+def test_outputs_logits_per_node(arch, outputs):
     torch.manual_seed(0)
-    net = GraphNetwork(*WIDTHS["full"], arch)
-    assert net(*_random_graph()).shape == (30,)
-    assert NodeMLP(WIDTHS["full"][0], WIDTHS["full"][2], arch.mlp_baseline)(*_random_graph()).shape == (30,)
+    net = GraphNetwork(*WIDTHS["full"], arch, outputs)
+    assert net(*_random_graph()).shape == (30, outputs)
+    assert NodeMLP(WIDTHS["full"][0], WIDTHS["full"][2], arch.mlp_baseline, outputs)(*_random_graph()).shape == (30, outputs)
 
 
 def test_thesis_sizes_are_the_thesis_layers():
@@ -65,7 +66,7 @@ def test_messages_travel_one_hop_per_step():
     base = net(nodes, *args)
     changed = nodes.clone()
     changed[0] += 1.0
-    diff = (net(changed, *args) - base).abs()
+    diff = (net(changed, *args) - base).abs().squeeze(-1)
     assert diff[1] > 0 and diff[2] > 0  # within two hops
     assert diff[3] == 0 and diff[4] == 0  # beyond
 
@@ -100,6 +101,40 @@ def test_residual_logit_makes_an_untrained_output_layer_predict_no_change():
     alpha = torch.linspace(0.35, 0.95, 20)
     out = model.alpha_next(_batch(alpha=alpha))
     assert torch.allclose(out, alpha, atol=1e-6)
+
+
+def _removal_model(removal_bias: float) -> LearnedSimulator:
+    """A production model whose outputs are constant: α logit 0 (α' = α_t) and a fixed removal logit."""
+    model = LearnedSimulator(preset("production"), "gn")
+    with torch.no_grad():
+        model.network.output.weight.zero_()
+        model.network.output.bias.copy_(torch.tensor([0.0, removal_bias]))
+    return model
+
+
+def test_removal_hazard_is_minus_log_survival_and_only_where_alpha_is_updated():
+    assert preset("production").arch.removal_head and not ArchSettings().removal_head
+    p = 0.2
+    model = _removal_model(float(np.log(p / (1 - p))))
+    alpha = torch.linspace(0.0, 1.0, 20)
+    b = _batch(alpha=alpha)
+    out, hazard = model.predict(b)
+    updated = b.update & (alpha >= 0.3)
+    assert torch.allclose(hazard[updated], torch.full((int(updated.sum()),), -np.log(1 - p), dtype=torch.float32), rtol=1e-5)
+    assert torch.all(hazard[~updated] == 0)
+    assert torch.allclose(out, alpha, atol=1e-6)
+
+
+def test_the_removal_head_adds_its_cross_entropy_on_removed_at_t_plus_1():
+    model = _removal_model(0.0)
+    alpha = torch.linspace(0.35, 0.95, 20)
+    b = _batch(alpha=alpha)
+    target = torch.where(torch.arange(20) % 2 == 0, torch.tensor(0.0), alpha)
+    alpha_logit, removal_logit = model.outputs(b)
+    mask = model.trainable_mask(b)
+    expected = masked_bce(alpha_logit, target, mask) + masked_bce(removal_logit, (target < 0.3).float(), mask)
+    assert torch.allclose(model.loss(b, target), expected)
+    assert float(model.loss(b, target).detach()) > float(masked_bce(alpha_logit, target, mask).detach())
 
 
 def test_loss_sees_only_masked_nodes():

@@ -133,12 +133,13 @@ def test_only_the_region_near_the_reamer_changes(simulator):
     centre = simulator.reamer_start(AXIS) + 5e-4 * AXIS
     region = model.graph.region(alpha >= 0.3, centre, step.reach_m, model.settings.features.front_hops)
     assert 0 < len(region) < simulator.n_elements
-    out = step(alpha, centre, AXIS, 230.0, 5e-4, 136.0)
+    hazard = np.zeros_like(alpha)
+    out, out_hazard = step(alpha, hazard, centre, AXIS, 230.0, 5e-4, 136.0)
     outside = np.ones(simulator.n_elements, dtype=bool)
     outside[region] = False
-    assert np.array_equal(out[outside], alpha[outside])
-    far = step(alpha, centre - 0.05 * AXIS, AXIS, 230.0, 0.0, 136.0)
-    assert np.array_equal(far, alpha)
+    assert np.array_equal(out[outside], alpha[outside]) and not out_hazard[outside].any()
+    far, far_hazard = step(alpha, hazard, centre - 0.05 * AXIS, AXIS, 230.0, 0.0, 136.0)
+    assert np.array_equal(far, alpha) and not far_hazard.any()
 
 
 def test_a_rollout_ends_where_the_solver_ends_its_cases(simulator):

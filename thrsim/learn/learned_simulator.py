@@ -3,9 +3,21 @@
 Post-processing follows the thesis [7.3.3]: elements removed at t (α < threshold) keep their α;
 halo nodes (context only) keep theirs too; every other node gets α' = sigmoid(logit), with the
 logit optionally added to logit(α_t) so that "nothing changes" is the untrained default.
+
+The removal head (``ArchSettings.removal_head``). α mixes von Mises stress and PEEQ (eq. 47), so
+whether an element goes in the next frame is, seen from α, partly chance: on the rim at γ = 0
+the solver removes ~100 of ~1,000 loaded elements per frame, and which ones depends on the
+reamer's hop. A network that only regresses α(t+1) learns its expectation, which for an element
+under the teeth settles near 0.85 and never crosses 0.3: the tool-forced rollout at γ = 0 removed
+a quarter of the solver's bone by frame 20 although every single step from the solver's state
+was right. The head predicts the probability p that an active element is removed by t + 1; the
+rollout adds its hazard −log(1 − p) = softplus(logit) per element and frame, and removes the
+element once the sum reaches ln 2, the median of its removal time.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 from torch import nn
@@ -15,6 +27,9 @@ from thrsim.learn.network import GraphNetwork, NodeMLP
 from thrsim.learn.settings import ModelSettings
 
 _EPS = 1e-3
+
+#: accumulated removal hazard at which an element goes: its survival probability is then 1/2
+REMOVAL_HAZARD = math.log(2.0)
 
 
 class Normaliser(nn.Module):
@@ -44,13 +59,15 @@ class LearnedSimulator(nn.Module):
         self.kind = kind
         self.threshold = threshold
         self.residual_logit = settings.arch.residual_logit
+        self.removal_head = settings.arch.removal_head
+        outputs = 2 if self.removal_head else 1
         self.node_norm = Normaliser(node_in)
         self.edge_norm = Normaliser(edge_in)
         self.global_norm = Normaliser(global_in)
         if kind == "gn":
-            self.network = GraphNetwork(node_in, edge_in, global_in, settings.arch)
+            self.network = GraphNetwork(node_in, edge_in, global_in, settings.arch, outputs)
         elif kind == "mlp":
-            self.network = NodeMLP(node_in, global_in, settings.arch.mlp_baseline)
+            self.network = NodeMLP(node_in, global_in, settings.arch.mlp_baseline, outputs)
         else:
             raise ValueError(f"unknown network kind {kind!r}")
 
@@ -59,24 +76,47 @@ class LearnedSimulator(nn.Module):
         self.edge_norm.fit(batch.edges)
         self.global_norm.fit(batch.globals_)
 
-    def logits(self, batch: GraphBatch) -> torch.Tensor:
+    def outputs(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Per node: the logit of α(t+1) and, with the removal head, the logit of p(removed at t+1)."""
         out = self.network(
             self.node_norm(batch.nodes), self.edge_norm(batch.edges), self.global_norm(batch.globals_),
             batch.senders, batch.receivers, batch.node_graph, batch.edge_graph,
         )
+        alpha_logit = out[:, 0]
         if self.residual_logit:
-            out = out + torch.logit(batch.alpha.clamp(_EPS, 1 - _EPS))
-        return out
+            alpha_logit = alpha_logit + torch.logit(batch.alpha.clamp(_EPS, 1 - _EPS))
+        return alpha_logit, (out[:, 1] if self.removal_head else None)
+
+    def logits(self, batch: GraphBatch) -> torch.Tensor:
+        return self.outputs(batch)[0]
+
+    def loss(self, batch: GraphBatch, alpha_next: torch.Tensor) -> torch.Tensor:
+        """Cross-entropy on α(t+1) (eq. 49), plus, with the removal head, on removed-at-t+1."""
+        mask = self.trainable_mask(batch)
+        alpha_logit, removal_logit = self.outputs(batch)
+        loss = masked_bce(alpha_logit, alpha_next, mask)
+        if removal_logit is not None:
+            loss = loss + masked_bce(removal_logit, (alpha_next < self.threshold).to(alpha_next.dtype), mask)
+        return loss
 
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
         """Nodes the loss sees and the model updates: in the region and active at t."""
         return batch.update & (batch.alpha >= self.threshold)
 
     @torch.no_grad()
+    def predict(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor]:
+        """α at t + 1 on every batch node (unchanged where removed at t or outside the region) and
+        the removal hazard of this step (0 there, and everywhere without the removal head)."""
+        mask = self.trainable_mask(batch)
+        alpha_logit, removal_logit = self.outputs(batch)
+        alpha = torch.where(mask, torch.sigmoid(alpha_logit), batch.alpha)
+        if removal_logit is None:
+            return alpha, torch.zeros_like(alpha)
+        return alpha, torch.where(mask, nn.functional.softplus(removal_logit), torch.zeros_like(alpha))
+
     def alpha_next(self, batch: GraphBatch) -> torch.Tensor:
-        """α at t + 1 on every batch node (unchanged where removed at t or outside the region)."""
-        predicted = torch.sigmoid(self.logits(batch))
-        return torch.where(self.trainable_mask(batch), predicted, batch.alpha)
+        """α at t + 1 alone (see :meth:`predict`)."""
+        return self.predict(batch)[0]
 
 
 def masked_bce(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -1,6 +1,6 @@
 """Pure networks: the encode–process–decode Graph Network [7.3.2] and the node-wise MLP baseline.
 
-No I/O, no normalisation, no physics: tensors in, one logit per node out. Aggregation is a sum
+No I/O, no normalisation, no physics: tensors in, ``outputs`` logits per node out (N, outputs). Aggregation is a sum
 over incoming edges (``index_add_``), so the output does not depend on the order of nodes or
 edges. The first layer of every edge function is split into an edge part and per-node sender
 and receiver projections, computed once per node and gathered per edge: the same function as a
@@ -111,7 +111,7 @@ class GraphNetwork(nn.Module):
     concatenated with the current latent and replaces it.
     """
 
-    def __init__(self, node_in: int, edge_in: int, global_in: int, arch: ArchSettings):
+    def __init__(self, node_in: int, edge_in: int, global_in: int, arch: ArchSettings, outputs: int = 1):
         super().__init__()
         self.arch = arch
         node_in_total = node_in + (0 if arch.global_block else global_in)
@@ -131,7 +131,7 @@ class GraphNetwork(nn.Module):
         self.cores = nn.ModuleList([_Core(*core_in, arch) for _ in range(steps)])
         latent_node = self.cores[-1].node_out
         self.node_decoder, dec_w = mlp(latent_node, arch.node_decoder, False)
-        self.output = nn.Linear(dec_w, 1)
+        self.output = nn.Linear(dec_w, outputs)
 
     def forward(self, nodes, edges, globals_, senders, receivers, node_graph, edge_graph) -> torch.Tensor:
         n_graphs = globals_.shape[0]
@@ -157,16 +157,16 @@ class GraphNetwork(nn.Module):
                     senders, receivers, node_graph, edge_graph, n_graphs,
                 )
                 lat_g = new_g if self.arch.global_block else lat_g
-        return self.output(self.node_decoder(lat_n)).squeeze(-1)
+        return self.output(self.node_decoder(lat_n))
 
 
 class NodeMLP(nn.Module):
     """The thesis's baseline [7.3.5]: the node core alone, applied to each node's features and the force."""
 
-    def __init__(self, node_in: int, global_in: int, sizes: tuple[int, ...]):
+    def __init__(self, node_in: int, global_in: int, sizes: tuple[int, ...], outputs: int = 1):
         super().__init__()
         self.body, width = mlp(node_in + global_in, sizes)
-        self.output = nn.Linear(width, 1)
+        self.output = nn.Linear(width, outputs)
 
     def forward(self, nodes, edges, globals_, senders, receivers, node_graph, edge_graph) -> torch.Tensor:
-        return self.output(self.body(torch.cat([nodes, globals_[node_graph]], dim=1))).squeeze(-1)
+        return self.output(self.body(torch.cat([nodes, globals_[node_graph]], dim=1)))

@@ -1,8 +1,10 @@
 """One frame after another: the learned step, the geometric baseline, and rollouts from a ground-truth frame.
 
-A step takes α at t, the reamer centre at t + 1 (given, or advanced by the regressor), the axis
-and the force, and returns α at t + 1. Only the region near the reamer is evaluated (see
-:mod:`thrsim.learn.graph`); elements outside it keep their α, since nothing reaches them.
+A step takes the bone state at t (α and the accumulated removal hazard per element), the reamer
+centre at t + 1 (given, or advanced by the regressor), the axis and the force, and returns the
+state at t + 1. Only the region near the reamer is evaluated (see :mod:`thrsim.learn.graph`);
+elements outside it keep their α and hazard, since nothing reaches them. An element whose
+hazard reaches ``REMOVAL_HAZARD`` is removed (α = 0, as the solver's deleted elements).
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ import torch
 from thrsim.learn.advance import ArrayRegressor, feature_row
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.settings import FeatureSettings
 
 
@@ -36,7 +38,7 @@ class LearnedStep:
         self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
 
-    def __call__(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> np.ndarray:
+    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
         graph = self.graph
         active = alpha >= self.model.threshold
         if self.features.whole_graph:
@@ -44,17 +46,21 @@ class LearnedStep:
         else:
             sub = graph.subgraph(graph.region(active, centre, self.reach_m, self.features.front_hops), self.features.halo_hops)
         out = np.array(alpha, dtype=np.float32, copy=True)
+        out_hazard = np.array(hazard, dtype=np.float32, copy=True)
         self.last = StepInfo(sub.n_region, len(sub.nodes))
         if sub.n_region == 0:
-            return out
+            return out, out_hazard
         reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
         alpha_sub = out[sub.nodes]
         arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active)
         inputs = batch([(sub, alpha_sub, arrays)])
         with torch.inference_mode():
-            predicted = self.model.alpha_next(inputs).numpy()
-        out[sub.region] = predicted[: sub.n_region]
-        return out
+            predicted, increment = (t.numpy() for t in self.model.predict(inputs))
+        region = sub.region
+        out[region] = predicted[: sub.n_region]
+        out_hazard[region] += increment[: sub.n_region]
+        out[region[out_hazard[region] >= REMOVAL_HAZARD]] = 0.0
+        return out, out_hazard
 
 
 class GeometricStep:
@@ -65,10 +71,10 @@ class GeometricStep:
         self.graph = graph
         self.teeth_radius_m = teeth_radius_m
 
-    def __call__(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> np.ndarray:
+    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
         rel = self.graph.centroids - centre
         inside = (np.einsum("ij,ij->i", rel, rel) < self.teeth_radius_m**2) & (rel @ axis >= 0.0)
-        return np.where(inside, np.float32(0.0), alpha).astype(np.float32)
+        return np.where(inside, np.float32(0.0), alpha).astype(np.float32), hazard
 
 
 def rollout(step, case, start: int, frames: int, threshold: float, advance: ArrayRegressor | None) -> tuple[list[np.ndarray], np.ndarray]:
@@ -78,6 +84,7 @@ def rollout(step, case, start: int, frames: int, threshold: float, advance: Arra
     recorded positions (tool-forced).
     """
     alpha = case.alpha[start].copy()
+    hazard = np.zeros_like(alpha)
     centre = case.positions[start].copy()
     masks, centres = [], []
     for k in range(1, frames + 1):
@@ -87,7 +94,7 @@ def rollout(step, case, start: int, frames: int, threshold: float, advance: Arra
             row = feature_row(float((centre - case.positions[0]) @ case.axis), case.inclination_deg, case.anteversion_deg, case.force_n)
             new_centre = centre + float(advance.predict(row)[0]) * 1e-3 * case.axis
         moved = float((new_centre - centre) @ case.axis)
-        alpha = step(alpha, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
+        alpha, hazard = step(alpha, hazard, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
         removed = alpha < threshold
         centre = new_centre
         masks.append(removed)

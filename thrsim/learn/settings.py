@@ -23,7 +23,9 @@ class ArchSettings(_Frozen):
     full GN block); without it the force is broadcast into the node encoder (cheaper, and the
     sum over a region of varying size carries no meaning). ``residual``: latents are updated
     additively (MeshGraphNets); ``residual_logit``: the output logit is added to logit(α_t), so
-    an untrained network already predicts "nothing changes".
+    an untrained network already predicts "nothing changes". ``removal_head``: a second output,
+    the probability that an active element is removed by the next frame, whose hazard
+    −log(1 − p) the rollout accumulates per element (see :mod:`thrsim.learn.learned_simulator`).
     """
 
     node_encoder: tuple[int, ...] = (32, 32)
@@ -39,6 +41,7 @@ class ArchSettings(_Frozen):
     residual: bool = True
     layer_norm: bool = True
     residual_logit: bool = True
+    removal_head: bool = False
     mlp_baseline: tuple[int, ...] = (32, 32)
 
 
@@ -112,7 +115,7 @@ def thesis_arch() -> ArchSettings:
 def preset(name: str) -> ModelSettings:
     """``production`` (sized for an interactive CPU step) or ``thesis`` (the reference)."""
     if name == "production":
-        return ModelSettings()
+        return ModelSettings(arch=ArchSettings(removal_head=True))
     if name == "thesis":
         return ModelSettings(arch=thesis_arch(), features=FeatureSettings(feature_set="thesis"))
     from thrsim.errors import ThrsimInputError

@@ -56,6 +56,7 @@ class SimulatorSnapshot:
     side: str
     frame: int
     alpha: np.ndarray
+    hazard: np.ndarray
     centre: np.ndarray | None
     start: np.ndarray | None
 
@@ -148,13 +149,14 @@ class ReamingSimulator:
         self.side = side
         self.frame = 0
         self.alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
+        self.hazard = np.zeros(self.n_elements, dtype=np.float32)  # accumulated removal hazard
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
 
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
         copy = lambda v: None if v is None else v.copy()  # noqa: E731
-        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), copy(self._centre), copy(self._start))
+        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), self.hazard.copy(), copy(self._centre), copy(self._start))
 
     def restore(self, snapshot: SimulatorSnapshot) -> None:
         """Go back to a state taken by :meth:`snapshot` (same model)."""
@@ -162,6 +164,7 @@ class ReamingSimulator:
             raise ThrsimInputError(f"snapshot of {snapshot.alpha.size} elements, this model's mesh has {self.alpha.size}")
         self.side, self.frame = snapshot.side, snapshot.frame
         self.alpha = snapshot.alpha.copy()
+        self.hazard = snapshot.hazard.copy()
         self._centre = None if snapshot.centre is None else snapshot.centre.copy()
         self._start = None if snapshot.start is None else snapshot.start.copy()
 
@@ -203,7 +206,7 @@ class ReamingSimulator:
             new_centre = self._centre + float(self.model.advance.predict(row)[0]) * 1e-3 * axis
         advance = float((new_centre - self._centre) @ axis)
         before = self.removed
-        self.alpha = self._step(self.alpha, new_centre, axis, force, advance, self.model.omega_rad_s)
+        self.alpha, self.hazard = self._step(self.alpha, self.hazard, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre

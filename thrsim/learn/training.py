@@ -3,7 +3,8 @@
 Each sample is a frame pair (t, t + 1) of a training case, cut to the region near the reamer at
 t + 1 plus its halo (the same subgraph the simulator evaluates), with Gaussian noise on the
 input α of active elements and on the reamer centre (MeshGraphNets-style, for stable rollouts).
-The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49).
+The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49), plus
+the removal head's on whether they are removed at t + 1.
 Input normalisers are fitted once on the first samples of a fixed permutation, then frozen.
 
 Determinism: every epoch draws its sample order and noise from ``(seed, epoch)`` alone, so a run
@@ -32,7 +33,7 @@ from thrsim.learn.advance import case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.learned_simulator import LearnedSimulator, masked_bce
+from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.metrics import Counts
 from thrsim.learn.rollout import LearnedStep, rollout
 from thrsim.learn.settings import ModelSettings
@@ -133,7 +134,7 @@ class Trainer:
             for name, model in (("gn", self.gn), ("mlp", self.mlp)):
                 optimiser = self.optimisers[name]
                 optimiser.zero_grad(set_to_none=True)
-                loss = masked_bce(model.logits(inputs), target, model.trainable_mask(inputs))
+                loss = model.loss(inputs, target)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), t.gradient_clip)
                 optimiser.step()

@@ -3,17 +3,19 @@ predictions clipped to the training targets."""
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from safetensors.numpy import load_file, save_file
 
-from thrsim.learn.advance import KINDS, ArrayRegressor, _candidates, export, fit_advance
+from thrsim.learn.advance import FEATURES, KINDS, ArrayRegressor, _candidates, case_samples, export, fit_advance
 
 
 def _data(n=120, seed=0):
     rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.uniform(0, 3, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n)])
-    y = 0.01 * X[:, 0] + 0.002 * X[:, 1] + 0.0005 * X[:, 3] + rng.normal(0, 0.01, n)
+    X = np.column_stack([rng.uniform(0, 3, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n), rng.uniform(0, 460, n)])
+    y = 0.01 * X[:, 0] + 0.002 * X[:, 1] + 0.0005 * X[:, 3] + 1e-4 * X[:, 4] + rng.normal(0, 0.01, n)
     return X, y
 
 
@@ -60,6 +62,16 @@ def test_predictions_stay_within_the_advances_seen_in_training(kind):
     if kind == "linear":
         unclipped = estimator.predict(far)
         assert unclipped.max() > y.max() and unclipped.min() < y.min()
+
+
+def test_rows_carry_the_push_impulse_and_a_four_feature_regressor_reads_four():
+    positions = np.array([[0.0, 0.0, -z] for z in (0.0, 1e-4, 3e-4, 4e-4)])
+    case = SimpleNamespace(frames=4, positions=positions, axis=np.array([0.0, 0.0, -1.0]), inclination_deg=0.0, anteversion_deg=0.0, force_n=240.0, frame_dt_s=1 / 60, advances=lambda: np.diff(positions, axis=0) @ [0.0, 0.0, -1.0])
+    X, y = case_samples(case)
+    assert X.shape == (3, len(FEATURES)) and np.allclose(X[:, 4], [0.0, 4.0, 8.0])
+    assert np.allclose(X[:, 0], [0.0, 0.1, 0.3]) and np.allclose(y, [0.1, 0.2, 0.1])
+    old = ArrayRegressor("linear", {"mean": np.zeros(4), "scale": np.ones(4), "coef": np.array([1.0, 0.0, 0.0, 0.0]), "intercept": np.array(0.0), "target_range": np.array([-9.0, 9.0])})
+    assert old.n_features == 4 and np.allclose(old.predict(X), X[:, 0])
 
 
 def test_unknown_kind_is_refused():

@@ -42,6 +42,26 @@ def test_advance_only_refits_the_regressor_and_keeps_the_networks(tiny_model, sy
     assert other.returncode == 2 and other.stderr.count("\n") == 1
 
 
+def test_train_init_from_starts_from_a_trained_models_networks(tiny_model, synthetic_dataset, settings_file, tmp_path):
+    from safetensors.numpy import load_file
+
+    out = tmp_path / "tuned"
+    result = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(out), "--settings", str(settings_file), "--init-from", str(tiny_model), "--json")
+    assert result.returncode == 0, result.stderr
+    init = json.loads(result.stdout)["training"]["init_from"]
+    assert init["source"] == str(tiny_model) and len(init["weights_digest"]) == 64
+    assert init["training"]["epochs"] == json.loads((tiny_model / "card.json").read_text())["training"]["epochs"]
+    before, after = load_file(str(tiny_model / "network.safetensors")), load_file(str(out / "network.safetensors"))
+    assert np.array_equal(before["gn.node_norm.mean"], after["gn.node_norm.mean"])  # normalisers kept, not refitted
+    assert not all(np.array_equal(before[k], after[k]) for k in before)  # and the weights trained on
+    other = json.loads(settings_file.read_text())
+    other["arch"]["message_passing_steps"] = 3
+    settings_file.write_text(json.dumps(other))
+    refused = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(tmp_path / "other"), "--settings", str(settings_file), "--init-from", str(tiny_model))
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "architecture" in refused.stderr
+    assert not (tmp_path / "other").exists()
+
+
 def test_train_refuses_a_folder_that_is_not_a_dataset(tmp_path):
     result = run_thrsim("train", "--data", str(tmp_path), "--out", str(tmp_path / "model"))
     assert result.returncode == 2 and "not a thrsim dataset" in result.stderr

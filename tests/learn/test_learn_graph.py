@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from thrsim.data.synthetic import block_mesh
 from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.learn.metrics import surface_distance_mm
 
 MESH = block_mesh(n=4)
 GRAPH = StaticGraph(MESH)
@@ -90,3 +91,28 @@ def test_mesh_digest_tells_meshes_apart():
     assert mesh_digest(MESH) == mesh_digest(block_mesh(n=4))
     assert mesh_digest(MESH) != mesh_digest(block_mesh(n=3))
     assert mesh_digest(MESH) != mesh_digest(MESH.mirrored())
+
+
+def test_reamed_surface_is_the_cavity_without_the_unreamed_articular_faces():
+    active = np.ones(MESH.n_tets, dtype=bool)
+    assert len(GRAPH.reamed_surface(active)) == 0
+    inner_z = MESH.nodes[MESH.node_sets["inner"], 2].max()
+    boundary = len(MESH.adjacency.boundary_owner)
+    articular = int(GRAPH._inner_faces.sum())
+    # reamed through: the cavity is the block's outer and side faces, never the articular ones
+    assert len(GRAPH.reamed_surface(~active)) == boundary - articular
+    active[GRAPH.exposed(active)] = False  # the articular layer
+    cavity = GRAPH.reamed_surface(active)
+    table = MESH.adjacency.neighbours
+    wall = sum(int(active[n]) for i in np.flatnonzero(~active) for n in table[i] if n >= 0)
+    sides = sum(int(n < 0) for i in np.flatnonzero(~active) for n in table[i]) - articular
+    assert len(cavity) == wall + sides
+    assert np.all(cavity[:, 2] < inner_z - 1e-9)
+
+
+def test_surface_distance_is_symmetric_nearest_face_distance_in_mm():
+    grid = np.stack(np.meshgrid(np.arange(10), np.arange(10), [0.0]), axis=-1).reshape(-1, 3) * 1e-3
+    assert surface_distance_mm(grid, grid) == (0.0, 0.0)
+    mean_mm, max_mm = surface_distance_mm(grid, grid + [0.0, 0.0, 0.2e-3])
+    assert np.isclose(mean_mm, 0.2) and np.isclose(max_mm, 0.2)
+    assert np.isnan(surface_distance_mm(grid[:0], grid)[0])

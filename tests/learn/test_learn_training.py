@@ -38,8 +38,9 @@ def test_training_lowers_the_loss_on_a_real_case(real):
     assert np.mean(losses[-2:]) < 0.9 * np.mean(losses[:2]), losses
 
 
-def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path):
-    settings = tiny_settings(epochs=2)
+@pytest.mark.parametrize("pushforward", [{}, {"pushforward_steps": 2, "pushforward_from_epoch": 1}], ids=["one_step", "pushforward"])
+def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path, pushforward):
+    settings = tiny_settings(epochs=2, **pushforward)
     straight = _trainer(real, settings)
     straight.run(None)
     first = _trainer(real, settings)  # the same run, cut after its first epoch
@@ -56,6 +57,24 @@ def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path):
         assert torch.equal(a, b), name
 
 
+def test_pushforward_feeds_the_networks_own_rollout_from_its_first_epoch(real):
+    settings = tiny_settings(epochs=2, pushforward_steps=3, pushforward_fraction=1.0, pushforward_from_epoch=1)
+    trainer = _trainer(real, settings)
+    rng = np.random.default_rng(0)
+    assert trainer._pushed_steps(5, rng) == 0  # before pushforward_from_epoch: ground truth
+    trainer.train_epoch()
+    assert trainer._pushed_steps(0, rng) == 0  # nothing before the first frame
+    assert {trainer._pushed_steps(5, rng) for _ in range(200)} == {1, 2, 3}
+    assert {trainer._pushed_steps(1, rng) for _ in range(20)} == {1}
+    case = trainer.train_cases[0]
+    t = case.frames - 2
+    pushed = trainer._pushed_alpha(case, t, 3)
+    assert trainer.gn.training
+    assert (pushed[case.alpha[t - 3] < 0.3] < 0.3).all()  # removed bone stays removed
+    region_changed = pushed != case.alpha[t - 3]
+    assert region_changed.any() and not np.array_equal(pushed, case.alpha[t])
+
+
 def test_a_checkpoint_of_another_run_is_refused(real, tmp_path):
     trainer = _trainer(real, tiny_settings(epochs=1))
     trainer.save_checkpoint(tmp_path / "ckpt")
@@ -69,7 +88,7 @@ def _rollout_alpha(model, cases):
     step = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
     out = []
     for case in cases:
-        masks, centres = rollout(step, case, 0, case.frames - 1, model.threshold, model.advance)
+        masks, centres = rollout(step, case, 0, case.frames - 1, model.threshold, model.reamer_feed())
         out.append((np.array(masks), centres))
     return out
 

@@ -23,6 +23,7 @@ def train(
     settings_file: Optional[Path] = typer.Option(None, "--settings", help="JSON of settings (arch / features / train sections, nested) over the --arch preset", metavar="FILE"),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace a finished model in MODEL_DIR"),
+    init_from: Optional[Path] = typer.Option(None, "--init-from", help="start from the networks of this trained model (same architecture and mesh) instead of fresh weights", metavar="MODEL_DIR"),
     advance_only: bool = typer.Option(False, "--advance-only", help="refit only the reamer regressor of the trained model in MODEL_DIR, on the data it was trained on"),
     as_json: bool = typer.Option(False, "--json", help="print the model card as one JSON object on stdout"),
 ) -> None:
@@ -84,7 +85,7 @@ def train(
             progress.console.print(f"epoch {report.epoch}/{report.epochs}: {note}, {report.seconds:.1f} s")
 
     try:
-        card = train_model(data, out, model_settings, arch, overwrite=overwrite, on_start=on_start, on_epoch=on_epoch, on_batch=on_batch)
+        card = train_model(data, out, model_settings, arch, overwrite=overwrite, init_from=init_from, on_start=on_start, on_epoch=on_epoch, on_batch=on_batch)
     finally:
         if started:
             progress.stop()

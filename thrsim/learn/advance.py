@@ -1,27 +1,37 @@
 """The reamer-advance regressor [7.3.4, eq. 50]: how far the reamer moves along D in the next frame.
 
-Δposition = Φ(depth, γ, θ, push force). The thesis's eq. 50 also takes the absolute position and
-the count removed in the last frame; both made autonomous rollouts unstable, measured on the
-held-out cases of the default dataset. In absolute coordinates a rollout that drifts a little
-deeper than its training cases lands where only steeper inclinations were seen, borrows their
-larger advances and runs away (the default case lost the whole patch in 30 frames); so the
-position enters as the depth along D from where the reamer was placed. The removed volume closes
-a loop through the network (less removed → less advance → less removed) that stalled γ 15°
-rollouts at 0.26 mm where the solver reaches 1.2 mm (mean F1 from frame 0 to t+60 or the case's
-end 0.84 with it, 0.97 without). Predictions are clipped to the advances seen in training,
-because a regressor outside its data has no physics to fall back on. Four scikit-learn
-models are compared by grid search with cross-validation grouped by case, as the thesis did
-(Random Forest of 100 trees, SVR, Ridge, linear regression); the lowest cross-validated error
-wins and every model's error on held-out cases is tabulated. The winner is stored as plain
-arrays (tree tables, support vectors, coefficients) and evaluated by :class:`ArrayRegressor`, so
-loading a model never unpickles anything.
+Δposition = Φ(depth, γ, θ, push force, push impulse). The thesis's eq. 50 also takes the absolute
+position and the count removed in the last frame; both made autonomous rollouts unstable,
+measured on the held-out cases of the default dataset. In absolute coordinates a rollout that
+drifts a little deeper than its training cases lands where only steeper inclinations were seen,
+borrows their larger advances and runs away (the default case lost the whole patch in 30
+frames); so the position enters as the depth along D from where the reamer was placed. The
+removed volume closes a loop through the network (less removed → less advance → less removed)
+that stalled γ 15° rollouts at 0.26 mm where the solver reaches 1.2 mm (mean F1 from frame 0 to
+t+60 or the case's end 0.84 with it, 0.97 without).
+
+The push impulse since the reamer was placed (Σ F·Δt, N·s) stands for the cutting work done so
+far, as the teeth's friction work grows with the push and the time they turn; it comes from the
+push alone, so it closes no loop through the network. Without it the regressor cannot tell a
+reamer that has just landed near the patch's axis from one that has cut there for a second: at
+γ ≈ 0 the solver's reamer rests at ≈ 0.1 mm for 30–90 frames (sooner at more force) while the
+slow teeth near the axis cut the bone under the dome's pole, then drops 0.5 mm, and a regressor of
+the depth alone predicted almost no advance at the resting depth for ever.
+
+Predictions are clipped to the advances seen in training, because a regressor outside its data
+has no physics to fall back on. Four scikit-learn models are compared by grid search with
+cross-validation grouped by case, as the thesis did (Random Forest of 100 trees, SVR, Ridge,
+linear regression); the lowest cross-validated error wins and every model's error on held-out
+cases is tabulated. The winner is stored as plain arrays (tree tables, support vectors,
+coefficients) and evaluated by :class:`ArrayRegressor`, so loading a model never unpickles
+anything. A regressor stored before the impulse existed (four features) is read as such.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n")
+FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n", "impulse_n_s")
 KINDS = ("random_forest", "svr", "ridge", "linear")
 
 
@@ -34,12 +44,13 @@ def case_samples(case) -> tuple[np.ndarray, np.ndarray]:
         np.full(len(t), case.inclination_deg),
         np.full(len(t), case.anteversion_deg),
         np.full(len(t), case.force_n),
+        case.force_n * case.frame_dt_s * t,
     ])
     return rows, case.advances() * 1e3
 
 
-def feature_row(depth_m: float, inclination_deg: float, anteversion_deg: float, force_n: float) -> np.ndarray:
-    return np.array([[depth_m * 1e3, inclination_deg, anteversion_deg, force_n]])
+def feature_row(depth_m: float, inclination_deg: float, anteversion_deg: float, force_n: float, impulse_n_s: float) -> np.ndarray:
+    return np.array([[depth_m * 1e3, inclination_deg, anteversion_deg, force_n, impulse_n_s]])
 
 
 class ArrayRegressor:
@@ -51,10 +62,17 @@ class ArrayRegressor:
         self.kind = kind
         self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
 
+    @property
+    def n_features(self) -> int:
+        stored = self.arrays.get("n_features")
+        return len(FEATURES) - 1 if stored is None else int(np.ravel(stored)[0])  # stored before the impulse existed
+
     def predict(self, X: np.ndarray) -> np.ndarray:
-        """Advance in mm, clipped to the range of the training targets."""
+        """Advance in mm, clipped to the range of the training targets (rows of :data:`FEATURES`;
+        a regressor of the first four reads those only)."""
         low, high = self.arrays["target_range"]
-        return np.clip(self._raw(np.atleast_2d(np.asarray(X, dtype=np.float64))), low, high)
+        X = np.atleast_2d(np.asarray(X, dtype=np.float64))[:, : self.n_features]
+        return np.clip(self._raw(X), low, high)
 
     def _raw(self, X: np.ndarray) -> np.ndarray:
         a = self.arrays
@@ -84,7 +102,7 @@ class ArrayRegressor:
 
 def export(kind: str, estimator, target_range: tuple[float, float]) -> ArrayRegressor:
     """Plain arrays of a fitted scikit-learn estimator (a Pipeline for the scaled kinds)."""
-    bounds = {"target_range": np.array(target_range, dtype=np.float64)}
+    bounds = {"target_range": np.array(target_range, dtype=np.float64), "n_features": np.array(estimator.n_features_in_)}
     if kind == "random_forest":
         parts = {k: [] for k in ("left", "right", "feature", "threshold", "value")}
         roots, offset = [], 0

@@ -26,7 +26,7 @@ from thrsim.config import BonePatchConfig, LabelConfig, Orientation
 from thrsim.geometry.adjacency import face_adjacency
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import centroids
-from thrsim.learn.advance import ArrayRegressor
+from thrsim.learn.advance import FEATURES, ArrayRegressor
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import LearnedSimulator
@@ -43,7 +43,8 @@ def untrained_model(mesh: TetMesh, settings: ModelSettings, teeth_radius_m: floa
     torch.manual_seed(0)
     labels = LabelConfig()
     gn, mlp = LearnedSimulator(settings, "gn", labels.removed_threshold), LearnedSimulator(settings, "mlp", labels.removed_threshold)
-    advance = ArrayRegressor("linear", {"mean": np.zeros(7), "scale": np.ones(7), "coef": np.zeros(7), "intercept": np.array(FEED_M * 1e3)})
+    width = len(FEATURES)
+    advance = ArrayRegressor("linear", {"mean": np.zeros(width), "scale": np.ones(width), "coef": np.zeros(width), "intercept": np.array(FEED_M * 1e3), "target_range": np.array([0.0, 1.0]), "n_features": np.array(width)})
     card = {"labels": labels.model_dump(), "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": omega_rad_s}, "arch": "untrained"}
     return LoadedModel(path=None, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))
 
@@ -51,12 +52,12 @@ def untrained_model(mesh: TetMesh, settings: ModelSettings, teeth_radius_m: floa
 def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
     simulator = ReamingSimulator(model=model)
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
-    centre = start_position(model.mesh.nodes, axis, model.teeth_radius_m)
-    simulator.step(axis, 230.0, centre)  # warm-up
-    times, regions = [], []
-    for k in range(1, frames + 1):
-        state = simulator.step(axis, 230.0, centre + k * FEED_M * axis)
+    simulator.step(axis, 230.0)  # warm-up
+    times, regions, advances = [], [], []
+    for _ in range(frames):
+        state = simulator.step(axis, 230.0)
         times.append(state.seconds)
+        advances.append(state.advance_m)
         regions.append(simulator._step.last.region)
     return {
         "elements": model.mesh.n_tets,
@@ -64,8 +65,8 @@ def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15
         "ms_per_frame_median": 1e3 * float(np.median(times)),
         "ms_per_frame_p90": 1e3 * float(np.percentile(times, 90)),
         "region_elements_median": int(np.median(regions)),
-        "feed_mm_per_frame": FEED_M * 1e3,
-        "case": f"inclination {inclination_deg:g} deg, anteversion {anteversion_deg:g} deg, tool-forced steady feed",
+        "advance_mm_per_frame_mean": 1e3 * float(np.mean(advances)),
+        "case": f"inclination {inclination_deg:g} deg, anteversion {anteversion_deg:g} deg, autonomous (the model's reamer feed)",
     }
 
 

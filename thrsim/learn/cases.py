@@ -39,6 +39,7 @@ class CaseArrays:
     teeth_radius_m: float
     digest: str
     solver_version: str
+    frame_dt_s: float = 1.0 / 60.0
 
     @property
     def frames(self) -> int:
@@ -69,6 +70,7 @@ def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs
         teeth_radius_m=(0.5 * float(reamer["head_diameter_mm"]) + float(reamer["tooth_protrusion_mm"])) * 1e-3,
         digest=digest,
         solver_version=str(attrs.get("thrsim_version", "unknown")),
+        frame_dt_s=1.0 / float(config.get("frame_rate_hz", 60.0)),
     )
 
 

@@ -55,10 +55,11 @@ def windows(frames: int, start_stride: int, horizons: tuple[int, ...] = HORIZONS
 
 def _steppers(model: LoadedModel) -> dict:
     learned = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
+    feed = model.reamer_feed()
     return {
-        "autonomous": (learned, model.advance),
+        "autonomous": (learned, feed),
         "tool_forced": (learned, None),
-        "mlp": (LearnedStep(model.mlp, model.graph, model.settings.features, model.teeth_radius_m), model.advance),
+        "mlp": (LearnedStep(model.mlp, model.graph, model.settings.features, model.teeth_radius_m), feed),
         "geometric": (GeometricStep(model.graph, model.teeth_radius_m), None),
     }
 
@@ -76,8 +77,8 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         truth_removed = case.alpha < threshold
         for start, keys, length in windows(case.frames, start_stride):
             initial = truth_removed[start]
-            for mode, (step, advance) in steppers.items():
-                masks, _ = rollout(step, case, start, length, threshold, advance)
+            for mode, (step, feed) in steppers.items():
+                masks, _ = rollout(step, case, start, length, threshold, feed)
                 for key in keys:
                     k = length if key == "end" else int(key)
                     counts[mode][g][key].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)

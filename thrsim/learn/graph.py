@@ -143,16 +143,18 @@ class StaticGraph:
         return Subgraph(nodes=np.arange(self.n_nodes), n_region=self.n_nodes, senders=self.senders, receivers=self.receivers)
 
     def reamed_surface(self, active: np.ndarray) -> np.ndarray:
-        """Centroids of the faces bounding the remaining bone on the reamer's side, (S, 3) m.
+        """Centroids of the faces of the cavity the reamer made, (S, 3) m.
 
-        Those are the faces of active tets whose neighbour was removed, and the faces of active
-        tets still on the articular (inner) boundary.
+        Those are the faces of removed tets that face remaining bone (the cavity wall) or lie on
+        the patch's outer or side boundary (where the cut went through the shell). The original
+        articular faces are not part of it: where they remain they were never reamed, and a
+        patch reamed through leaves its outer faces as the cavity, not fragments of bone.
         """
-        active = np.asarray(active, dtype=bool)
+        removed = ~np.asarray(active, dtype=bool)
         table = self.neighbours
-        removed_neighbour = (table >= 0) & ~active[np.maximum(table, 0)]
-        exposed = active[:, None] & (removed_neighbour | self._inner_faces)
-        tet, face = np.nonzero(exposed)
+        facing_bone = (table >= 0) & ~removed[np.maximum(table, 0)]
+        through = (table < 0) & ~self._inner_faces
+        tet, face = np.nonzero(removed[:, None] & (facing_bone | through))
         return self._face_centres[tet, face]
 
 

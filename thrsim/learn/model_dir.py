@@ -34,6 +34,7 @@ from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import ArrayRegressor
 from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.settings import ModelSettings
 
@@ -66,6 +67,10 @@ class LoadedModel:
     @property
     def threshold(self) -> float:
         return float(self.card["labels"]["removed_threshold"])
+
+    def reamer_feed(self) -> ReamerFeed:
+        """How the reamer advances when no position is given (regressor, resting on the bone)."""
+        return ReamerFeed(self.advance, self.mesh, self.teeth_radius_m, self.threshold)
 
 
 def mesh_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:

@@ -24,7 +24,7 @@ from thrsim.errors import ThrsimInputError
 from thrsim.data.pack import ALPHA_LEVELS, is_pack
 from thrsim.learn.cases import CaseArrays, load_cases
 from thrsim.learn.graph import StaticGraph, mesh_digest
-from thrsim.learn.model_dir import CARD, read_card, read_mesh, save_advance, save_model
+from thrsim.learn.model_dir import CARD, load_model, read_card, read_mesh, save_advance, save_model
 from thrsim.learn.settings import ModelSettings
 from thrsim.learn.training import CHECKPOINT, EpochReport, Trainer, train_advance
 from thrsim.provenance import package_versions
@@ -44,11 +44,16 @@ def train_model(
     arch_name: str = "production",
     *,
     overwrite: bool = False,
+    init_from: str | os.PathLike | None = None,
     on_start: Callable[[dict], None] | None = None,
     on_epoch: Callable[[EpochReport], None] | None = None,
     on_batch: Callable[[int, int], None] | None = None,
 ) -> dict:
-    """Train into ``out`` (resuming its checkpoint when one of the same run is there); return the card."""
+    """Train into ``out`` (resuming its checkpoint when one of the same run is there); return the card.
+
+    ``init_from``: a trained model directory whose networks (and input normalisers) the run starts
+    from instead of fresh weights (fine-tuning, e.g. with other training settings); its card's
+    training summary is kept in the new card."""
     out = Path(out)
     if (out / CARD).exists() and not overwrite:
         raise ThrsimInputError(f"{out}: already holds a trained model (pass --overwrite to replace it)")
@@ -68,7 +73,8 @@ def train_model(
         raise ThrsimInputError(f"{data}: cases use different reamers ({sorted(radii)} m teeth radius); one model learns one reamer")
     teeth_radius_m = radii.pop()
     graph = StaticGraph(mesh)
-    trainer = Trainer(graph, train, validation, settings, teeth_radius_m, labels.removed_threshold)
+    init = load_model(init_from, expect_mesh=mesh) if init_from is not None else None
+    trainer = Trainer(graph, train, validation, settings, teeth_radius_m, labels.removed_threshold, init)
     checkpoint = out / CHECKPOINT
     out.mkdir(exist_ok=True)
     resumed = trainer.load_checkpoint(checkpoint)
@@ -105,6 +111,13 @@ def train_model(
             "threads": torch.get_num_threads(),
             "device": "cpu",
             "history": history,
+            "init_from": None if init is None else {
+                "source": str(init_from),
+                "weights_digest": trainer.init_digest,
+                "data_digest": init.card["data"]["digest"],
+                "settings": init.card["settings"],
+                "training": {k: v for k, v in init.card["training"].items() if k != "history"},
+            },
         },
         "metrics": {
             "final_gn_loss": history[-1]["gn_loss"] if history else None,

@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.advance import ArrayRegressor, feature_row
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
+from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import FeatureSettings
 
 
@@ -77,22 +77,22 @@ class GeometricStep:
         return np.where(inside, np.float32(0.0), alpha).astype(np.float32), hazard
 
 
-def rollout(step, case, start: int, frames: int, threshold: float, advance: ArrayRegressor | None) -> tuple[list[np.ndarray], np.ndarray]:
+def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerFeed | None) -> tuple[list[np.ndarray], np.ndarray]:
     """Run ``frames`` steps from the ground truth at ``start``; (removed masks at start+1 … start+frames, centres).
 
-    With ``advance`` the reamer moves by the regressor (autonomous); without, it follows the
-    recorded positions (tool-forced).
+    With ``feed`` the reamer moves by the regressor, resting on the bone (autonomous); without,
+    it follows the recorded positions (tool-forced).
     """
     alpha = case.alpha[start].copy()
     hazard = np.zeros_like(alpha)
     centre = case.positions[start].copy()
     masks, centres = [], []
     for k in range(1, frames + 1):
-        if advance is None:
+        if feed is None:
             new_centre = case.positions[start + k]
         else:
-            row = feature_row(float((centre - case.positions[0]) @ case.axis), case.inclination_deg, case.anteversion_deg, case.force_n)
-            new_centre = centre + float(advance.predict(row)[0]) * 1e-3 * case.axis
+            impulse = case.force_n * case.frame_dt_s * (start + k - 1)
+            new_centre = centre + feed.advance_m(alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse) * case.axis
         moved = float((new_centre - centre) @ case.axis)
         alpha, hazard = step(alpha, hazard, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
         removed = alpha < threshold

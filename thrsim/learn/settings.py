@@ -64,7 +64,11 @@ class FeatureSettings(_Frozen):
 
 
 class TrainSettings(_Frozen):
-    """Optimisation: Adam, exponential learning-rate decay, Gaussian noise on the input α."""
+    """Optimisation: Adam, exponential learning-rate decay, Gaussian noise on the input α, and
+    pushforward: a share of the inputs come from the Graph Network's own rollout of 1 …
+    ``pushforward_steps`` frames (recorded reamer positions, no gradient) from the ground truth,
+    so the network learns to continue from the states it produces, not only from the solver's
+    (Brandstetter, Worrall and Welling 2022, "Message passing neural PDE solvers")."""
 
     epochs: int = Field(30, ge=1)
     batch_size: int = Field(4, ge=1)
@@ -79,6 +83,9 @@ class TrainSettings(_Frozen):
     validation_horizon: int = Field(30, ge=1, description="frames of the validation rollouts run after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
     advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
+    pushforward_steps: int = Field(0, ge=0, description="longest rollout of the network itself that makes a training input (0: ground-truth inputs only)")
+    pushforward_fraction: float = Field(0.5, ge=0, le=1, description="share of frame pairs whose input is pushed forward")
+    pushforward_from_epoch: int = Field(5, ge=0, description="first epoch with pushed-forward inputs (the network must first learn one step)")
 
 
 class ModelSettings(_Frozen):

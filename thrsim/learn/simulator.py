@@ -22,7 +22,6 @@ from thrsim.config import LabelConfig
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.advance import feature_row
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import LearnedStep
 from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
@@ -30,6 +29,8 @@ from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
 PERFORATED, PASSED_THROUGH = "perforated", "passed_through"
 _MIRROR = np.array([-1.0, 1.0, 1.0])
+#: one step is one frame of the solver's cases (60 frames per second)
+FRAME_DT_S = 1.0 / 60.0
 
 
 @dataclass(frozen=True)
@@ -59,6 +60,7 @@ class SimulatorSnapshot:
     hazard: np.ndarray
     centre: np.ndarray | None
     start: np.ndarray | None
+    impulse_n_s: float = 0.0
 
 
 def angles_of(axis: np.ndarray) -> tuple[float, float]:
@@ -124,6 +126,7 @@ class ReamingSimulator:
             torch.set_num_threads(threads)
         self.model = model if model is not None else load_model(model_dir)
         self._step = LearnedStep(self.model.gn, self.model.graph, self.model.settings.features, self.model.teeth_radius_m)
+        self._feed = self.model.reamer_feed()
         self._threshold = self.model.threshold
         self._tip_exit: tuple[tuple[float, ...], float | None] | None = None  # (axis, depth) of the last axis seen
         self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
@@ -152,11 +155,12 @@ class ReamingSimulator:
         self.hazard = np.zeros(self.n_elements, dtype=np.float32)  # accumulated removal hazard
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
+        self._impulse_n_s = 0.0  # push impulse since the reamer was placed (the regressor's input)
 
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
         copy = lambda v: None if v is None else v.copy()  # noqa: E731
-        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), self.hazard.copy(), copy(self._centre), copy(self._start))
+        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), self.hazard.copy(), copy(self._centre), copy(self._start), self._impulse_n_s)
 
     def restore(self, snapshot: SimulatorSnapshot) -> None:
         """Go back to a state taken by :meth:`snapshot` (same model)."""
@@ -167,6 +171,7 @@ class ReamingSimulator:
         self.hazard = snapshot.hazard.copy()
         self._centre = None if snapshot.centre is None else snapshot.centre.copy()
         self._start = None if snapshot.start is None else snapshot.start.copy()
+        self._impulse_n_s = snapshot.impulse_n_s
 
     @property
     def removed(self) -> np.ndarray:
@@ -202,14 +207,14 @@ class ReamingSimulator:
             if self._centre is None:
                 self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
             gamma, theta = angles_of(axis)
-            row = feature_row(float((self._centre - self._start) @ axis), gamma, theta, force)
-            new_centre = self._centre + float(self.model.advance.predict(row)[0]) * 1e-3 * axis
+            new_centre = self._centre + self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s) * axis
         advance = float((new_centre - self._centre) @ axis)
         before = self.removed
         self.alpha, self.hazard = self._step(self.alpha, self.hazard, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre
+        self._impulse_n_s += force * FRAME_DT_S
         self.frame += 1
         end_reason = self._end_reason(axis, after)
         return StepResult(

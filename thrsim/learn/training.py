@@ -3,6 +3,11 @@
 Each sample is a frame pair (t, t + 1) of a training case, cut to the region near the reamer at
 t + 1 plus its halo (the same subgraph the simulator evaluates), with Gaussian noise on the
 input α of active elements and on the reamer centre (MeshGraphNets-style, for stable rollouts).
+With pushforward (``TrainSettings.pushforward_steps``), a share of the inputs at t are the Graph
+Network's own tool-forced rollout from an earlier ground-truth frame, while the targets stay the
+solver's: single steps from the solver's state were right at γ = 0 while the chained rollout cut
+the rim at half the solver's rate, because the network's own states drift from the ones it was
+trained on. Both networks see the same batches.
 The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49), plus
 the removal head's on whether they are removed at t + 1.
 Input normalisers are fitted once on the first samples of a fixed permutation, then frozen.
@@ -15,6 +20,7 @@ score F1 of newly removed elements.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import time
@@ -34,6 +40,7 @@ from thrsim.learn.cases import CaseArrays
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.metrics import Counts
 from thrsim.learn.rollout import LearnedStep, rollout
 from thrsim.learn.settings import ModelSettings
@@ -55,7 +62,7 @@ class EpochReport:
 class Trainer:
     """Holds the data, both networks and their optimisers; ``run`` trains epoch by epoch."""
 
-    def __init__(self, graph: StaticGraph, train: list[CaseArrays], validation: list[CaseArrays], settings: ModelSettings, teeth_radius_m: float, threshold: float):
+    def __init__(self, graph: StaticGraph, train: list[CaseArrays], validation: list[CaseArrays], settings: ModelSettings, teeth_radius_m: float, threshold: float, init: LoadedModel | None = None):
         if not train:
             raise ThrsimInputError("no training cases")
         self.graph, self.train_cases, self.validation = graph, train, validation
@@ -73,22 +80,63 @@ class Trainer:
         }
         self.epoch = 0
         self.history: list[dict] = []
-        self._fit_normalisers()
+        self.init_digest: str | None = None
+        if init is None:
+            self._fit_normalisers()
+        else:
+            self._start_from(init)
+
+    def _start_from(self, init: LoadedModel) -> None:
+        """Warm start: both networks and their normalisers from a trained model of the same architecture."""
+        if init.settings.arch != self.settings.arch or init.settings.features != self.settings.features:
+            raise ThrsimInputError(f"{init.path}: its architecture or features differ from this run's; a warm start needs the same network")
+        if init.graph.digest != self.graph.digest:
+            raise ThrsimInputError(f"{init.path}: belongs to another mesh than the data")
+        self.gn.load_state_dict(init.gn.state_dict())
+        self.mlp.load_state_dict(init.mlp.state_dict())
+        digest = hashlib.sha256()
+        for name, tensor in sorted({**init.gn.state_dict(), **{f"mlp.{k}": v for k, v in init.mlp.state_dict().items()}}.items()):
+            digest.update(name.encode())
+            digest.update(tensor.detach().contiguous().numpy().tobytes())
+        self.init_digest = digest.hexdigest()
+
+    def _pushed_steps(self, t: int, rng: np.random.Generator | None) -> int:
+        """How many of the network's own steps lead to the input at t (0: the ground truth)."""
+        train = self.settings.train
+        if rng is None or train.pushforward_steps == 0 or t == 0 or self.epoch < train.pushforward_from_epoch:
+            return 0
+        if rng.random() >= train.pushforward_fraction:
+            return 0
+        return int(rng.integers(1, min(t, train.pushforward_steps) + 1))
+
+    def _pushed_alpha(self, case: CaseArrays, t: int, steps: int) -> np.ndarray:
+        """α at t from the Graph Network's tool-forced rollout of ``steps`` frames from the ground truth."""
+        was_training = self.gn.training
+        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
+        alpha = case.alpha[t - steps].copy()
+        hazard = np.zeros_like(alpha)
+        for frame in range(t - steps + 1, t + 1):
+            moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
+            alpha, hazard = step(alpha, hazard, case.positions[frame], case.axis, case.force_n, moved, case.omega_rad_s)
+        self.gn.train(was_training)
+        return alpha
 
     def _sample(self, index: int, rng: np.random.Generator | None):
         case_index, t = self.samples[index]
         case = self.train_cases[case_index]
+        pushed = self._pushed_steps(int(t), rng)
+        alpha_t = case.alpha[t] if pushed == 0 else self._pushed_alpha(case, int(t), pushed)
         centre = case.positions[t + 1].copy()
         if rng is not None and self.settings.train.position_noise_mm > 0:
             centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
         graph = self.graph
-        active_t = case.alpha[t] >= self.threshold
+        active_t = alpha_t >= self.threshold
         if self.settings.features.whole_graph:
             sub = graph.whole()
         else:
             region = graph.region(active_t, centre, self.reach_m, self.settings.features.front_hops)
             sub = graph.subgraph(region, self.settings.features.halo_hops)
-        alpha_in = case.alpha[t][sub.nodes].astype(np.float32)
+        alpha_in = alpha_t[sub.nodes].astype(np.float32)
         if rng is not None and self.settings.train.alpha_noise > 0:
             active = alpha_in >= self.threshold
             noisy = alpha_in + rng.normal(0.0, self.settings.train.alpha_noise, len(alpha_in)).astype(np.float32)
@@ -160,7 +208,10 @@ class Trainer:
 
     # checkpoints -------------------------------------------------------------------------
     def identity(self) -> str:
-        return config_hash({"settings": self.settings.model_dump(mode="json"), "cases": [c.case_id for c in self.train_cases], "mesh": self.graph.digest})
+        identity = {"settings": self.settings.model_dump(mode="json"), "cases": [c.case_id for c in self.train_cases], "mesh": self.graph.digest}
+        if self.init_digest is not None:
+            identity["init"] = self.init_digest
+        return config_hash(identity)
 
     def save_checkpoint(self, folder: Path) -> None:
         folder.mkdir(parents=True, exist_ok=True)

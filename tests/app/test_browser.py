@@ -38,7 +38,7 @@ def page(served):
         page = browser.new_page(viewport={"width": 1100, "height": 720})
         problems: list[str] = []
         page.on("pageerror", lambda error: problems.append(str(error)))
-        page.goto(served.url + "/", timeout=30_000)
+        page.goto(served.url + "/?render-scale=1", timeout=30_000)  # pictures compared over time: one resolution
         page.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.frames > 3", timeout=30_000)
         page.problems = problems
         yield page
@@ -89,7 +89,7 @@ def test_continuous_drawing_moves_the_reamer_every_frame(page, served):
     # What `thrsim bench --browser` counts: frames of a scene that changes, not redraws of a still one.
     measured = page.context.browser.new_page(viewport={"width": 1100, "height": 720})
     try:
-        measured.goto(served.url + "/?continuous=1", timeout=30_000)
+        measured.goto(served.url + "/?continuous=1&render-scale=1", timeout=30_000)  # a resolution change is no motion
         measured.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.frames > 3", timeout=30_000)
         before = picture(measured)
         frames = measured.evaluate("trainer.stats.frames")
@@ -97,6 +97,97 @@ def test_continuous_drawing_moves_the_reamer_every_frame(page, served):
         assert changed_fraction(before, picture(measured)) > 0.0005  # the landmark's pulse alone: ~0.0001
     finally:
         measured.close()
+
+
+# The render scale's rules (render_scale.js), fed frame timestamps: one call per animation frame;
+# each step of the feed is (frames, ms between frames, draw every nth frame).
+_FEED = """async (steps) => {
+  const { RenderScale } = await import("/static/render_scale.js");
+  const scale = new RenderScale();
+  let now = 0;
+  const seen = [];
+  for (const [frames, interval, drawEvery] of steps) {
+    for (let i = 0; i < frames; i++) {
+      now += interval;
+      scale.frame(now, i % drawEvery === 0);
+    }
+    seen.push(scale.scale);
+  }
+  return { seen, wait: scale.wait };
+}"""
+
+
+def test_render_scale_follows_the_frame_rate(page):
+    rules = page.evaluate("import('/static/render_scale.js').then((m) => ({ steps: m.STEPS, window: m.WINDOW, slow: m.SLOW_WINDOWS, wait: m.FIRST_WAIT_MS }))")
+    steps, window, wait = rules["steps"], rules["window"], rules["wait"]
+    judged = rules["slow"] * window  # slow frames before a step down
+
+    def feed(*chunks):
+        return page.evaluate(_FEED, [list(chunk) for chunk in chunks])["seen"][1:]
+
+    fast, slow = 1000 / 60, 1000 / 30
+    display = (3, fast, 99)  # animation frames at 60 Hz with nothing drawn: the display's rate
+    keeping_up = round(wait / fast)  # frames at 60 Hz that last the wait before a try
+    assert feed(display, (20 * window, fast, 1)) == [1]  # keeps up: full resolution
+    down = [display, (1, slow, 1)] + [(judged, slow, 1)] * (len(steps) - 1) + [(10 * window, slow, 1)]
+    assert feed(*down) == [*steps, steps[-1]]  # a step down per run of slow windows, to the lowest
+    assert feed(display, (window + 1, slow, 1), (10 * window, fast, 1)) == [1, 1]  # one slow window: a hiccup
+    assert feed(display, (10 * window, slow, 2), (10 * window, slow, 3)) == [1, 1]  # drawn now and then: no rate to judge
+    assert feed(display, (10 * window, 300, 1)) == [1]  # stalls are not a frame rate
+    assert feed((1, 0, 1), (20 * window, slow, 1), (20 * window, 20, 1)) == [1, 1]  # 30 and 50 Hz displays, kept up with
+    # Slow, then keeping up: stays down for the wait, then tries one step up.
+    assert feed(display, (judged + 1, slow, 1), (keeping_up - window, fast, 1), (3 * window, fast, 1)) == [steps[1], steps[1], 1]
+    # A try that turns out slow steps back down and doubles the wait before the next try.
+    chunks = [display, (judged + 1, slow, 1), (keeping_up + window, fast, 1), (judged, slow, 1), (2 * keeping_up - window, fast, 1), (3 * window, fast, 1)]
+    tried = page.evaluate(_FEED, chunks)
+    assert tried["seen"][1:] == [steps[1], 1, steps[1], steps[1], 1] and tried["wait"] == 2 * wait
+
+
+_BURN = """() => {
+  window.burning = true;
+  const burn = () => {
+    const start = performance.now();
+    while (performance.now() - start < 40);
+    if (window.burning) requestAnimationFrame(burn);
+  };
+  requestAnimationFrame(burn);
+}"""
+
+
+def test_render_scale_drops_when_frames_are_slow_and_the_page_still_draws(page, served):
+    slowed = page.context.browser.new_page(viewport={"width": 1100, "height": 720})
+    try:
+        slowed.goto(served.url + "/?continuous=1", timeout=30_000)
+        slowed.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.frames > 30", timeout=30_000)
+        slowed.evaluate(_BURN)  # every animation frame 40 ms longer: about 20 frames/s on any machine
+        slowed.wait_for_function("trainer.view.renderScale.scale < 1", timeout=60_000)
+        slowed.evaluate("window.burning = false")
+        scale, canvas = slowed.evaluate("[trainer.view.renderScale.scale, [trainer.view.renderer.domElement.width, trainer.view.renderer.domElement.height]]")
+        assert canvas == [int(1100 * scale), int(720 * scale)]
+        frames = slowed.evaluate("trainer.stats.frames")
+        slowed.wait_for_function(f"trainer.stats.frames > {frames + 5}", timeout=30_000)
+        drawn = picture(slowed)
+        assert drawn.std() > 10 and len(np.unique(drawn.reshape(-1, 3), axis=0)) > 50  # stretched, not blank
+    finally:
+        slowed.close()
+
+
+def test_render_scale_can_be_pinned(page, served):
+    pinned = page.context.browser.new_page(viewport={"width": 1100, "height": 720})
+    canvas = """(() => {
+      const scale = trainer.view.renderScale, element = trainer.view.renderer.domElement;
+      return [scale.scale, scale.changes, element.width, getComputedStyle(element).imageRendering];
+    })()"""
+    try:
+        pinned.goto(served.url + "/?continuous=1&render-scale=0.5", timeout=30_000)
+        pinned.wait_for_function("window.trainer && trainer.stats.frames > 60", timeout=60_000)
+        assert pinned.evaluate(canvas) == [0.5, 0, 550, "pixelated"]  # each canvas pixel drawn as 2×2
+        pinned.goto(served.url + "/?continuous=1&render-scale=0.75", timeout=30_000)
+        pinned.wait_for_function("window.trainer && trainer.stats.frames > 60", timeout=60_000)
+        assert pinned.evaluate(canvas) == [0.75, 0, 825, "auto"]  # stretched by 4/3: smoothed
+    finally:
+        pinned.close()
+    assert page.evaluate("getComputedStyle(trainer.view.renderer.domElement).imageRendering") == "pixelated"  # 1:1
 
 
 def test_safe_zone_colour_changes_when_the_aim_leaves_the_zone(page):

@@ -28,7 +28,7 @@ def page(tmp_path_factory):
             page = browser.new_page(viewport={"width": 1100, "height": 720})
             problems: list[str] = []
             page.on("pageerror", lambda error: problems.append(str(error)))
-            page.goto(served.url + "/reaming", timeout=30_000)
+            page.goto(served.url + "/reaming?render-scale=1", timeout=30_000)  # pictures compared over time: one resolution
             page.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.visibleFaces > 0 && trainer.stats.frames > 2", timeout=60_000)
             page.problems = problems
             yield page

@@ -7,7 +7,10 @@ every animation frame and turns the reamer a little each time, so the figure cou
 scene that changes on every one. Headless Chromium paces animation frames at 60 Hz, so 60 frames/s
 is the most this can show. Frames per second depend on how much CPU the machine leaves the
 browser; Chromium's CPU time per frame (all its processes, read from /proc) is steadier under
-load, though not independent of it, so both are reported.
+load, though not independent of it, so both are reported. The page lowers its canvas's
+resolution while it draws slower than the display (thrsim/app/static/render_scale.js): the render
+scale at the start and the end of the count, and how often it changed meanwhile, say at what
+resolution the frames were drawn.
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ CHROMIUM_FLAGS = ["--no-sandbox", "--headless", "--disable-gpu", "--enable-unsaf
 _ANNOUNCE = re.compile(r"http://127\.0\.0\.1:(\d+)/")
 
 # What the page reports about itself: WebGL renderer (through the debug extension, when offered),
-# canvas size in device pixels and the last frame's draw calls and triangles.
+# canvas size in device pixels (the render scale's), the last frame's draw calls and triangles.
 _PAGE_INFO = """() => {
   const renderer = trainer.view.renderer, gl = renderer.getContext();
   const debug = gl.getExtension("WEBGL_debug_renderer_info");
@@ -38,10 +41,14 @@ _PAGE_INFO = """() => {
     webgl_renderer: debug ? gl.getParameter(debug.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER),
     canvas: [renderer.domElement.width, renderer.domElement.height],
     device_pixel_ratio: devicePixelRatio,
+    render_scale: trainer.view.renderScale.scale,
     draw_calls: renderer.info.render.calls,
     triangles: renderer.info.render.triangles,
   };
 }"""
+# Read at the start and the end of the count: time, frames drawn, states received, render scale
+# and how often it changed so far.
+_COUNTERS = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.view.renderScale.scale, trainer.view.renderScale.changes]"
 
 
 def chromium_cpu_seconds() -> float | None:
@@ -142,16 +149,18 @@ def served_page(path: str, width: int, height: int, *serve_args: str, chromium: 
             stop_child(process)
 
 
-def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
-    """Frames per second the trainer page draws with its reamer moving every frame."""
+def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, render_scale: float | None = None) -> dict:
+    """Frames per second the trainer page draws with its reamer moving every frame; ``render_scale``
+    pins the page's render scale (``?render-scale=``) instead of letting it follow the frame rate."""
     load_before = os.getloadavg()
-    with served_page("/?continuous=1", width, height, chromium=chromium) as (browser, page):
+    path = "/?continuous=1" + ("" if render_scale is None else f"&render-scale={render_scale}")
+    with served_page(path, width, height, chromium=chromium) as (browser, page):
         page.wait_for_function("window.trainer && trainer.stats.states > 10 && trainer.stats.frames > 10", timeout=60_000)
         page.wait_for_timeout(2000)  # warm-up: shaders compiled, caches filled
         cpu_first = chromium_cpu_seconds()
-        first = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        first = page.evaluate(_COUNTERS)
         page.wait_for_timeout(seconds * 1000)
-        last = page.evaluate("[performance.now(), trainer.stats.frames, trainer.stats.states]")
+        last = page.evaluate(_COUNTERS)
         cpu_last = chromium_cpu_seconds()
         info = page.evaluate(_PAGE_INFO)
         chromium_version = browser.version
@@ -167,6 +176,8 @@ def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, ch
         "page_states_per_s": (last[2] - first[2]) / elapsed,
         "viewport": [width, height],
         **info,
+        "render_scale_at_start": first[3],
+        "render_scale_changes": last[4] - first[4],
         "chromium": chromium_version,
         "chromium_flags": CHROMIUM_FLAGS,
         "load_average_1min": [load_before[0], os.getloadavg()[0]],

@@ -7,8 +7,9 @@ over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee re
 * simulator frames per second delivered to the page (the state's frame counter over the window),
   the bone's binary frames received and their mean size against sending every element's α as
   float32 (the whole array), states per second;
-* frames drawn per second (the page draws whenever a state or a bone frame arrived) and
-  Chromium's CPU per drawn frame;
+* frames drawn per second (the page draws whenever a state or a bone frame arrived),
+  Chromium's CPU per drawn frame and the render scale the page ended at (its canvas's resolution,
+  lowered while frames are slow: thrsim/app/static/render_scale.js);
 * latency from an OpenIGTLink pose to the page: the reamer is re-aimed by a TRANSFORM message
   and the page timestamps the state showing the new angle and its first drawing (median, p90).
 """
@@ -91,6 +92,7 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
             last = page.evaluate(probe)
             cpu_last = chromium_cpu_seconds()
             reaming = page.evaluate("trainer.stats.last.reaming")
+            render_scale = page.evaluate("trainer.view.renderScale.scale")  # the canvas's resolution (render_scale.js)
             arrived, drawn = [], []
             for k in range(latency_trials):
                 target = 38.0 if k % 2 == 0 else 42.0
@@ -129,6 +131,7 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
         "elements": elements,
         "seconds": elapsed,
         "viewport": [width, height],
+        "render_scale": render_scale,
         "chromium": chromium_version,
         "load_average_1min": [load_before[0], os.getloadavg()[0]],
     }

@@ -209,7 +209,9 @@ orbit.addEventListener("change", () => { dirty = true; });
 window.addEventListener("resize", () => { dirty = true; });
 function frame(now) {
   const pulse = view.pulsing() && now - lastPulse > 80;
-  if (continuous || dirty || pulse) {
+  let draw = continuous || dirty || pulse;
+  if (view.pace(now, draw)) draw = true; // the canvas was resized, so cleared
+  if (draw) {
     if (pulse) lastPulse = now;
     dirty = false;
     stats.frames += 1;

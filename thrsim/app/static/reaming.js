@@ -241,8 +241,9 @@ document.addEventListener("keydown", (e) => {
 
 // Draw when something changed (a state, a bone frame, the view moved).
 orbit.addEventListener("change", () => { dirty = true; });
-function frame() {
-  if (dirty) {
+function frame(now) {
+  const draw = view.pace(now, dirty) || dirty; // a resized canvas is cleared: drawn again
+  if (draw) {
     dirty = false;
     stats.frames += 1;
     render();

@@ -2,14 +2,22 @@
 // its truncated-pyramid tracking volume, the tracked tools and the reamer's safe-zone ray.
 // Coordinates are the server's model frame (metres, +x patient right, +y anterior, +z superior),
 // used as three.js's world as it is: the patient lies supine, anterior is up (three.js's +y).
-// Under software WebGL (SwiftShader) a frame's CPU cost grows with its draw calls and triangles:
-// parts that share a material are merged into one geometry (coloured per vertex where their
-// colours differ; not instanced, as SwiftShader draws each instance as a draw of its own), and
-// small spheres and tubes have no more segments than their size on screen needs.
+// Under software WebGL (SwiftShader) a frame's CPU cost grows with its draw calls (~25 µs each),
+// its triangles (~0.35 µs) and, most of all, the pixels it rasterises: parts that share a material
+// are merged into one geometry (coloured per vertex where their colours differ; not instanced, as
+// SwiftShader draws each instance as a draw of its own), spheres and tubes have no more segments
+// than their size on screen needs, closed shapes are drawn front faces only, the table's grid has
+// few lines (each crosses the screen), and the canvas's resolution follows the frame rate
+// (render_scale.js).
 import * as THREE from "three";
 import { mergeGeometries } from "three/addons/utils/BufferGeometryUtils.js";
+import { RenderScale, imageRendering } from "./render_scale.js";
 
-const BONE = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.DoubleSide });
+// The pelvis's bars are closed tubes, drawn front faces only; its plates (the iliac wings) are
+// open, seen from both sides. SwiftShader rasterises every back face it is given: the bars drawn
+// double-sided cost it about 2 of its 9 ms a frame at 1280×720.
+const BONE_BARS = new THREE.MeshLambertMaterial({ color: 0xe6d8b8 });
+const BONE_PLATES = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.DoubleSide });
 const GREEN = 0x00c850, RED = 0xdc1e1e, AMBER = 0xffb000, GREY = 0x888888, YELLOW = 0xffe14d;
 export const ZONE_COLOURS = { green: GREEN, amber: AMBER, red: RED };
 
@@ -46,9 +54,16 @@ function painted(geometry, hex) {
   return geometry;
 }
 
-function tube(points, radius) {
+// A bar along the points: a tube closed at both ends by flat caps on its own end rings (whose
+// vertex order turns clockwise seen from ahead of the curve), so its back faces need no drawing.
+function bar(points, radius, radial = 8) {
   const curve = new THREE.CatmullRomCurve3(points.map(v));
-  return new THREE.TubeGeometry(curve, 16, radius, 8, false);
+  const tube = new THREE.TubeGeometry(curve, 12, radius, radial, false);
+  const p = tube.attributes.position;
+  const ring = (first) => Array.from({ length: radial }, (_, j) => [p.getX(first + j), p.getY(first + j), p.getZ(first + j)]);
+  const start = fan(curve.getPointAt(0).toArray(), ring(0));
+  const end = fan(curve.getPointAt(1).toArray(), ring(p.count - radial - 1).reverse());
+  return [tube, start, end];
 }
 
 function fan(centre, loop) {
@@ -66,14 +81,14 @@ function fan(centre, loop) {
 
 function hemisphereCup(centre, axis, radius) {
   // The acetabulum: a hemispherical socket opening along `axis`.
-  const geometry = new THREE.SphereGeometry(radius, 24, 8, 0, Math.PI * 2, 0, Math.PI / 2);
+  const geometry = new THREE.SphereGeometry(radius, 16, 6, 0, Math.PI * 2, 0, Math.PI / 2);
   geometry.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), v(axis).negate().normalize()));
   return geometry.translate(...centre);
 }
 
 function buildPelvis(scene) {
   const group = new THREE.Group();
-  const bone = [], cups = [];
+  const bars = [], plates = [], cups = [];
   const lm = scene.landmarks;
   const side = scene.side, other = side === "right" ? "left" : "right";
   const rimNames = Object.keys(lm).filter((n) => n.startsWith("rim_"));
@@ -90,15 +105,15 @@ function buildPelvis(scene) {
     const wingLoop = [...crest, notch, [acetabulum[0] * 0.9, acetabulum[1] - 0.01, acetabulum[2] + 0.035], get("aiis")];
     const wingCentre = wingLoop.reduce((a, p) => a.map((x, k) => x + p[k] / wingLoop.length), [0, 0, 0]);
     wingCentre[0] *= 0.8; // the iliac fossa curves medially
-    bone.push(fan(wingCentre, wingLoop));
-    bone.push(tube(crest, 0.007));
-    bone.push(tube([acetabulum, get("pubic"), [0.0, flip(lm.pubic_symphysis)[1], flip(lm.pubic_symphysis)[2]]], 0.009));
-    bone.push(tube([get("pubic"), [get("pubic")[0] * 1.3, -0.03, -0.11], tuberosity], 0.007));
-    bone.push(tube([acetabulum, ischialSpine, tuberosity], 0.01));
+    plates.push(fan(wingCentre, wingLoop));
+    bars.push(...bar(crest, 0.007));
+    bars.push(...bar([acetabulum, get("pubic"), [0.0, flip(lm.pubic_symphysis)[1], flip(lm.pubic_symphysis)[2]]], 0.009));
+    bars.push(...bar([get("pubic"), [get("pubic")[0] * 1.3, -0.03, -0.11], tuberosity], 0.007));
+    bars.push(...bar([acetabulum, ischialSpine, tuberosity], 0.01));
     cups.push(hemisphereCup(acetabulum, axis, scene.rim_radius_m));
-    bone.push(tube([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
+    bars.push(...bar([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
   }
-  group.add(new THREE.Mesh(merge(bone), BONE));
+  group.add(new THREE.Mesh(merge(bars), BONE_BARS), new THREE.Mesh(merge(plates), BONE_PLATES));
   const sockets = new THREE.Mesh(merge(cups), new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide }));
   sockets.name = "sockets"; // the reaming page hides them: its bone patch is the operated socket
   group.add(sockets);
@@ -108,7 +123,7 @@ function buildPelvis(scene) {
 // The marker balls, one mesh: they always share a colour (green tracked, red not).
 function markerBalls(markers, radius = 0.0065) {
   const material = new THREE.MeshLambertMaterial({ color: GREEN });
-  const balls = merge(markers.map((m) => new THREE.SphereGeometry(radius, 12, 8).translate(...m)));
+  const balls = merge(markers.map((m) => new THREE.SphereGeometry(radius, 8, 6).translate(...m)));
   return { balls: new THREE.Mesh(balls, material), material };
 }
 
@@ -138,7 +153,7 @@ function buildTool(name, scene) {
   } else if (name === "Reamer") {
     body.push(rod([0, 0, 0], tip, 0.005, 0xb0b8c0));
     const radius = scene.reamer_head_diameter_m / 2;
-    const head = new THREE.SphereGeometry(radius, 24, 8, 0, Math.PI * 2, 0, Math.PI / 2);
+    const head = new THREE.SphereGeometry(radius, 16, 6, 0, Math.PI * 2, 0, Math.PI / 2);
     head.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), new THREE.Vector3(0, 0, -1))); // dome into the bone (−z)
     body.push(painted(head.translate(...tip), 0xc0c6cc));
     // The ray: the reamer axis through the head centre, coloured by the safe zone.
@@ -183,7 +198,7 @@ function buildCamera(volume) {
 export class NavigationScene {
   constructor(canvas) {
     this.renderer = new THREE.WebGLRenderer({ canvas, antialias: false, powerPreference: "high-performance" });
-    this.renderer.setPixelRatio(Math.min(window.devicePixelRatio, 1.5));
+    this.renderScale = RenderScale.fromQuery(location.search);
     this.scene = new THREE.Scene();
     this.scene.background = new THREE.Color(0x1b2026);
     this.camera = new THREE.PerspectiveCamera(45, 1, 0.01, 20);
@@ -193,7 +208,7 @@ export class NavigationScene {
     this.scene.add(sun);
     this.root = new THREE.Group();
     this.scene.add(this.root);
-    const grid = new THREE.GridHelper(4, 40, 0x3a434d, 0x2b323a); // the operating table's plane
+    const grid = new THREE.GridHelper(4, 20, 0x3a434d, 0x2b323a); // the operating table's plane, 20 cm squares
     grid.position.y = -0.2;
     this.scene.add(grid);
     this.pickable = [];
@@ -201,9 +216,21 @@ export class NavigationScene {
   }
 
   resize(width, height) {
+    this.size = [width, height];
+    const ratio = Math.min(window.devicePixelRatio, 1.5) * this.renderScale.scale;
+    this.renderer.setPixelRatio(ratio);
     this.renderer.setSize(width, height, false);
+    this.renderer.domElement.style.imageRendering = imageRendering(ratio);
     this.camera.aspect = width / height;
     this.camera.updateProjectionMatrix();
+  }
+
+  // Once per animation frame, before drawing, with whether the page draws in it: true when the
+  // render scale changed (the canvas was resized, so cleared: the page draws in this frame).
+  pace(now, draws) {
+    if (!this.renderScale.frame(now, draws)) return false;
+    this.resize(...this.size);
+    return true;
   }
 
   build(scene) {
@@ -214,7 +241,7 @@ export class NavigationScene {
     this.content.add(buildPelvis(scene));
     // The landmark points: one mesh coloured per vertex (grey, green once acquired), and the point
     // to touch next drawn over its own ball, larger, glowing and pulsing.
-    const ball = new THREE.SphereGeometry(0.004, 10, 8);
+    const ball = new THREE.SphereGeometry(0.004, 8, 6);
     this.landmarkNames = Object.keys(scene.landmarks);
     this.ballVertices = ball.attributes.position.count;
     const balls = this.landmarkNames.map((name) => painted(ball.clone().translate(...scene.landmarks[name]), GREY));

@@ -73,7 +73,8 @@ def _course(record: ReamingRecord) -> Section:
     import matplotlib.pyplot as plt
 
     t = record.frame * FRAME_S
-    figure, axes = plt.subplots(1, 2, figsize=(11, 3.4))
+    # room between the panels for the twin depth axis's label
+    figure, axes = plt.subplots(1, 2, figsize=(11.5, 3.4), gridspec_kw={"wspace": 0.45})
     axes[0].plot(t, record.removed_volume_mm3, color="tab:brown", label="removed volume")
     axes[0].set_xlabel("reaming time (s)")
     axes[0].set_ylabel("removed volume (mm³)")

@@ -1,0 +1,100 @@
+"""Makes the README's reaming screenshots from this checkout:
+
+* docs/reaming.png: the reaming trainer (`/reaming`, the shipped model, 1280x720) after a few
+  simulated seconds of reaming at the safe zone's centre (the page's default aim and push);
+* docs/report_reaming.png: the reaming sections of that session's assessment report.
+
+    python3 docs/screenshots.py
+
+It starts `python -m thrsim serve` of this checkout (sessions in a temporary folder) and drives
+Debian's headless Chromium with Playwright, as the browser tests do. On failure it exits 1 with
+a one-line message.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+from pathlib import Path
+from urllib.parse import urljoin
+
+DOCS = Path(__file__).resolve().parent
+sys.path.insert(0, str(DOCS.parent))  # this checkout's thrsim (the server child inherits it), whatever is installed
+
+from thrsim.app.drawing_bench import served_page  # noqa: E402
+
+WIDTH, HEIGHT = 1280, 720
+REAMING_S = 1.0  # simulated seconds (60 frames): about the planned depth; near 1.8 s the reamer perforates the patch
+MIN_REMOVED = 100  # elements; fewer means the simulator did not ream
+WAIT_MS = 600_000  # the simulation may run far behind real time on a busy machine
+MAX_PNG_BYTES = 150_000
+
+# The page is ready once the bone is drawn, or has said why reaming is unavailable.
+READY = "window.trainer && (trainer.stats.framed && trainer.stats.visibleFaces > 0 || document.getElementById('unavailable').textContent !== '')"
+REAMED = f"trainer.stats.last.reaming.time_s >= {REAMING_S} || !trainer.stats.last.reaming.running"
+# Paused, the drawn bone is the server's last state, and the start/pause messages have faded.
+SETTLED = "!trainer.stats.last.reaming.running && trainer.stats.removed === trainer.stats.last.reaming.removed && document.getElementById('toasts').childElementCount === 0"
+# The report's reaming part: from its first "Reaming" heading to the provenance note after the sections.
+REAMING_SECTIONS = """() => {
+  const first = [...document.querySelectorAll("h2")].find((h) => h.textContent.startsWith("Reaming"));
+  if (!first) return null;
+  const top = first.getBoundingClientRect().top + scrollY, bottom = document.querySelector("details").getBoundingClientRect().top + scrollY;
+  const body = document.body.getBoundingClientRect();
+  return { x: body.left - 8, y: top - 8, width: body.width + 16, height: bottom - top };
+}"""
+
+
+def save_png(screenshot: bytes, path: Path) -> int:
+    """Write a screenshot as an optimised PNG (256 colours when that is needed to stay small),
+    through a temporary name so that a failed run leaves the old file; returns its size in bytes."""
+    from PIL import Image
+
+    image = Image.open(io.BytesIO(screenshot)).convert("RGB")
+    data = io.BytesIO()
+    image.save(data, "PNG", optimize=True)
+    if data.tell() > MAX_PNG_BYTES:
+        data = io.BytesIO()
+        image.quantize(256).save(data, "PNG", optimize=True)
+    if data.tell() > MAX_PNG_BYTES:
+        raise RuntimeError(f"{path.name} would be {data.tell()} bytes, over {MAX_PNG_BYTES}")
+    temporary = path.with_name(path.name + ".tmp")
+    temporary.write_bytes(data.getvalue())
+    os.replace(temporary, path)
+    return data.tell()
+
+
+def main() -> None:
+    # render-scale=1: full resolution (the page lowers it while it draws slower than the display).
+    with served_page("/reaming?render-scale=1", WIDTH, HEIGHT) as (_, page):
+        page.wait_for_function(READY, timeout=WAIT_MS)
+        unavailable = page.text_content("#unavailable")
+        if unavailable:
+            raise RuntimeError(unavailable)
+        page.click("#run")  # default aim, the safe zone's centre (40°, 15°), and push, 230 N
+        page.wait_for_function("trainer.stats.last.reaming.running", timeout=WAIT_MS)
+        page.wait_for_function(REAMED, timeout=WAIT_MS)
+        page.evaluate("trainer.send({type: 'run', action: 'pause'})")  # not the toggle: a run that stopped by itself stays stopped
+        page.wait_for_function(SETTLED, timeout=WAIT_MS)
+        reaming = page.evaluate("trainer.stats.last.reaming")
+        if reaming["removed"] < MIN_REMOVED:
+            raise RuntimeError(f"only {reaming['removed']} elements removed in {reaming['time_s']:.1f} s of reaming")
+        page.wait_for_timeout(500)  # the last state drawn
+        size = save_png(page.screenshot(), DOCS / "reaming.png")
+        print(f"docs/reaming.png: {size} bytes; {reaming['removed']} elements, {reaming['removed_volume_mm3']:.1f} mm³, depth {reaming['depth_mm']:.2f} mm in {reaming['time_s']:.1f} s")
+
+        page.click("#end")
+        page.wait_for_function("trainer.stats.saved", timeout=WAIT_MS)
+        page.goto(urljoin(page.url, page.evaluate("trainer.stats.saved.report")), timeout=WAIT_MS)
+        clip = page.evaluate(REAMING_SECTIONS)
+        if clip is None:
+            raise RuntimeError("the report has no reaming section")
+        size = save_png(page.screenshot(clip=clip, full_page=True), DOCS / "report_reaming.png")
+        print(f"docs/report_reaming.png: {size} bytes")
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except Exception as error:  # one line, whatever failed: server, browser, page or report
+        sys.exit(f"docs/screenshots.py: {(str(error).strip().splitlines() or [type(error).__name__])[0]}")

@@ -4,7 +4,9 @@ A real ``thrsim serve`` child with the model, Debian's headless Chromium on ``/r
 flags and helpers of :mod:`thrsim.app.drawing_bench`), and a tracker streaming the reamer's pose
 over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee reams. Reported:
 
-* simulator frames per second delivered to the page (the state's frame counter over the window),
+* simulator frames per second delivered to the page (the state's frame counter over the window,
+  counted while the trainee reams: runs from the intact bone until the page pauses where the
+  bone is reamed through, repeated until the window is full),
   the bone's binary frames received and their mean size against sending every element's α as
   float32 (the whole array), states per second;
 * frames drawn per second (the page draws whenever a state or a bone frame arrived),
@@ -82,15 +84,24 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
         thread.start()
         try:
             page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
-            page.evaluate("trainer.send({type: 'run', action: 'start'})")
-            page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
-            page.wait_for_timeout(1000)
             probe = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
-            cpu_first = chromium_cpu_seconds()
-            first = page.evaluate(probe)
-            page.wait_for_timeout(seconds * 1000)
-            last = page.evaluate(probe)
-            cpu_last = chromium_cpu_seconds()
+            totals = np.zeros(6)
+            cpu_seconds = 0.0
+            # a run reams the patch through in about 2 s of frames and pauses there, so the window is
+            # made of runs: restore the bone, start, count while it reams, until `seconds` are counted
+            while totals[0] < seconds * 1000:
+                page.evaluate("trainer.send({type: 'run', action: 'reset'})")
+                page.wait_for_function("trainer.stats.last.reaming.frame === 0", timeout=60_000)
+                page.evaluate("trainer.send({type: 'run', action: 'start'})")
+                page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
+                cpu_first = chromium_cpu_seconds()
+                first = page.evaluate(probe)
+                until = first[0] + seconds * 1000 - totals[0]  # a run that never ends fills the window
+                page.wait_for_function(f"!trainer.stats.last.reaming.running || performance.now() > {until}", timeout=seconds * 1000 + 60_000)
+                last = page.evaluate(probe)
+                cpu_last = chromium_cpu_seconds()
+                totals += np.array(last) - np.array(first)
+                cpu_seconds += 0.0 if cpu_first is None else cpu_last - cpu_first
             reaming = page.evaluate("trainer.stats.last.reaming")
             render_scale = page.evaluate("trainer.view.renderScale.scale")  # the canvas's resolution (render_scale.js)
             arrived, drawn = [], []
@@ -108,20 +119,19 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
             thread.join(2)
             tracker.close()
         chromium_version = browser.version
-    elapsed = (last[0] - first[0]) / 1000
-    drawn_frames = last[1] - first[1]
-    bone_frames = last[3] - first[3]
-    bytes_per_frame = (last[4] - first[4]) / bone_frames if bone_frames else None
+    elapsed = totals[0] / 1000
+    drawn_frames, bone_frames = totals[1], totals[3]
+    bytes_per_frame = totals[4] / bone_frames if bone_frames else None
     return {
         "what": "the reaming page with a tracker streaming the reamer at 60 Hz while reaming at the safe zone's centre",
-        "simulator_frames_per_s": (last[5] - first[5]) / elapsed,
-        "states_per_s": (last[2] - first[2]) / elapsed,
+        "simulator_frames_per_s": totals[5] / elapsed,
+        "states_per_s": totals[2] / elapsed,
         "bone_frames_per_s": bone_frames / elapsed,
         "bone_bytes_per_frame": bytes_per_frame,
         "whole_alpha_bytes": 4 * elements,
         "bone_bytes_fraction_of_whole": None if bytes_per_frame is None else bytes_per_frame / (4 * elements),
         "fps": drawn_frames / elapsed,
-        "chromium_cpu_ms_per_frame": None if cpu_first is None or not drawn_frames else 1e3 * (cpu_last - cpu_first) / drawn_frames,
+        "chromium_cpu_ms_per_frame": None if chromium_cpu_seconds() is None or not drawn_frames else 1e3 * cpu_seconds / drawn_frames,
         "pose_to_state_ms": {"median": statistics.median(arrived), "p90": float(np.percentile(arrived, 90))},
         "pose_to_drawn_ms": {"median": statistics.median(drawn), "p90": float(np.percentile(drawn, 90))},
         "latency_trials": latency_trials,

@@ -1,7 +1,7 @@
 // The acetabular bone patch being reamed: the remaining bone's boundary faces, coloured by α.
 // The mesh arrives once (GET /api/reaming/mesh: nodes in mm in the patch frame, tets, face
 // neighbours); after that each element is one byte (0 removed, 1..levels α from the removal
-// threshold to 1), kept up to date by the binary keyframes and deltas the server streams
+// threshold to 1), kept up to date by the compressed keyframes and deltas the server streams
 // (thrsim/app/bone_stream.py). A face is drawn when its tet remains and the tet across it does
 // not (or there is none): the same boundary the offscreen renderer draws.
 import * as THREE from "three";
@@ -21,6 +21,11 @@ function palette(levels) {
     colours.push(VIRIDIS[i].map((c, j) => c + t * (VIRIDIS[i + 1][j] - c)));
   }
   return colours;
+}
+
+async function inflate(bytes) {
+  const stream = new Blob([bytes]).stream().pipeThrough(new DecompressionStream("deflate"));
+  return new Uint8Array(await new Response(stream).arrayBuffer());
 }
 
 export function parseMesh(buffer) {
@@ -58,19 +63,28 @@ export class BonePatch {
     this.object.frustumCulled = false;
   }
 
-  // Apply one binary frame (keyframe or delta); returns the frame number.
-  apply(buffer) {
+  // Apply one binary frame (keyframe or delta, its body a zlib stream); resolves to the frame
+  // number. Frames must be applied in the order they arrived (the caller chains them).
+  async apply(buffer) {
     const view = new DataView(buffer);
     const kind = String.fromCharCode(view.getUint8(0));
     const frame = view.getUint32(1, true), count = view.getUint32(5, true);
+    const body = await inflate(new Uint8Array(buffer, 9));
     if (kind === "K") {
-      if (count !== this.levels.length) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
-      this.levels.set(new Uint8Array(buffer, 9, count));
+      if (count !== this.levels.length || body.length !== count) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
+      this.levels.set(body);
     } else if (kind === "D") {
-      const wide = this.levels.length >= 65536;
-      const ids = wide ? new Uint32Array(buffer.slice(9, 9 + 4 * count)) : new Uint16Array(buffer.slice(9, 9 + 2 * count));
-      const values = new Uint8Array(buffer, 9 + ids.byteLength, count);
-      for (let i = 0; i < count; i++) this.levels[ids[i]] = values[i];
+      // ids ascending, each the gap to the previous one minus one as a LEB128 varint; then the levels
+      let read = 0, id = -1;
+      const ids = new Uint32Array(count);
+      for (let i = 0; i < count; i++) {
+        let gap = 0, shift = 0, byte;
+        do { byte = body[read++]; gap += (byte & 0x7f) * 2 ** shift; shift += 7; } while (byte & 0x80);
+        id += gap + 1;
+        ids[i] = id;
+      }
+      if (read + count !== body.length || (count && id >= this.levels.length)) throw new Error(`malformed delta of ${count} elements`);
+      for (let i = 0; i < count; i++) this.levels[ids[i]] = body[read + i];
     } else {
       throw new Error(`unknown bone frame ${kind}`);
     }

@@ -30,14 +30,27 @@ function resize() { view.resize(window.innerWidth, window.innerHeight); dirty = 
 window.addEventListener("resize", resize);
 resize();
 
+// Bone frames are decompressed asynchronously: each step on the bone waits for the one before it.
+let boneApplied = Promise.resolve();
+
+function onBone(step) {
+  boneApplied = boneApplied.then(step).catch((error) => { stats.errors.push(String(error)); toast(`bone frame: ${error.message}`, "error"); });
+}
+
+function applyBone(patch, buffer) {
+  onBone(async () => {
+    await patch.apply(buffer);
+    stats.boneFrames += 1;
+    stats.visibleFaces = patch.visibleFaces;
+    stats.removed = patch.removedCount();
+    dirty = true;
+  });
+}
+
 function receiveBone(buffer) {
   stats.boneBytes += buffer.byteLength;
-  if (!bone) { pendingBone.push(buffer); return; }  // the mesh is still on its way
-  bone.apply(buffer);
-  stats.boneFrames += 1;
-  stats.visibleFaces = bone.visibleFaces;
-  stats.removed = bone.removedCount();
-  dirty = true;
+  if (bone) applyBone(bone, buffer);
+  else pendingBone.push(buffer);  // the mesh is still on its way
 }
 
 async function loadBone(scene) {
@@ -51,18 +64,22 @@ async function loadBone(scene) {
   const previous = bone;
   const response = await fetch(info.mesh);
   if (!response.ok) { toast(`bone mesh: ${response.status}`, "error"); return; }
-  bone = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
-  bone.object.layers.enable(1); // also in the cavity inset
+  const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
+  patch.object.layers.enable(1); // also in the cavity inset
   view.scene.traverse((object) => { if (object.isLight) object.layers.enable(1); });
   // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
-  // other hip, a new session) starts from the levels this page already holds.
-  if (previous && previous.levels.length === bone.levels.length) {
-    bone.levels.set(previous.levels);
-    bone.frame = previous.frame;
-    bone.rebuild();
+  // other hip, a new session) starts from the levels this page holds once the frames before it are applied.
+  if (previous && previous.levels.length === patch.levels.length) {
+    onBone(() => {
+      patch.levels.set(previous.levels);
+      patch.frame = previous.frame;
+      patch.rebuild();
+      dirty = true;
+    });
   }
-  view.content.add(bone.object);
-  for (const buffer of pendingBone.splice(0)) receiveBone(buffer);
+  bone = patch;
+  view.content.add(patch.object);
+  for (const buffer of pendingBone.splice(0)) applyBone(patch, buffer);
   dirty = true;
 }
 

@@ -9,7 +9,7 @@ over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee re
   bone is reamed through, repeated until the window is full),
   the bone's binary frames received and their mean size against sending every element's α as
   float32 (the whole array), states per second;
-* frames drawn per second (the page draws whenever a state or a bone frame arrived),
+* frames drawn per second (while reaming the page draws every display frame: the reamer turns),
   Chromium's CPU per drawn frame and the render scale the page ended at (its canvas's resolution,
   lowered while frames are slow: thrsim/app/static/render_scale.js);
 * latency from an OpenIGTLink pose to the page: the reamer is re-aimed by a TRANSFORM message

@@ -256,13 +256,20 @@ document.addEventListener("keydown", (e) => {
   if (handled) { e.preventDefault(); handled(); }
 });
 
-// Draw when something changed (a state, a bone frame, the view moved).
+// Draw when something changed (a state, a bone frame, the view moved) and, while reaming, every
+// display frame: the reamer turns, as a running reamer does, at 2 turns a second (the simulated
+// 136 rad/s, 22 turns a second, would alias to a random-looking jitter at 60 frames a second).
+const SPIN_RAD_PER_MS = (2 * Math.PI * 2) / 1000;
 orbit.addEventListener("change", () => { dirty = true; });
 function frame(now) {
-  const draw = view.pace(now, dirty) || dirty; // a resized canvas is cleared: drawn again
+  const draw = view.pace(now, dirty || running) || dirty || running; // a resized canvas is cleared: drawn again
   if (draw) {
     dirty = false;
     stats.frames += 1;
+    if (running && stats.last) {
+      view.spinReamer(now * SPIN_RAD_PER_MS);
+      placeReamer(stats.last.reaming);
+    }
     render();
     if (stats.probe.arrived && !stats.probe.drawn) stats.probe.drawn = performance.now();
   }

@@ -333,8 +333,8 @@ export class NavigationScene {
   // Whether a landmark waits to be touched (it pulses).
   pulsing() { return this.registration?.current != null; }
 
-  // Turns the reamer about its own axis (tool z) from its last pose: a scene that changes every
-  // frame, for measuring drawing speed (?continuous=1).
+  // Turns the reamer about its own axis (tool z) from its last pose: the reaming page's running
+  // reamer, and a scene that changes every frame for measuring drawing speed (?continuous=1).
   spinReamer(angle) {
     const reamer = this.tools?.Reamer;
     if (reamer) reamer.group.matrix.copy(reamer.pose).multiply(SPIN.makeRotationZ(angle));

@@ -56,7 +56,9 @@ export class BonePatch {
     geometry.setAttribute("normal", new THREE.BufferAttribute(this.normals, 3).setUsage(THREE.DynamicDrawUsage));
     geometry.setAttribute("color", new THREE.BufferAttribute(this.rgb, 3).setUsage(THREE.DynamicDrawUsage));
     geometry.setDrawRange(0, 0);
-    this.object = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.DoubleSide }));
+    // Front faces only: the faces are the remaining bone's outward boundary, so a back face is
+    // always behind a front one (culling halves SwiftShader's shading of the patch).
+    this.object = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide }));
     this.object.matrixAutoUpdate = false;
     // patch frame (mm) → pelvis model frame (m): the server's placement, mirrored for a left hip
     this.object.matrix.set(...placementRowMajor).multiply(new THREE.Matrix4().makeScale(1e-3, 1e-3, 1e-3));

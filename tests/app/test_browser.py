@@ -206,6 +206,16 @@ def test_safe_zone_colour_changes_when_the_aim_leaves_the_zone(page):
     wait_state(page, "s.zone && s.zone.colour === 'green'")
 
 
+def test_the_other_hip_keeps_the_pages_aim(page):
+    """The server starts the other hip from its default aim (60°, 10°); the page's sliders (40°, 15°) win."""
+    for side in ("left", "right"):
+        page.select_option("#side", side)
+        page.wait_for_function(f"trainer.stats.acks.includes('{side} hip')", timeout=10_000)
+        after = page.evaluate("trainer.stats.states") + 10  # states from after the switch
+        page.wait_for_function(f"trainer.stats.states > {after}", timeout=10_000)
+        wait_state(page, "s.angles && Math.abs(s.angles.radiographic[0] - 40) < 0.5 && Math.abs(s.angles.radiographic[1] - 15) < 0.5")
+
+
 def test_registration_through_the_page_then_end_session_and_report(page, served):
     page.get_by_role("button", name="Restart").click()
     wait_state(page, "s.registration.acquired.length === 0")

@@ -55,3 +55,19 @@ def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
     keys(page, "r")  # restore the bone
     page.wait_for_function("trainer.stats.removed === 0 && trainer.stats.last.reaming.removed === 0", timeout=10_000)
     assert page.problems == [] and page.evaluate("trainer.stats.errors") == []  # every bone frame decoded
+
+
+def test_the_other_hip_keeps_the_pages_aim_and_push(page):
+    """The server starts the other hip from its default aim (60°, 10°); the page's sliders win."""
+    page.evaluate("document.getElementById('force').value = 300; document.getElementById('force').dispatchEvent(new Event('input'))")
+    page.wait_for_function("trainer.stats.last.reaming.force_n === 300", timeout=10_000)
+    page.select_option("#side", "left")
+    page.wait_for_function("trainer.stats.acks.includes('left hip')", timeout=10_000)
+    after = page.evaluate("trainer.stats.states") + 10  # states from after the switch
+    page.wait_for_function(f"trainer.stats.states > {after}", timeout=10_000)
+    page.wait_for_function(
+        "(() => { const s = trainer.stats.last; const [inc, ant] = s.angles.radiographic;"
+        " return Math.abs(inc - 40) < 0.5 && Math.abs(ant - 15) < 0.5 && s.reaming.force_n === 300; })()",
+        timeout=10_000,
+    )
+    assert page.evaluate("trainer.stats.visibleFaces") > 50 and page.problems == []

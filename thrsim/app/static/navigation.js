@@ -57,9 +57,11 @@ function receive(message) {
     $("session-id").textContent = `session ${message.session}`;
     $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
     $("side").value = message.scene.side;
+    sendSteer(); // a new session starts from the server's default aim: keep the page's
   } else if (message.type === "scene") {
     view.build(message.scene);
     $("side").value = message.scene.side;
+    sendSteer(); // so does the other hip
   } else {
     commonMessage(message, stats);
   }

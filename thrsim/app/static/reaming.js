@@ -125,6 +125,9 @@ function receive(message) {
     $("side").value = message.scene.side;
     stats.framed = false;
     loadBone(message.scene);
+    // A new session or the other hip starts from the server's default aim and push: keep the page's.
+    sendSteer();
+    sendForce();
   } else {
     commonMessage(message, stats);
   }
@@ -313,8 +316,5 @@ function frame(now) {
   requestAnimationFrame(frame);
 }
 requestAnimationFrame(frame);
-const send = connectMode("reaming", stats, {
-  onText: receive,
-  onBinary: receiveBone,
-  onOpen: () => { sendSteer(); send({ type: "force", newton: force }); },
-});
+// The page sends its aim and push when the hello (or a new scene) arrives.
+const send = connectMode("reaming", stats, { onText: receive, onBinary: receiveBone });

@@ -37,6 +37,10 @@ def page(tmp_path_factory):
         served.stop()
 
 
+# How far the reamer's drawn rotation is from its tracked pose's (sum of |Δ| over the 3×3).
+_TURNED = "(() => { const r = trainer.view.tools.Reamer, a = r.group.matrix.elements, b = r.pose.elements; let d = 0; for (const i of [0, 1, 2, 4, 5, 6, 8, 9, 10]) d += Math.abs(a[i] - b[i]); return d; })()"
+
+
 def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
     stats = page.evaluate("trainer.stats")
     assert stats["removed"] == 0 and stats["visibleFaces"] > 50
@@ -44,8 +48,11 @@ def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
     assert len(np.unique(before.reshape(-1, 3), axis=0)) > 50
     keys(page, "Space")  # start
     page.wait_for_function("trainer.stats.removed > 20 && trainer.stats.last.reaming.running", timeout=30_000)
+    # the reamer turns about its axis while it reams: its drawn rotation leaves the tracked pose's
+    page.wait_for_function(f"{_TURNED} > 0.05", timeout=10_000)
     keys(page, "Space")  # pause
     page.wait_for_function("!trainer.stats.last.reaming.running", timeout=10_000)
+    page.wait_for_function(f"{_TURNED} < 1e-9", timeout=10_000)  # and stops when paused
     page.wait_for_function("trainer.stats.removed === trainer.stats.last.reaming.removed", timeout=10_000)
     page.wait_for_timeout(300)
     after = picture(page)

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from thrsim.data.synthetic import block_mesh
-from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.learn.graph import StaticGraph, attached_nodes, mesh_digest
 from thrsim.learn.metrics import surface_distance_mm
 
 MESH = block_mesh(n=4)
@@ -75,6 +75,31 @@ def test_region_front_is_the_exposed_set_within_reach(removed, reach):
     region = GRAPH.region(active, centre, reach, hops=0)
     close = np.linalg.norm(GRAPH.centroids - centre, axis=1) < reach
     assert np.array_equal(region, np.flatnonzero(GRAPH.exposed(active) & close))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), max_size=80, unique=True), st.floats(1e-3, 6e-3), st.integers(1, 3))
+def test_region_grows_hops_face_hops_into_the_active_bone(removed, reach, hops):
+    active = np.ones(MESH.n_tets, dtype=bool)
+    active[removed] = False
+    centre = np.array([0.0, 0.0, -22e-3 + 2e-3])
+    # breadth-first search from the front, through active elements only
+    reached = set(GRAPH.region(active, centre, reach, hops=0).tolist())
+    frontier = set(reached)
+    for _ in range(hops):
+        frontier = {int(n) for e in frontier for n in GRAPH.neighbours[e] if n >= 0 and active[n]} - reached
+        reached |= frontier
+    assert np.array_equal(GRAPH.region(active, centre, reach, hops=hops), np.array(sorted(reached), dtype=np.int64))
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), max_size=MESH.n_tets, unique=True))
+def test_attached_nodes_are_the_nodes_of_active_elements(removed):
+    active = np.ones(MESH.n_tets, dtype=bool)
+    active[removed] = False
+    expected = np.zeros(MESH.n_nodes, dtype=bool)
+    expected[MESH.tets[active].ravel()] = True
+    assert np.array_equal(attached_nodes(MESH.tets, active, MESH.n_nodes), expected)
 
 
 def test_removing_elements_moves_the_front_inward():

@@ -24,6 +24,7 @@ import numpy as np
 
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import ArrayRegressor, feature_row
+from thrsim.learn.graph import attached_nodes
 
 SUPPORT_NODES = 20
 
@@ -62,8 +63,7 @@ class ReamerFeed:
         centre and the push impulse since the reamer was placed at ``start``."""
         row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, force_n, impulse_n_s)
         predicted = float(self.regressor.predict(row)[0]) * 1e-3
-        attached = np.zeros(len(self.nodes), dtype=bool)
-        attached[self.tets[alpha >= self.threshold]] = True
+        attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
         rest = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, self.support_nodes)
         # no bone left to rest on: the case ends there (passed through), the regressor's advance stands
         self.last_rested = bool(np.isfinite(rest) and rest > predicted)

@@ -22,6 +22,7 @@ from thrsim.config import LabelConfig
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.graph import attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import LearnedStep
 from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
@@ -238,8 +239,7 @@ class ReamingSimulator:
         teeth = self.model.teeth_radius_m
         if exit_depth is not None and float(self._centre @ axis) + teeth > exit_depth:
             return PERFORATED
-        attached = np.zeros(self.model.mesh.n_nodes, dtype=bool)
-        attached[self.model.mesh.tets[~removed]] = True
+        attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)
         if not bone_in_path(self.model.mesh.nodes[attached], self._centre, axis, teeth):
             return PASSED_THROUGH
         return None

@@ -34,12 +34,18 @@ _ANNOUNCE = re.compile(r"http://127\.0\.0\.1:(\d+)/.*OpenIGTLink on 127\.0\.0\.1
 
 
 class ServedTrainer:
-    """``thrsim serve`` in a child process; ``stop()`` ends it with SIGTERM (as a user's Ctrl-C)."""
+    """``thrsim serve`` in a child process; ``stop()`` ends it with SIGTERM (as a user's Ctrl-C).
 
-    def __init__(self, sessions: Path, *extra: str, timeout: float = 60.0):
+    The reaming network runs uncompiled unless ``compile``: compiling costs 10–30 s at start,
+    so only the tests about it pay for it (the two kinds remove the same bone; see
+    tests/learn/test_learn_simulator.py).
+    """
+
+    def __init__(self, sessions: Path, *extra: str, timeout: float = 60.0, compile: bool = False):
         self.sessions = sessions
+        flags = () if compile else ("--no-compile",)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7", *extra],
+            [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7", *flags, *extra],
             cwd=REPO,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,

@@ -149,3 +149,28 @@ def test_without_a_usable_model_reaming_says_why_and_navigation_serves(tmp_path)
             assert len(next_of_type(ws, "hello")["scene"]["landmarks"]) == 27
     finally:
         server.stop()
+
+
+@pytest.mark.timeout(600)  # compiling at start: tens of seconds on a cold cache
+def test_served_as_users_run_it_the_network_is_compiled_and_the_session_replays_exactly(tmp_path):
+    import subprocess
+    import sys
+
+    from app_helpers import REPO, checkout_env
+
+    server = ServedTrainer(tmp_path, compile=True, timeout=300)
+    try:
+        health = json.loads(urllib.request.urlopen(server.url + "/api/health", timeout=10).read())
+        assert health["reaming_network"] == {"state": "compiled", "compile_error": None}
+        with connect(ws_url(server), open_timeout=10) as ws:
+            next_of_type(ws, "hello")
+            ws.send(json.dumps({"type": "run", "action": "start"}))
+            assert wait_for(lambda: next_of_type(ws, "state")["reaming"]["removed"] > 0, timeout=60)
+            ws.send(json.dumps({"type": "end_session"}))
+            saved = next_of_type(ws, "session_saved")
+    finally:
+        server.stop()
+    assert read_session(saved["file"]).settings["compile"] is True
+    replay = subprocess.run([sys.executable, "-m", "thrsim", "replay", saved["file"], "--json"], cwd=REPO, capture_output=True, text=True, timeout=300, env=checkout_env())
+    assert replay.returncode == 0, replay.stderr
+    assert json.loads(replay.stdout)["reproduced"] is True

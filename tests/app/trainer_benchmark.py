@@ -91,7 +91,7 @@ def main() -> None:
     parser.add_argument("--soak", type=float, default=0.0, help="run the load this long instead of --seconds")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
-        served = ServedTrainer(Path(folder))
+        served = ServedTrainer(Path(folder), compile=True, timeout=180.0)  # the server as users run it
         try:
             results: dict = {}
             stop = threading.Event()

@@ -160,3 +160,30 @@ def test_a_rollout_ends_where_the_solver_ends_its_cases(simulator):
     assert simulator.step(tilted, 230.0, reamer_position=start).end_reason is None
     beyond = start + 0.06 * tilted  # the head's equatorial plane past every node
     assert simulator.step(tilted, 230.0, reamer_position=beyond).end_reason == PASSED_THROUGH
+
+
+def test_the_compiled_network_removes_what_the_eager_one_removes(tiny_model):
+    eager, compiled = ReamingSimulator(tiny_model), ReamingSimulator(tiny_model, compile=True)
+    assert compiled.compiled and compiled.compile_error is None and not eager.compiled
+    mismatched = removed = 0
+    for _ in range(30):
+        a, b = eager.step(AXIS, 230.0), compiled.step(AXIS, 230.0)
+        mismatched += int((a.removed ^ b.removed).sum())
+        removed += int(a.removed.sum())
+        assert np.allclose(a.reamer_position, b.reamer_position, atol=1e-6)
+    assert removed > 0
+    assert mismatched <= 0.01 * removed  # fused kernels round differently, rarely across the threshold
+
+
+def test_a_failed_compile_leaves_the_eager_network_and_says_why(tiny_model, monkeypatch):
+    import torch
+
+    class Broken(torch.nn.Module):
+        def forward(self, *args):
+            raise RuntimeError("no C++ compiler found\nsecond line")
+
+    monkeypatch.setattr(torch, "compile", lambda module, **kwargs: Broken())
+    simulator = ReamingSimulator(tiny_model, compile=True)
+    assert not simulator.compiled
+    assert simulator.compile_error == "RuntimeError: no C++ compiler found"
+    assert simulator.step(AXIS, 230.0).frame == 1

@@ -102,9 +102,9 @@ def serve_child(sessions: Path, *extra: str) -> tuple[subprocess.Popen, str]:
                 announced.set()
 
     threading.Thread(target=read, daemon=True).start()
-    if not announced.wait(60):
+    if not announced.wait(180):  # it compiles the reaming network first (tens of seconds on a cold cache)
         stop_child(process)
-        raise RuntimeError("thrsim serve did not start within 60 s")
+        raise RuntimeError("thrsim serve did not start within 180 s")
     return process, found[0]
 
 

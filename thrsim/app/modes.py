@@ -9,11 +9,14 @@ app's, shared by all modes.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 import numpy as np
+
+log = logging.getLogger(__name__)
 
 
 class Trainer(Protocol):
@@ -58,7 +61,9 @@ def _read_navigation(group: dict) -> Any:
     return read_navigation(group)
 
 
-_MODELS: dict[str | None, object] = {}  # loaded once per model folder: a new session reuses it
+#: loaded once per model folder and network kind: a new session reuses it (compiling changes a
+#: model's network in place, so compiled and eager sessions never share one)
+_MODELS: dict[tuple[str | None, bool], object] = {}
 
 
 def _reaming(settings: dict) -> Trainer:
@@ -67,13 +72,18 @@ def _reaming(settings: dict) -> Trainer:
     from thrsim.learn.model_dir import load_model
     from thrsim.learn.simulator import ReamingSimulator
 
-    model_dir = settings.get("model")
+    model_dir, compile_network = settings.get("model"), bool(settings.get("compile"))
     try:
-        if model_dir not in _MODELS:
-            _MODELS[model_dir] = load_model(model_dir)
-        simulator = ReamingSimulator(model=_MODELS[model_dir], threads=1)
+        if (model_dir, compile_network) not in _MODELS:
+            _MODELS[model_dir, compile_network] = load_model(model_dir)
+        simulator = ReamingSimulator(model=_MODELS[model_dir, compile_network], threads=1, compile=compile_network)
     except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
         return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error))
+    if compile_network:
+        if simulator.compile_error is not None:
+            log.warning("the reaming network runs uncompiled (slower steps): %s", simulator.compile_error)
+        # the session records what ran, so that its replay runs the same network (rounding differs)
+        settings["compile"] = simulator.compiled
     return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator)
 
 

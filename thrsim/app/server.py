@@ -72,6 +72,7 @@ class ServeSettings:
     tick_hz: float = 60.0
     igtl: bool = True
     model: Path | None = None  # the reaming mode's model folder (None: the shipped model)
+    compile: bool = True  # run the reaming network compiled (thrsim.learn.compiled), compiled at start
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -165,13 +166,21 @@ class TrainerHub:
         self.saved: list[Path] = []
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
-
     def _start(self, mode: Mode) -> LiveSession:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
         settings = {"side": self.settings.side, "seed": seed}
         if self.settings.model is not None:
             settings["model"] = str(self.settings.model)
+        if self.settings.compile:
+            settings["compile"] = True
         return LiveSession(mode, settings, self.clock)
+
+    def reaming_network(self) -> dict:
+        """How the reaming session's network runs: compiled, eager (with why, if compiling failed) or none."""
+        simulator = getattr(self.sessions["reaming"].trainer, "simulator", None)
+        if simulator is None:
+            return {"state": "none"}
+        return {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}
 
     def on_pose(self, device: str, pose, clock_time: float) -> None:
         for session in self.sessions.values():
@@ -326,7 +335,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @app.get("/api/health")
     def health() -> dict:
-        return {"ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "viewers": {k: len(v) for k, v in hub.viewers.items()}}
+        return {
+            "ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "viewers": {k: len(v) for k, v in hub.viewers.items()},
+            "reaming_network": hub.reaming_network(),
+        }  # fmt: skip
 
     @app.get("/api/sessions")
     def sessions() -> dict:

@@ -6,6 +6,7 @@ import contextlib
 import logging
 import signal
 import socket
+import sys
 from pathlib import Path
 
 import typer
@@ -39,6 +40,7 @@ def serve(
     side: str = typer.Option("right", "--side", help="operated hip at start: right or left"),
     seed: int | None = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
     model: Path | None = typer.Option(None, "--model", help="the reaming mode's learned-simulator model (default: the shipped model)", metavar="MODEL_DIR"),
+    compile: bool = typer.Option(True, "--compile/--no-compile", help="compile the reaming network in the background (torch.compile; about 10 s, a minute on a first run; faster steps once done)"),
 ) -> None:
     """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
     import uvicorn
@@ -51,8 +53,8 @@ def serve(
         if not sessions.parent.is_dir():
             raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
         sessions.mkdir()
-    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model)
-    app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
+    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model, compile=compile)
+    settings.check()  # refusals are one line, before the ports are taken and the network compiled
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         listener = socket.socket(family, socket.SOCK_STREAM)
@@ -70,6 +72,9 @@ def serve(
         except OSError as error:
             listener.close()
             raise ThrsimInputError(f"cannot listen for OpenIGTLink on {host}:{igtl_port}: {error.strerror or error}") from None
+    if compile:
+        print("thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)", file=sys.stderr, flush=True)
+    app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
     bound_port = listener.getsockname()[1]
     shown_host = f"[{host}]" if ":" in host else host
     app.state.announce = lambda igtl: print(

@@ -3,7 +3,10 @@
 * ``production``: median ms per frame of :meth:`ReamingSimulator.step` (region + features +
   network + threshold) plus the reamer feed's own cost (regressor and resting on the bone,
   ``feed_ms_median``) on the default mesh, the reamer pushed along γ 15°, θ 30° at a steady
-  feed, so that the region depends on the mesh, not on what the weights learned.
+  feed, so that the region depends on the mesh, not on what the weights learned; the network
+  eager, as ``thrsim ream`` runs it.
+* ``production_compiled``: the same with the network compiled (``torch.compile``, as
+  ``thrsim serve`` runs it; :mod:`thrsim.learn.compiled`), and the seconds compiling took.
 * ``thesis_way``: the thesis's configuration run as its Algorithm 1 does: its layer sizes and
   features, every element every frame, the graph input rebuilt from the mesh each frame.
 * ``larger_mesh``: the production step on patches of about 4× the elements at the same element
@@ -20,6 +23,7 @@ removes the whole region every frame, which keeps the region thin; time a traine
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import replace
 
@@ -53,8 +57,10 @@ def untrained_model(mesh: TetMesh, settings: ModelSettings, teeth_radius_m: floa
     return LoadedModel(path=None, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))
 
 
-def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
-    simulator = ReamingSimulator(model=model)
+def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0, compile: bool = False) -> dict:
+    started = time.perf_counter()
+    simulator = ReamingSimulator(model=model, compile=compile)
+    compile_s = time.perf_counter() - started
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
     # a steady feed, not the model's own: the region then depends on the mesh, not on what the weights learned
     centre = start_position(model.mesh.nodes, axis, model.teeth_radius_m)
@@ -77,6 +83,8 @@ def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15
         "feed_ms_median": 1e3 * float(np.median(feed_times)),
         "feed_mm_per_frame": FEED_M * 1e3,
         "case": f"inclination {inclination_deg:g} deg, anteversion {anteversion_deg:g} deg, steady feed (the reamer feed's own cost included)",
+        "network": "compiled" if simulator.compiled else "eager",
+        **({"compile_s": compile_s, "compile_error": simulator.compile_error} if compile else {}),
     }
 
 
@@ -121,8 +129,11 @@ def run_learned_benchmarks(model: LoadedModel | None = None, frames: int = 20, t
     if model is None:
         model = untrained_model(generate_bone_patch(BonePatchConfig()), preset("production"))
     result = {"threads": torch.get_num_threads(), "production": time_production(model, frames)}
+    compiled_model = replace(model, gn=copy.deepcopy(model.gn))  # compiling changes the network in place
+    result["production_compiled"] = time_production(compiled_model, frames, compile=True)
     result["thesis_way"] = time_thesis_way(model.mesh, thesis_frames, model.teeth_radius_m)
-    result["speedup_vs_thesis_way"] = result["thesis_way"]["ms_per_frame_median"] / result["production"]["ms_per_frame_median"]
+    for key in ("production", "production_compiled"):
+        result[f"speedup_vs_thesis_way{key[len('production'):]}"] = result["thesis_way"]["ms_per_frame_median"] / result[key]["ms_per_frame_median"]
     if solver_seconds_per_frame is not None:
         result["solver_ms_per_frame"] = solver_seconds_per_frame * 1e3
         result["speedup_vs_solver"] = solver_seconds_per_frame * 1e3 / result["production"]["ms_per_frame_median"]
@@ -134,6 +145,9 @@ def run_learned_benchmarks(model: LoadedModel | None = None, frames: int = 20, t
             row = {**time_production(big, frames), "thickness_mm": config.thickness_mm, "half_angle_deg": config.half_angle_deg}
             row["element_ratio"] = big.mesh.n_tets / model.mesh.n_tets
             row["cost_ratio"] = row["ms_per_frame_median"] / result["production"]["ms_per_frame_median"]
+            compiled = time_production(replace(compiled_model, path=None, mesh=mesh, graph=big.graph), frames)
+            row["compiled_ms_per_frame_median"] = compiled["ms_per_frame_median"]
+            row["compiled_cost_ratio"] = compiled["ms_per_frame_median"] / result["production_compiled"]["ms_per_frame_median"]
             result["larger_mesh"][name] = row
     return result
 

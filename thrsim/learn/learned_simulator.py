@@ -76,12 +76,16 @@ class LearnedSimulator(nn.Module):
         self.edge_norm.fit(batch.edges)
         self.global_norm.fit(batch.globals_)
 
-    def outputs(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Per node: the logit of α(t+1) and, with the removal head, the logit of p(removed at t+1)."""
-        out = self.network(
+    def normalised_inputs(self, batch: GraphBatch) -> tuple:
+        """The network's arguments: normalised features and the graph's index tensors."""
+        return (
             self.node_norm(batch.nodes), self.edge_norm(batch.edges), self.global_norm(batch.globals_),
             batch.senders, batch.receivers, batch.node_graph, batch.edge_graph,
         )
+
+    def outputs(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Per node: the logit of α(t+1) and, with the removal head, the logit of p(removed at t+1)."""
+        out = self.network(*self.normalised_inputs(batch))
         alpha_logit = out[:, 0]
         if self.residual_logit:
             alpha_logit = alpha_logit + torch.logit(batch.alpha.clamp(_EPS, 1 - _EPS))

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.features import ReamerState, batch, frame_arrays
-from thrsim.learn.graph import StaticGraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays
+from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import FeatureSettings
@@ -38,22 +38,28 @@ class LearnedStep:
         self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
 
-    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def inputs(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[Subgraph, GraphBatch | None]:
+        """The region's subgraph and the network's inputs for it (None for an empty region: nothing to run)."""
         graph = self.graph
         active = alpha >= self.model.threshold
         if self.features.whole_graph:
             sub = graph.whole()
         else:
             sub = graph.subgraph(graph.region(active, centre, self.reach_m, self.features.front_hops), self.features.halo_hops)
+        if sub.n_region == 0:
+            return sub, None
+        reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
+        alpha_sub = np.asarray(alpha, dtype=np.float32)[sub.nodes]
+        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active)
+        return sub, batch([(sub, alpha_sub, arrays)])
+
+    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
         out = np.array(alpha, dtype=np.float32, copy=True)
         out_hazard = np.array(hazard, dtype=np.float32, copy=True)
+        sub, inputs = self.inputs(alpha, centre, axis, force_n, advance_m, omega_rad_s)
         self.last = StepInfo(sub.n_region, len(sub.nodes))
-        if sub.n_region == 0:
+        if inputs is None:
             return out, out_hazard
-        reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
-        alpha_sub = out[sub.nodes]
-        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active)
-        inputs = batch([(sub, alpha_sub, arrays)])
         with torch.inference_mode():
             predicted, increment = (t.numpy() for t in self.model.predict(inputs))
         region = sub.region

@@ -22,6 +22,8 @@ from thrsim.config import LabelConfig
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.compiled import compile_network
+from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import LearnedStep
@@ -122,7 +124,9 @@ class ReamingSimulator:
     >>> state = sim.step((0.26, 0.15, -0.95), 230.0)  # doctest: +SKIP
     """
 
-    def __init__(self, model_dir: str | os.PathLike | None = None, *, model: LoadedModel | None = None, threads: int | None = None):
+    def __init__(self, model_dir: str | os.PathLike | None = None, *, model: LoadedModel | None = None, threads: int | None = None, compile: bool = False):
+        """``compile``: run the network through ``torch.compile`` (see :mod:`thrsim.learn.compiled`),
+        compiling now; if that fails the simulator stays eager and ``compile_error`` says why."""
         if threads is not None:
             torch.set_num_threads(threads)
         self.model = model if model is not None else load_model(model_dir)
@@ -131,7 +135,23 @@ class ReamingSimulator:
         self._threshold = self.model.threshold
         self._tip_exit: tuple[tuple[float, ...], float | None] | None = None  # (axis, depth) of the last axis seen
         self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
+        self.compile_error = compile_network(self.model.gn, self.example_inputs()) if compile else None
         self.reset()
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the network runs compiled (see ``compile``)."""
+        return bool(getattr(self.model.gn, "network_compiled", False))
+
+    def example_inputs(self) -> GraphBatch:
+        """Network inputs of a typical step (intact bone, the reamer 0.5 mm into it along −z), to compile on."""
+        axis = np.array([0.0, 0.0, -1.0])
+        centre = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m) + 0.5e-3 * axis
+        alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
+        _, inputs = self._step.inputs(alpha, centre, axis, 230.0, 0.5e-3, self.model.omega_rad_s)
+        if inputs is None:
+            raise ThrsimInputError("the model's mesh has no bone within the reamer's reach at its pole")
+        return inputs
 
     @property
     def right_mesh(self) -> TetMesh:

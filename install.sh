@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # One command installs everything thrsim needs on a fresh Debian machine:
 # the system libraries gmsh's wheel links against, Mesa's EGL (the offscreen
-# renderer, thrsim.render), CalculiX (the solver cross-check), PyTorch's CPU
+# renderer, thrsim.render), CalculiX (the solver cross-check), a C++ compiler
+# (torch.compile builds the trainer's reaming network with it), PyTorch's CPU
 # build (pinned), thrsim itself, and for the browser trainer Chromium (its
 # end-to-end tests) and three.js from the npm registry (npm ci, locked).
 set -euo pipefail
@@ -14,7 +15,7 @@ if command -v apt-get >/dev/null 2>&1; then
   DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
     libglu1-mesa libxcursor1 libxft2 libxinerama1 libxrender1 libxi6 libgl1 \
     libegl1 libegl-mesa0 libgl1-mesa-dri \
-    calculix-ccx chromium >/dev/null
+    calculix-ccx chromium g++ >/dev/null
   if ! command -v npm >/dev/null 2>&1; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq nodejs npm >/dev/null
   fi

@@ -61,11 +61,11 @@ class _Tracker:
         self.sock.close()
 
 
-def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM) -> dict:
+def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, compile: bool = True) -> dict:
     aim = NavigationTrainer(side="right", seed=_SEED)
     poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
     load_before = os.getloadavg()
-    extra = ("--model", str(model)) if model is not None else ()
+    extra = (("--model", str(model)) if model is not None else ()) + (() if compile else ("--no-compile",))
     with served_page("/reaming", width, height, *extra, chromium=chromium) as (browser, page):
         page.wait_for_function("window.trainer && trainer.stats.hello && trainer.stats.states > 10", timeout=60_000)
         if not page.evaluate("trainer.stats.hello.scene.reaming.available"):

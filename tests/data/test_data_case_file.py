@@ -97,6 +97,33 @@ def test_round_trip_and_streaming(tmp_path):
     assert summary["removed_per_frame"] == [0, 1, 2, 3]
 
 
+def test_damage_is_optional_and_round_trips(tmp_path):
+    mesh = block_mesh(3)
+    frames = _frames(mesh, t=4)
+    assert read_case(_write(tmp_path / "without.h5", mesh=mesh, frames=frames)).frames.damage is None  # as solvers before 0.3.1 wrote
+    frames.damage = np.minimum(1.0, frames.peeq * 2).astype(np.float32)
+    frames.damage_initiation = (frames.peeq * 5).astype(np.float32)
+    path = _write(tmp_path / "with.h5", mesh=mesh, frames=frames)
+    case = read_case(path)
+    np.testing.assert_array_equal(case.frames.damage, frames.damage)
+    np.testing.assert_array_equal(case.frames.damage_initiation, frames.damage_initiation)
+    with h5py.File(path) as f:
+        assert f["frames/damage"].dtype == np.float32 and f["frames/damage"].chunks == (1, mesh.n_tets)
+    with CaseReader(path) as reader:
+        np.testing.assert_array_equal(reader.frame(2)["damage"], frames.damage[2])
+    assert validate_case(path)["frames"] == 4
+    for mutate, message in (
+        (lambda f: f["frames/damage"].__setitem__((2, 3), 1.5), "damage outside"),
+        (lambda f: f["frames/damage"].__setitem__((3, 3), 0.0), "damage decreases"),
+        (lambda f: f["frames/damage_initiation"].__setitem__((1, 3), np.nan), "damage_initiation outside"),
+    ):
+        bad = _write(tmp_path / "bad.h5", mesh=mesh, frames=frames)
+        _corrupt(bad, mutate)
+        with pytest.raises(ThrsimInputError, match=message):
+            validate_case(bad)
+        bad.unlink()
+
+
 def test_checksums(tmp_path):
     a = _write(tmp_path / "a.h5", seconds_per_frame=1.0)
     b = _write(tmp_path / "b.h5", seconds_per_frame=2.0)

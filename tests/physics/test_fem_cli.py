@@ -34,6 +34,10 @@ def test_fem_writes_a_valid_case(tmp_path):
     moved = case.frames.reamer_position - case.frames.reamer_position[0]
     np.testing.assert_allclose(moved[-1] @ axis, summary["reamer_advance_mm"] * 1e-3, rtol=1e-6)
     np.testing.assert_allclose(np.cross(moved, axis), 0.0, atol=1e-12)  # one degree of freedom, along D
+    damage, status = case.frames.damage, case.frames.status
+    assert damage.shape == status.shape and damage[0].max() == 0.0 and 0.0 < damage[-1].max() <= 1.0
+    assert np.all(np.diff(damage, axis=0)[status[1:] == 1] >= 0)  # damage never heals in live elements
+    assert np.all(case.frames.damage_initiation >= 0)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["c.h5"]
 
 

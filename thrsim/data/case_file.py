@@ -19,6 +19,10 @@ Layout::
         coordinate s along D (optional, solver ≥ 0.3.0)
     /frames/contact_force_axial (T,) float64 N, within-frame mean of the contact force along D (optional)
     /frames/contact_fraction (T,) float64, fraction of the frame's steps with contact (optional)
+    /frames/damage (T,E) float32, damage D in [0, 1]: Johnson–Cook evolution plus the teeth's
+        cutting; an element is deleted at 1 (optional, thrsim ≥ 0.3.1)
+    /frames/damage_initiation (T,E) float32, Johnson–Cook initiation ω ≥ 0 (D grows once it
+        reaches 1; optional, thrsim ≥ 0.3.1)
 
 Per-element datasets are chunked one frame per chunk and gzip-compressed (level 1), so a
 reader streams frames without loading the whole case. Frame 0 is the intact bone before
@@ -49,6 +53,8 @@ CASE_FORMAT = "thrsim-case"
 CASE_VERSION = 1
 REQUIRED_ENERGIES = ("kinetic", "internal")
 PER_ELEMENT = ("status", "peeq", "von_mises")
+#: per-element datasets a case may carry (older solvers did not record them)
+OPTIONAL_PER_ELEMENT = ("damage", "damage_initiation")
 #: per-frame datasets a case may carry (older solvers wrote fewer), with their trailing shape
 OPTIONAL_PER_FRAME = {"contact_force": (3,), "reamer_axial": (3,), "contact_force_axial": (), "contact_fraction": ()}
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
@@ -69,6 +75,8 @@ class CaseFrames:
     reamer_axial: np.ndarray | None = None  # (T,3) m: within-frame mean, min, max of s
     contact_force_axial: np.ndarray | None = None  # (T,) N
     contact_fraction: np.ndarray | None = None  # (T,)
+    damage: np.ndarray | None = None  # (T,E) float32
+    damage_initiation: np.ndarray | None = None  # (T,E) float32
 
     @property
     def n_frames(self) -> int:
@@ -111,6 +119,7 @@ def _check_frames(frames: CaseFrames, mesh: TetMesh, where: str) -> None:
         "von_mises": (t, e),
         "reamer_position": (t, 3),
     }
+    expected.update({name: (t, e) for name in OPTIONAL_PER_ELEMENT if getattr(frames, name) is not None})
     for name, shape in expected.items():
         got = np.shape(getattr(frames, name))
         if got != shape:
@@ -193,6 +202,9 @@ def write_case(
             _per_frame_dataset(g, "status", frames.status, np.uint8)
             _per_frame_dataset(g, "peeq", frames.peeq, np.float32)
             _per_frame_dataset(g, "von_mises", frames.von_mises, np.float32)
+            for name in OPTIONAL_PER_ELEMENT:
+                if getattr(frames, name) is not None:
+                    _per_frame_dataset(g, name, getattr(frames, name), np.float32)
             g.create_dataset("reamer_position", data=np.asarray(frames.reamer_position, dtype=np.float64))
             g.create_dataset("reamer_axis", data=axis)
             energy = g.create_dataset("energy", data=np.asarray(frames.energy, dtype=np.float64))
@@ -249,7 +261,7 @@ def read_case(path: str | os.PathLike) -> Case:
                 reamer_position=g["reamer_position"][()],
                 energy=g["energy"][()],
                 energy_names=_energy_names(g["energy"]),
-                **{name: g[name][()] if name in g else None for name in OPTIONAL_PER_FRAME},
+                **{name: g[name][()] if name in g else None for name in (*OPTIONAL_PER_FRAME, *OPTIONAL_PER_ELEMENT)},
             )
             return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=decode_attrs(f.attrs))
         except KeyError as error:
@@ -287,7 +299,8 @@ class CaseReader:
         return self._frames[name][()] if name in self._frames else None
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
-        """status, peeq and von_mises of frame ``t``, plus its time and reamer position."""
+        """status, peeq and von_mises of frame ``t`` (and damage where the case has it), plus its
+        time and reamer position."""
         if not -self.n_frames <= t < self.n_frames:
             raise IndexError(f"{self.path}: frame {t} out of range (0..{self.n_frames - 1})")
         g = self._frames
@@ -297,6 +310,7 @@ class CaseReader:
             "peeq": g["peeq"][t],
             "von_mises": g["von_mises"][t],
             "reamer_position": self.reamer_position[t],
+            **{name: g[name][t] for name in OPTIONAL_PER_ELEMENT if name in g},
         }
 
     def close(self) -> None:
@@ -459,6 +473,8 @@ def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[
     """The per-element frames make physical sense, read one frame at a time; returns the
     removed count per frame, the largest PEEQ and the von Mises range."""
     status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
+    damage_ds = {name: g[name] for name in OPTIONAL_PER_ELEMENT if name in g}
+    prev_damage: dict[str, np.ndarray] = {}
     prev_status = prev_peeq = None
     removed_per_frame: list[int] = []
     peeq_max = 0.0
@@ -493,6 +509,16 @@ def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[
                     f"{path}: frame {t}: PEEQ decreases for {int(dropped.sum())} element(s) (first: element {first}, "
                     f"{prev_peeq[first]:.6g} -> {peeq[first]:.6g})"
                 )
+        for name, dataset in damage_ds.items():
+            if dataset.shape != (n_frames, n_el):
+                raise ThrsimInputError(f"{path}: /frames/{name} has shape {dataset.shape}, expected {(n_frames, n_el)}")
+            value = dataset[t].astype(np.float64)
+            upper = 1.0 + 1e-6 if name == "damage" else np.inf
+            if not np.isfinite(value).all() or value.min(initial=0.0) < 0 or value.max(initial=0.0) > upper:
+                raise ThrsimInputError(f"{path}: frame {t}: {name} outside [0, {'1' if name == 'damage' else '∞'}) or not finite")
+            if t > 0 and (dropped := (status == 1) & (value < prev_damage[name] - 1e-6)).any():
+                raise ThrsimInputError(f"{path}: frame {t}: {name} decreases for {int(dropped.sum())} element(s) (first: element {int(np.flatnonzero(dropped)[0])})")
+            prev_damage[name] = value
         removed_per_frame.append(int(n_el - int(status.sum())))
         peeq_max = max(peeq_max, float(peeq.max(initial=0.0)))
         if n_el:

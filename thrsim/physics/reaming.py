@@ -118,12 +118,14 @@ class ReamerDrive(NamedTuple):
 
 @dataclass
 class FrameLog:
-    """Per-frame records accumulated in memory (a 20k-tet, 121-frame case is ~25 MB)."""
+    """Per-frame records accumulated in memory (a 20k-tet, 121-frame case is ~45 MB)."""
 
     time: list = field(default_factory=list)
     status: list = field(default_factory=list)
     peeq: list = field(default_factory=list)
     von_mises: list = field(default_factory=list)
+    damage: list = field(default_factory=list)  # D: Johnson–Cook evolution plus the teeth's cutting
+    damage_initiation: list = field(default_factory=list)  # ω: Johnson–Cook initiation (D grows once it reaches 1)
     reamer_position: list = field(default_factory=list)
     reamer_axial: list = field(default_factory=list)  # within-frame mean, min, max of s (m)
     contact_force_axial: list = field(default_factory=list)  # within-frame mean of F_contact·D (N)
@@ -138,6 +140,8 @@ class FrameLog:
             "status": np.array(self.status, dtype=np.uint8),
             "peeq": np.array(self.peeq, dtype=np.float32),
             "von_mises": np.array(self.von_mises, dtype=np.float32),
+            "damage": np.array(self.damage, dtype=np.float32),
+            "damage_initiation": np.array(self.damage_initiation, dtype=np.float32),
             "reamer_position": np.array(self.reamer_position),
             "reamer_axial": np.array(self.reamer_axial),
             "contact_force_axial": np.array(self.contact_force_axial),
@@ -351,6 +355,8 @@ class ReamingSimulation:
         log.status.append(solid.active.copy())
         log.peeq.append(solid.peeq.astype(np.float32))
         log.von_mises.append(solid.von_mises().astype(np.float32))
+        log.damage.append(solid.damage.astype(np.float32))
+        log.damage_initiation.append(solid.initiation.astype(np.float32))
         log.reamer_position.append(self.centre.copy())
         energies = self.energies()
         log.energy.append([energies[name] for name in ENERGY_NAMES])

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "683668e894e01da59ece6ff1f1459c62829f171970d1084a9ef69f979793e39c"
+PINNED_DIGEST = "3d6be1faeeed1c22637bb51578e262cd5e8e47ac4c1fa1377c8e0de8c4908f86"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

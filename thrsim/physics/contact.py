@@ -41,10 +41,11 @@ to the underlying element stiffness): node i gets k_i = β·m_i/Δt², with m_i 
 size, the time step or how many elements the node has left, so contact can never drive the
 central-difference step past its stability limit (ω·Δt < 2, i.e. β < 4 for the spring alone).
 A fixed stiffness does: 1e7 N/m put intact nodes of the 0.45 mm mesh at ω·Δt ≈ 1.6 and nodes
-left with one element at 2.3–3.3, and made removal depend on k. The default β = 0.4 is one tenth
-of the single-spring bound and leaves room for the element stiffness the node also carries.
-At 230 N spread over the ~100 nodes under the teeth the penetration is ≈ 0.5 µm, a thousandth of
-an element.
+left with one element at 2.3–3.3, and made removal depend on k. The default β = 0.8 is a fifth
+of the single-spring bound and leaves room for the element stiffness the node also carries
+(a softer 0.4, the default before solver 0.4.0, made removal 13 % more sensitive to β).
+At 230 N spread over the ~100 nodes under the teeth the penetration is ≈ 0.25 µm, a
+two-thousandth of an element.
 
 Normal force of each contact f_n = k_i·g + 2ξ√(k_i·m_i)·(−v_rel·n), never pulling (f_n ≥ 0), ξ
 the contact damping ratio [5.3.1]. Friction acts once per node, on the resultant N of the normal
@@ -60,9 +61,10 @@ safety factor) and that also carries the contact spring and the velocity-lagged 
 the explicit step (normal: a_n = c·Δt/m = 2ξ√β; tangential: a) is stable while
 (2s)² + β + 2·a_n < 4 along the normal and (2s)² + 2·a < 4 along the surface; the
 configuration refuses settings outside these bounds with a 10 % reserve for bulk viscosity
-(:class:`thrsim.config.ReamingCaseConfig`). With s = 0.9 the normal bound is broken
-((1.8)² + 0.4 + 0.5 = 4.14): a node in the rim of the contact grew a period-two oscillation to
-18 m/s within ten steps. The reaming case therefore runs at s = 0.7.
+(:class:`thrsim.config.ReamingCaseConfig`). With s = 0.9 the normal bound is broken even at
+β = 0.4 ((1.8)² + 0.4 + 0.5 = 4.14): a node in the rim of the contact grew a period-two
+oscillation to 18 m/s within ten steps. The reaming case therefore runs at s = 0.7, where
+β = 0.8 sums to (1.4)² + 0.8 + 0.72 = 3.48, under the 3.6 the reserve allows.
 
 Energy (for the balance of :mod:`thrsim.physics.reaming`): per node, the kernel also writes the
 reamer surface velocity w, the resultant normal force N and the elastic energy ½ k_i g² stored

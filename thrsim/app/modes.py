@@ -72,14 +72,14 @@ def _reaming(settings: dict) -> Trainer:
     from thrsim.learn.model_dir import load_model
     from thrsim.learn.simulator import ReamingSimulator
 
-    model_dir, compile_network = settings.get("model"), bool(settings.get("compile"))
+    model_dir, compile_wanted = settings.get("model"), bool(settings.get("compile"))
     try:
-        if (model_dir, compile_network) not in _MODELS:
-            _MODELS[model_dir, compile_network] = load_model(model_dir)
-        simulator = ReamingSimulator(model=_MODELS[model_dir, compile_network], threads=1, compile=compile_network)
+        if (model_dir, compile_wanted) not in _MODELS:
+            _MODELS[model_dir, compile_wanted] = load_model(model_dir)
+        simulator = ReamingSimulator(model=_MODELS[model_dir, compile_wanted], threads=1, compile=compile_wanted)
     except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
         return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error))
-    if compile_network:
+    if compile_wanted:
         if simulator.compile_error is not None:
             log.warning("the reaming network runs uncompiled (slower steps): %s", simulator.compile_error)
         # the session records what ran, so that its replay runs the same network (rounding differs)

@@ -166,12 +166,13 @@ class TrainerHub:
         self.saved: list[Path] = []
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
+
     def _start(self, mode: Mode) -> LiveSession:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
         settings = {"side": self.settings.side, "seed": seed}
         if self.settings.model is not None:
             settings["model"] = str(self.settings.model)
-        if self.settings.compile:
+        if self.settings.compile and mode.name == "reaming":
             settings["compile"] = True
         return LiveSession(mode, settings, self.clock)
 

@@ -13,8 +13,9 @@ from checkout_cli import run_main
 
 from thrsim.cli import main
 from thrsim.config import LabelConfig
-from thrsim.data.generate import read_manifest, write_manifest
-from thrsim.data.pack import ALPHA_LEVELS, dequantise_alpha, quantise_alpha, read_pack, removal_frames
+from thrsim.data.generate import load_dataset, read_manifest, write_manifest
+from thrsim.data.case_file import read_case
+from thrsim.data.pack import ALPHA_LEVELS, DAMAGE_LEVELS, dequantise_alpha, dequantise_damage, quantise_alpha, quantise_damage, read_pack, removal_frames
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 
@@ -54,6 +55,28 @@ def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, c
     assert changed >= 3  # the sweep removes elements: the comparison above is not of constant arrays
     _, test_only = load_cases(pack, splits=("test",))
     assert {c.split for c in test_only} == {"test"} and len(test_only) == 2
+
+
+def test_a_pack_keeps_each_elements_damage_to_a_hundredth(dataset, tmp_path, monkeypatch, capsys):
+    pack = tmp_path / "learning.h5"
+    assert run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))[0] == 0
+    _, packed = read_pack(pack)
+    paths = {entry["case_id"]: entry["path"] for entry in load_dataset(dataset)}
+    damaged = 0
+    for case in packed:
+        frames = read_case(paths[case.case_id]).frames
+        for name in ("damage", "damage_initiation"):
+            assert np.abs(getattr(case, name) - getattr(frames, name)).max() <= 0.5 / DAMAGE_LEVELS + 1e-6
+        assert np.all(case.damage[frames.damage == 0] == 0) and np.all(case.damage[frames.damage == 1] == 1)  # undamaged and deleted stay exact
+        damaged += int((frames.damage > 0).sum())
+    assert damaged > 0  # the sweep damages elements: the comparison above is not of zeros
+
+
+def test_damage_levels_keep_zero_and_one_exact():
+    damage = np.array([[0.0, 0.004, 0.006, 0.5, 0.996, 1.0]], dtype=np.float32)
+    back = dequantise_damage(quantise_damage(damage))
+    assert back[0, 0] == 0.0 and back[0, -1] == 1.0 and back[0, 1] == 0.0 and back[0, -2] == 1.0
+    assert np.abs(back - damage).max() <= 0.5 / DAMAGE_LEVELS + 1e-6
 
 
 def test_packs_gather_a_sweep_run_in_parts(dataset, tmp_path, monkeypatch, capsys):

@@ -9,7 +9,7 @@ of solver runs.
 
 Layout::
 
-    attrs   format="thrsim-learning-pack", version, alpha_levels, labels (JSON LabelConfig),
+    attrs   format="thrsim-learning-pack", version, alpha_levels, damage_levels, labels (JSON LabelConfig),
             identity (JSON, the dataset's), identity_hash, split_rule (JSON), thrsim_version,
             versions (JSON), updated
     /mesh                      the case files' mesh group
@@ -19,12 +19,15 @@ Layout::
                                per row (the far field is nearly constant in time, so rows
                                compress well)
         removed_frame (E,) int16   first frame the element is removed in (STATUS = 0), −1 never
+        damage, damage_initiation (E,T) uint8   round(D·damage_levels), round(ω·damage_levels),
+                               where the case file records them (thrsim ≥ 0.3.1)
         time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
                                as in the case file
 
 α is stored in levels of 1/50 and read back at the level's centre: the error (≤ 0.01) is half the
 noise σ 0.02 that training adds to α, and since the removal threshold 0.3 is a level boundary,
-every element is on the same side of it as in the case file. The levels are what makes a pack
+every element is on the same side of it as in the case file. Damage and its initiation, both in
+[0, 1], are rounded to levels of 1/100, so that 0 (undamaged) and 1 (deleted) stay exact. The levels are what makes a pack
 small: between contact and removal α carries the bone's ringing stress (its term saturates at
 26 MPa), which does not compress; at 1/50 it costs about 4 bits per active element and frame
 (a 95-frame γ 15° case: 0.54 MB, against 12.3 MB for its case file and 0.80 MB at 1/250). The labels' constants are
@@ -46,7 +49,7 @@ import numpy as np
 from thrsim import __version__
 from thrsim.atomic import atomic_path
 from thrsim.config import LabelConfig
-from thrsim.data.case_file import OPTIONAL_PER_FRAME, CaseReader, attr_value, decode_attrs, data_digest, file_sha256
+from thrsim.data.case_file import OPTIONAL_PER_ELEMENT, OPTIONAL_PER_FRAME, CaseReader, attr_value, decode_attrs, data_digest, file_sha256
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
@@ -56,6 +59,7 @@ from thrsim.provenance import config_hash, json_default, package_versions
 PACK_FORMAT = "thrsim-learning-pack"
 PACK_VERSION = 1
 ALPHA_LEVELS = 50
+DAMAGE_LEVELS = 100
 _SMALL_PER_FRAME = ("time", "reamer_position", "energy", *OPTIONAL_PER_FRAME)
 _ALPHA_COMPRESSION = {"compression": "gzip", "compression_opts": 9, "shuffle": False}
 
@@ -72,6 +76,8 @@ class PackedCase:
     split: str | None
     attrs: dict[str, Any]
     data_digest: str  # of the source case file (thrsim.data.case_file.data_digest)
+    damage: np.ndarray | None = None  # (T,E) float32 D, where the case file records it
+    damage_initiation: np.ndarray | None = None  # (T,E) float32 ω
 
 
 def is_pack(path: str | os.PathLike) -> bool:
@@ -92,6 +98,16 @@ def quantise_alpha(alpha: np.ndarray) -> np.ndarray:
 def dequantise_alpha(levels: np.ndarray, alpha_levels: float = ALPHA_LEVELS) -> np.ndarray:
     """(E,T) uint8 levels → (T,E) float32 α at each level's centre (1 stays 1)."""
     return np.minimum((levels.T.astype(np.float32) + np.float32(0.5)) / np.float32(alpha_levels), np.float32(1.0))
+
+
+def quantise_damage(damage: np.ndarray) -> np.ndarray:
+    """(T,E) damage or initiation in [0, 1] → (E,T) uint8 levels, rounded (0 and 1 stay exact)."""
+    return np.ascontiguousarray(np.rint(np.clip(np.asarray(damage, dtype=np.float64), 0.0, 1.0) * DAMAGE_LEVELS).astype(np.uint8).T)
+
+
+def dequantise_damage(levels: np.ndarray, damage_levels: float = DAMAGE_LEVELS) -> np.ndarray:
+    """(E,T) uint8 levels → (T,E) float32."""
+    return levels.T.astype(np.float32) / np.float32(damage_levels)
 
 
 def removal_frames(status: np.ndarray, where: str) -> np.ndarray:
@@ -119,6 +135,7 @@ def _pack_attrs(manifest: dict, labels: LabelConfig) -> dict[str, Any]:
         "format": PACK_FORMAT,
         "version": PACK_VERSION,
         "alpha_levels": ALPHA_LEVELS,
+        "damage_levels": DAMAGE_LEVELS,
         "labels": _json_attr(labels.model_dump()),
         "identity": _json_attr(manifest["identity"]),
         "identity_hash": str(manifest.get("identity_hash") or config_hash(manifest["identity"])),
@@ -132,6 +149,10 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
     alpha = alpha_label(reader.series("peeq"), reader.series("von_mises"), status, labels)
     group.create_dataset("alpha", data=quantise_alpha(alpha), chunks=(min(4096, alpha.shape[1]), alpha.shape[0]), **_ALPHA_COMPRESSION)
     group.create_dataset("removed_frame", data=removal_frames(status, str(reader.path)), compression="gzip", compression_opts=9)
+    for name in OPTIONAL_PER_ELEMENT:
+        data = reader.series(name)
+        if data is not None:
+            group.create_dataset(name, data=quantise_damage(data), chunks=(min(4096, data.shape[1]), data.shape[0]), **_ALPHA_COMPRESSION)
     for name in _SMALL_PER_FRAME:
         data = reader.series(name)
         if data is not None:
@@ -223,6 +244,7 @@ def read_pack(path: str | os.PathLike, splits: tuple[str, ...] | None = None, la
         if labels is not None and labels.model_dump() != packed_labels:
             raise ThrsimInputError(f"{path}: packed with label constants {packed_labels}; α cannot be recomputed with others from a pack")
         levels = float(f.attrs["alpha_levels"])
+        damage_levels = float(f.attrs.get("damage_levels", DAMAGE_LEVELS))
         mesh = read_mesh_group(f["mesh"])
         out = []
         for case_id in sorted(f["cases"]):
@@ -246,5 +268,6 @@ def read_pack(path: str | os.PathLike, splits: tuple[str, ...] | None = None, la
                 split=split,
                 attrs=attrs,
                 data_digest=str(attrs.get("source_data_digest", "")),
+                **{name: dequantise_damage(g[name][()], damage_levels) if name in g else None for name in OPTIONAL_PER_ELEMENT},
             ))  # fmt: skip
     return mesh, out

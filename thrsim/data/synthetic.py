@@ -102,6 +102,9 @@ def synthetic_run_case(
         energy=energy,
         energy_names=("kinetic", "internal", "plastic_dissipation", "contact"),
         contact_force=np.tile(-axis * case.force_n, (t_frames, 1)),
+        # as the solver records them: damage reaches 1 where an element goes (PEEQ 0.6 here)
+        damage=np.clip(peeq / 0.6, 0.0, 1.0).astype(np.float32),
+        damage_initiation=np.clip(peeq / 0.3, 0.0, 1.0).astype(np.float32),
     )
     removed = int(mesh.n_tets - status[-1].sum())
     moving = energy[1:, 1] > 0

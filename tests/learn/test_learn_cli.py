@@ -98,6 +98,18 @@ def test_evaluate_refuses_a_model_of_another_mesh(tiny_model, real_case):
     assert result.returncode == 2 and "another mesh" in result.stderr and result.stdout == ""
 
 
+def test_evaluate_refuses_cases_without_damage_for_a_model_that_reads_it(tiny_model, synthetic_dataset, tmp_path):
+    import h5py
+
+    case = tmp_path / "old.h5"
+    shutil.copy(synthetic_dataset / "cases" / "g015.0_t045.0_f230N_h1mm.h5", case)
+    with h5py.File(case, "r+") as f:  # as solver 0.3.0 wrote it
+        del f["frames/damage"], f["frames/damage_initiation"]
+    result = run_thrsim("evaluate", "--data", str(case), "--model", str(tiny_model), "--json")
+    assert result.returncode == 2 and result.stdout == ""
+    assert result.stderr.count("\n") == 1 and "do not record damage" in result.stderr
+
+
 def test_windows_cover_every_horizon_or_the_end():
     assert windows(12, 30) == [(0, ["1", "end"], 11)]
     assert windows(121, 30) == [(0, ["1", "30", "60"], 60), (30, ["1", "30", "60"], 60), (60, ["1", "30", "60"], 60), (90, ["1", "30", "end"], 30)]

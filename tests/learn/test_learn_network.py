@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from thrsim.learn.features import WIDTHS, GraphBatch
+from thrsim.learn.features import WIDTHS, GraphBatch, input_widths
 from thrsim.learn.learned_simulator import LearnedSimulator, masked_bce
 from thrsim.learn.network import GraphNetwork, NodeMLP
 from thrsim.learn.settings import ArchSettings, ModelSettings, preset, thesis_arch
@@ -71,8 +71,8 @@ def test_messages_travel_one_hop_per_step():
     assert diff[3] == 0 and diff[4] == 0  # beyond
 
 
-def _batch(n=20, alpha=None):
-    node_in, edge_in, global_in = WIDTHS["full"]
+def _batch(n=20, alpha=None, node_in=WIDTHS["full"][0]):
+    _, edge_in, global_in = WIDTHS["full"]
     g = torch.Generator().manual_seed(5)
     s = torch.arange(n - 1)
     return GraphBatch(
@@ -103,13 +103,20 @@ def test_residual_logit_makes_an_untrained_output_layer_predict_no_change():
     assert torch.allclose(out, alpha, atol=1e-6)
 
 
-def _removal_model(removal_bias: float) -> LearnedSimulator:
-    """A production model whose outputs are constant: α logit 0 (α' = α_t) and a fixed removal logit."""
+def _removal_model(removal_bias: float, damage_bias: float = 0.0) -> LearnedSimulator:
+    """A production model whose outputs are constant: α logit 0 (α' = α_t), a fixed removal logit and
+    a fixed damage logit increment (0: D' = D_t)."""
     model = LearnedSimulator(preset("production"), "gn")
     with torch.no_grad():
         model.network.output.weight.zero_()
-        model.network.output.bias.copy_(torch.tensor([0.0, removal_bias]))
+        model.network.output.bias.copy_(torch.tensor([0.0, removal_bias, damage_bias]))
     return model
+
+
+def _damaged_batch(alpha: torch.Tensor, damage: torch.Tensor) -> GraphBatch:
+    b = _batch(alpha=alpha, node_in=input_widths(preset("production").features)[0])
+    b.damage = damage
+    return b
 
 
 def test_removal_hazard_is_minus_log_survival_and_only_where_alpha_is_updated():
@@ -117,24 +124,40 @@ def test_removal_hazard_is_minus_log_survival_and_only_where_alpha_is_updated():
     p = 0.2
     model = _removal_model(float(np.log(p / (1 - p))))
     alpha = torch.linspace(0.0, 1.0, 20)
-    b = _batch(alpha=alpha)
-    out, hazard = model.predict(b)
+    b = _damaged_batch(alpha, torch.rand(20))
+    out, hazard, damage = model.predict(b)
     updated = b.update & (alpha >= 0.3)
     assert torch.allclose(hazard[updated], torch.full((int(updated.sum()),), -np.log(1 - p), dtype=torch.float32), rtol=1e-5)
     assert torch.all(hazard[~updated] == 0)
     assert torch.allclose(out, alpha, atol=1e-6)
+    assert torch.allclose(damage, b.damage, atol=1e-6)
 
 
-def test_the_removal_head_adds_its_cross_entropy_on_removed_at_t_plus_1():
+def test_the_removal_head_and_damage_add_their_cross_entropies():
     model = _removal_model(0.0)
     alpha = torch.linspace(0.35, 0.95, 20)
-    b = _batch(alpha=alpha)
+    b = _damaged_batch(alpha, torch.linspace(0.0, 0.9, 20))
     target = torch.where(torch.arange(20) % 2 == 0, torch.tensor(0.0), alpha)
-    alpha_logit, removal_logit = model.outputs(b)
+    damage_next = (b.damage + 0.05).clamp(max=1.0)
+    out = model.outputs(b)
     mask = model.trainable_mask(b)
-    expected = masked_bce(alpha_logit, target, mask) + masked_bce(removal_logit, (target < 0.3).float(), mask)
-    assert torch.allclose(model.loss(b, target), expected)
-    assert float(model.loss(b, target).detach()) > float(masked_bce(alpha_logit, target, mask).detach())
+    alpha_only = masked_bce(out.alpha, target, mask)
+    expected = alpha_only + masked_bce(out.removal, (target < 0.3).float(), mask) + masked_bce(out.damage, damage_next, mask)
+    assert torch.allclose(model.loss(b, target, damage_next), expected)
+    assert float(model.loss(b, target, damage_next).detach()) > float(alpha_only.detach())
+    with pytest.raises(ValueError, match="D\\(t\\+1\\)"):
+        model.loss(b, target)
+
+
+def test_predicted_damage_never_falls_and_changes_only_where_alpha_is_updated():
+    alpha = torch.linspace(0.0, 1.0, 20)
+    damage = torch.linspace(0.05, 0.95, 20)
+    updated = _damaged_batch(alpha, damage).update & (alpha >= 0.3)
+    falling = _removal_model(-50.0, damage_bias=-8.0).predict(_damaged_batch(alpha, damage)).damage
+    assert torch.allclose(falling, damage)  # sigmoid below D(t) everywhere: D is kept
+    rising = _removal_model(-50.0, damage_bias=2.0).predict(_damaged_batch(alpha, damage)).damage
+    assert torch.all(rising[updated] > damage[updated]) and torch.all(rising[updated] <= 1.0)
+    assert torch.equal(rising[~updated], damage[~updated])
 
 
 def test_loss_sees_only_masked_nodes():

@@ -68,11 +68,13 @@ def test_pushforward_feeds_the_networks_own_rollout_from_its_first_epoch(real):
     assert {trainer._pushed_steps(1, rng) for _ in range(20)} == {1}
     case = trainer.train_cases[0]
     t = case.frames - 2
-    pushed = trainer._pushed_alpha(case, t, 3)
+    state = trainer._pushed_state(case, t, 3)
+    pushed = state.alpha
     assert trainer.gn.training
     assert (pushed[case.alpha[t - 3] < 0.3] < 0.3).all()  # removed bone stays removed
     region_changed = pushed != case.alpha[t - 3]
     assert region_changed.any() and not np.array_equal(pushed, case.alpha[t])
+    assert np.all(state.damage >= case.damage[t - 3]) and not np.array_equal(state.damage, case.damage[t - 3])  # D pushed forward too
 
 
 def test_a_checkpoint_of_another_run_is_refused(real, tmp_path):
@@ -147,3 +149,17 @@ def test_a_learning_pack_trains_the_same_cases_as_its_dataset(tiny_model, synthe
     assert card["data"]["digest"] == from_dataset["data"]["digest"]  # the source cases' digests
     assert card["data"]["split"] == from_dataset["data"]["split"] and card["data"]["frame_pairs"] == from_dataset["data"]["frame_pairs"]
     assert card["data"]["source"] == str(pack)
+
+
+def test_a_model_with_damage_refuses_cases_that_do_not_record_it(real):
+    import dataclasses
+
+    mesh, cases = real
+    assert all(case.damage is not None for case in cases)  # the solver records damage
+    undamaged = [dataclasses.replace(case, damage=None) for case in cases]
+    with pytest.raises(ThrsimInputError, match="do not record damage") as refused:
+        _trainer((mesh, undamaged), tiny_settings())
+    assert "\n" not in str(refused.value)
+    settings = tiny_settings()
+    without = settings.model_copy(update={"features": settings.features.model_copy(update={"damage": False})})
+    assert _trainer((mesh, undamaged), without).train_epoch()[0] > 0  # a model without damage trains on them

@@ -40,6 +40,7 @@ class CaseArrays:
     digest: str
     solver_version: str
     frame_dt_s: float = 1.0 / 60.0
+    damage: np.ndarray | None = None  # (T, E) float32 D, where the case records it (solver 0.4.0 on)
 
     @property
     def frames(self) -> int:
@@ -50,7 +51,14 @@ class CaseArrays:
         return np.diff(self.positions, axis=0) @ self.axis
 
 
-def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis) -> CaseArrays:
+def require_damage(cases: list[CaseArrays], remedy: str) -> None:
+    """Refuse, in one line, cases that do not record damage, for a model that reads it."""
+    undamaged = [case.case_id for case in cases if case.damage is None]
+    if undamaged:
+        raise ThrsimInputError(f"{len(undamaged)} case(s) do not record damage (e.g. {undamaged[0]}; solver before 0.4.0), which this model reads: {remedy}")
+
+
+def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis, damage: np.ndarray | None) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
     config = attrs.get("config") if isinstance(attrs.get("config"), dict) else {}
     reamer = {**ReamerConfig().model_dump(), **config.get("reamer", {})}
@@ -71,6 +79,7 @@ def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs
         digest=digest,
         solver_version=str(attrs.get("thrsim_version", "unknown")),
         frame_dt_s=1.0 / float(config.get("frame_rate_hz", 60.0)),
+        damage=None if damage is None else np.asarray(damage, dtype=np.float32),
     )
 
 
@@ -78,12 +87,12 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
     case = read_case(path)
     frames = case.frames
     alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
-    return case.mesh, _case_arrays(case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis)
+    return case.mesh, _case_arrays(case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis, frames.damage)
 
 
 def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
     mesh, packed = read_pack(path, splits, labels)
-    return mesh, [_case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis) for p in packed]
+    return mesh, [_case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage) for p in packed]
 
 
 def load_cases(source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[CaseArrays]]:

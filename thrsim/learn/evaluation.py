@@ -20,7 +20,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from thrsim.learn.cases import CaseArrays
+from thrsim.learn.cases import CaseArrays, require_damage
 from thrsim.learn.metrics import Counts, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.rollout import GeometricStep, LearnedStep, rollout
@@ -66,6 +66,8 @@ def _steppers(model: LoadedModel) -> dict:
 
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None) -> dict:
     """Scores per mode, γ and horizon, plus volume and surface errors at each window's longest horizon."""
+    if model.settings.features.damage:
+        require_damage(cases, "evaluate it on data of solver 0.4.0 or later")
     threshold = model.threshold
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}

@@ -13,10 +13,16 @@ import numpy as np
 import torch
 
 from thrsim.learn.graph import StaticGraph, Subgraph
-from thrsim.learn.settings import FeatureSet
+from thrsim.learn.settings import FeatureSet, FeatureSettings
 
-#: widths of (node, edge, global) inputs per feature set
+#: widths of (node, edge, global) inputs per feature set, before the damage column
 WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3)}
+
+
+def input_widths(features: FeatureSettings) -> tuple[int, int, int]:
+    """Widths of (node, edge, global) inputs: the feature set's, plus one node column with damage."""
+    node, edge, global_ = WIDTHS[features.feature_set]
+    return node + int(features.damage), edge, global_
 
 
 @dataclass(frozen=True)
@@ -33,7 +39,7 @@ class ReamerState:
 
 @dataclass
 class GraphBatch:
-    """Inputs of one or more subgraphs, concatenated; ``alpha`` and ``update`` per node."""
+    """Inputs of one or more subgraphs, concatenated; ``alpha``, ``update`` and (models with damage) ``damage`` per node."""
 
     nodes: torch.Tensor
     edges: torch.Tensor
@@ -44,13 +50,15 @@ class GraphBatch:
     edge_graph: torch.Tensor
     alpha: torch.Tensor
     update: torch.Tensor
+    damage: torch.Tensor | None = None
 
     def network_args(self) -> tuple:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
 
 
-def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reamer: ReamerState, feature_set: FeatureSet, threshold: float, active_all: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``.
+def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reamer: ReamerState, feature_set: FeatureSet, threshold: float, active_all: np.ndarray, damage_sub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``
+    and ``damage_sub``, when given, D there (the last node column).
 
     ``active_all`` (every element's active flag) gives each node its count of open faces
     (no active tet behind them), which tells the network where the free surface is even when
@@ -78,11 +86,14 @@ def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reame
         offset = centroids[sub.receivers] - centroids[sub.senders]
         edges = np.column_stack([one_hot, offset, np.linalg.norm(offset, axis=1)])
         globals_ = np.concatenate([force, [reamer.force_n, reamer.advance_m]])[None, :]
+    if damage_sub is not None:
+        nodes = np.column_stack([nodes, damage_sub])
     return nodes.astype(np.float32), edges.astype(np.float32), globals_.astype(np.float32)
 
 
-def batch(parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]]) -> GraphBatch:
-    """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output)."""
+def batch(parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]], damage: list[np.ndarray] | None = None) -> GraphBatch:
+    """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
+    ``damage``, for models with damage, D on each part's nodes."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
     for index, (sub, alpha_sub, (n, e, g)) in enumerate(parts):
@@ -112,4 +123,5 @@ def batch(parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, 
         edge_graph=cat(edge_graph, np.int64),
         alpha=cat(alpha, np.float32),
         update=cat(update, np.bool_),
+        damage=None if damage is None else cat(damage, np.float32),
     )

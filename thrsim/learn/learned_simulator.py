@@ -13,16 +13,21 @@ a quarter of the solver's bone by frame 20 although every single step from the s
 was right. The head predicts the probability p that an active element is removed by t + 1; the
 rollout adds its hazard −log(1 − p) = softplus(logit) per element and frame, and removes the
 element once the sum reaches ln 2, the median of its removal time.
+
+Damage (``FeatureSettings.damage``). The network also reads each element's damage D(t) and
+predicts D(t+1) (a third output, its logit added to logit(D_t) as α's is); the prediction never
+falls below D(t), since damage only grows. The loss adds D's cross-entropy on the same nodes.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import torch
 from torch import nn
 
-from thrsim.learn.features import WIDTHS, GraphBatch
+from thrsim.learn.features import GraphBatch, input_widths
 from thrsim.learn.network import GraphNetwork, NodeMLP
 from thrsim.learn.settings import ModelSettings
 
@@ -30,6 +35,22 @@ _EPS = 1e-3
 
 #: accumulated removal hazard at which an element goes: its survival probability is then 1/2
 REMOVAL_HAZARD = math.log(2.0)
+
+
+class Outputs(NamedTuple):
+    """Per-node logits: α(t+1); removed at t+1 (removal head); D(t+1) (models with damage)."""
+
+    alpha: torch.Tensor
+    removal: torch.Tensor | None
+    damage: torch.Tensor | None
+
+
+class Prediction(NamedTuple):
+    """Per node at t + 1: α, this step's removal hazard and D (None without damage)."""
+
+    alpha: torch.Tensor
+    hazard: torch.Tensor
+    damage: torch.Tensor | None
 
 
 class Normaliser(nn.Module):
@@ -55,12 +76,13 @@ class LearnedSimulator(nn.Module):
 
     def __init__(self, settings: ModelSettings, kind: str = "gn", threshold: float = 0.3):
         super().__init__()
-        node_in, edge_in, global_in = WIDTHS[settings.features.feature_set]
+        node_in, edge_in, global_in = input_widths(settings.features)
         self.kind = kind
         self.threshold = threshold
         self.residual_logit = settings.arch.residual_logit
         self.removal_head = settings.arch.removal_head
-        outputs = 2 if self.removal_head else 1
+        self.damage = settings.features.damage
+        outputs = 1 + int(self.removal_head) + int(self.damage)
         self.node_norm = Normaliser(node_in)
         self.edge_norm = Normaliser(edge_in)
         self.global_norm = Normaliser(global_in)
@@ -83,24 +105,32 @@ class LearnedSimulator(nn.Module):
             batch.senders, batch.receivers, batch.node_graph, batch.edge_graph,
         )
 
-    def outputs(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Per node: the logit of α(t+1) and, with the removal head, the logit of p(removed at t+1)."""
+    def outputs(self, batch: GraphBatch) -> Outputs:
+        """Per node: the logits of α(t+1), of p(removed at t+1) with the removal head, of D(t+1) with damage."""
         out = self.network(*self.normalised_inputs(batch))
         alpha_logit = out[:, 0]
         if self.residual_logit:
-            alpha_logit = alpha_logit + torch.logit(batch.alpha.clamp(_EPS, 1 - _EPS))
-        return alpha_logit, (out[:, 1] if self.removal_head else None)
+            alpha_logit = alpha_logit + _logit(batch.alpha)
+        removal_logit = out[:, 1] if self.removal_head else None
+        damage_logit = None
+        if self.damage:
+            damage_logit = out[:, 1 + int(self.removal_head)]
+            if self.residual_logit:
+                damage_logit = damage_logit + _logit(batch.damage)
+        return Outputs(alpha_logit, removal_logit, damage_logit)
 
-    def logits(self, batch: GraphBatch) -> torch.Tensor:
-        return self.outputs(batch)[0]
-
-    def loss(self, batch: GraphBatch, alpha_next: torch.Tensor) -> torch.Tensor:
-        """Cross-entropy on α(t+1) (eq. 49), plus, with the removal head, on removed-at-t+1."""
+    def loss(self, batch: GraphBatch, alpha_next: torch.Tensor, damage_next: torch.Tensor | None = None) -> torch.Tensor:
+        """Cross-entropy on α(t+1) (eq. 49), plus, with the removal head, on removed-at-t+1 and,
+        with damage, on D(t+1)."""
         mask = self.trainable_mask(batch)
-        alpha_logit, removal_logit = self.outputs(batch)
-        loss = masked_bce(alpha_logit, alpha_next, mask)
-        if removal_logit is not None:
-            loss = loss + masked_bce(removal_logit, (alpha_next < self.threshold).to(alpha_next.dtype), mask)
+        out = self.outputs(batch)
+        loss = masked_bce(out.alpha, alpha_next, mask)
+        if out.removal is not None:
+            loss = loss + masked_bce(out.removal, (alpha_next < self.threshold).to(alpha_next.dtype), mask)
+        if out.damage is not None:
+            if damage_next is None:
+                raise ValueError("a model with damage needs D(t+1) targets")
+            loss = loss + masked_bce(out.damage, damage_next, mask)
         return loss
 
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
@@ -108,19 +138,26 @@ class LearnedSimulator(nn.Module):
         return batch.update & (batch.alpha >= self.threshold)
 
     @torch.no_grad()
-    def predict(self, batch: GraphBatch) -> tuple[torch.Tensor, torch.Tensor]:
-        """α at t + 1 on every batch node (unchanged where removed at t or outside the region) and
-        the removal hazard of this step (0 there, and everywhere without the removal head)."""
+    def predict(self, batch: GraphBatch) -> Prediction:
+        """α at t + 1 on every batch node (unchanged where removed at t or outside the region), the
+        removal hazard of this step (0 there, and everywhere without the removal head) and, with
+        damage, D at t + 1 (at least D(t); unchanged where α is)."""
         mask = self.trainable_mask(batch)
-        alpha_logit, removal_logit = self.outputs(batch)
-        alpha = torch.where(mask, torch.sigmoid(alpha_logit), batch.alpha)
-        if removal_logit is None:
-            return alpha, torch.zeros_like(alpha)
-        return alpha, torch.where(mask, nn.functional.softplus(removal_logit), torch.zeros_like(alpha))
+        out = self.outputs(batch)
+        alpha = torch.where(mask, torch.sigmoid(out.alpha), batch.alpha)
+        hazard = torch.zeros_like(alpha) if out.removal is None else torch.where(mask, nn.functional.softplus(out.removal), torch.zeros_like(alpha))
+        damage = None
+        if out.damage is not None:
+            damage = torch.where(mask, torch.maximum(torch.sigmoid(out.damage), batch.damage), batch.damage)
+        return Prediction(alpha, hazard, damage)
 
     def alpha_next(self, batch: GraphBatch) -> torch.Tensor:
         """α at t + 1 alone (see :meth:`predict`)."""
-        return self.predict(batch)[0]
+        return self.predict(batch).alpha
+
+
+def _logit(probability: torch.Tensor) -> torch.Tensor:
+    return torch.logit(probability.clamp(_EPS, 1 - _EPS))
 
 
 def masked_bce(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

@@ -1,8 +1,8 @@
 """One frame after another: the learned step, the geometric baseline, and rollouts from a ground-truth frame.
 
-A step takes the bone state at t (α and the accumulated removal hazard per element), the reamer
-centre at t + 1 (given, or advanced by the regressor), the axis and the force, and returns the
-state at t + 1. Only the region near the reamer is evaluated (see :mod:`thrsim.learn.graph`);
+A step takes the bone state at t (:class:`BoneState`: α, the accumulated removal hazard and, for
+models with damage, D per element), the reamer centre at t + 1 (given, or advanced by the
+regressor), the axis and the force, and returns the state at t + 1. Only the region near the reamer is evaluated (see :mod:`thrsim.learn.graph`);
 elements outside it keep their α and hazard, since nothing reaches them. An element whose
 hazard reaches ``REMOVAL_HAZARD`` is removed (α = 0, as the solver's deleted elements).
 """
@@ -22,6 +22,25 @@ from thrsim.learn.settings import FeatureSettings
 
 
 @dataclass
+class BoneState:
+    """Per element (float32): α, the accumulated removal hazard, and damage D (zeros for models without it)."""
+
+    alpha: np.ndarray
+    hazard: np.ndarray
+    damage: np.ndarray
+
+    @classmethod
+    def start(cls, alpha: np.ndarray, damage: np.ndarray | None = None) -> BoneState:
+        """A state with no hazard accumulated yet; ``damage`` None for undamaged bone."""
+        alpha = np.array(alpha, dtype=np.float32, copy=True)
+        damage = np.zeros_like(alpha) if damage is None else np.array(damage, dtype=np.float32, copy=True)
+        return cls(alpha, np.zeros_like(alpha), damage)
+
+    def copy(self) -> BoneState:
+        return BoneState(self.alpha.copy(), self.hazard.copy(), self.damage.copy())
+
+
+@dataclass
 class StepInfo:
     region: int
     subgraph: int
@@ -38,10 +57,10 @@ class LearnedStep:
         self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
 
-    def inputs(self, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[Subgraph, GraphBatch | None]:
+    def inputs(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[Subgraph, GraphBatch | None]:
         """The region's subgraph and the network's inputs for it (None for an empty region: nothing to run)."""
         graph = self.graph
-        active = alpha >= self.model.threshold
+        active = state.alpha >= self.model.threshold
         if self.features.whole_graph:
             sub = graph.whole()
         else:
@@ -49,24 +68,26 @@ class LearnedStep:
         if sub.n_region == 0:
             return sub, None
         reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
-        alpha_sub = np.asarray(alpha, dtype=np.float32)[sub.nodes]
-        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active)
-        return sub, batch([(sub, alpha_sub, arrays)])
+        alpha_sub = state.alpha[sub.nodes]
+        damage_sub = state.damage[sub.nodes] if self.features.damage else None
+        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub)
+        return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
 
-    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
-        out = np.array(alpha, dtype=np.float32, copy=True)
-        out_hazard = np.array(hazard, dtype=np.float32, copy=True)
-        sub, inputs = self.inputs(alpha, centre, axis, force_n, advance_m, omega_rad_s)
+    def __call__(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> BoneState:
+        out = state.copy()
+        sub, inputs = self.inputs(state, centre, axis, force_n, advance_m, omega_rad_s)
         self.last = StepInfo(sub.n_region, len(sub.nodes))
         if inputs is None:
-            return out, out_hazard
+            return out
         with torch.inference_mode():
-            predicted, increment = (t.numpy() for t in self.model.predict(inputs))
-        region = sub.region
-        out[region] = predicted[: sub.n_region]
-        out_hazard[region] += increment[: sub.n_region]
-        out[region[out_hazard[region] >= REMOVAL_HAZARD]] = 0.0
-        return out, out_hazard
+            prediction = self.model.predict(inputs)
+        region, n = sub.region, sub.n_region
+        out.alpha[region] = prediction.alpha[:n].numpy()
+        out.hazard[region] += prediction.hazard[:n].numpy()
+        if prediction.damage is not None:
+            out.damage[region] = prediction.damage[:n].numpy()
+        out.alpha[region[out.hazard[region] >= REMOVAL_HAZARD]] = 0.0
+        return out
 
 
 class GeometricStep:
@@ -77,10 +98,12 @@ class GeometricStep:
         self.graph = graph
         self.teeth_radius_m = teeth_radius_m
 
-    def __call__(self, alpha: np.ndarray, hazard: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def __call__(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> BoneState:
         rel = self.graph.centroids - centre
         inside = (np.einsum("ij,ij->i", rel, rel) < self.teeth_radius_m**2) & (rel @ axis >= 0.0)
-        return np.where(inside, np.float32(0.0), alpha).astype(np.float32), hazard
+        out = state.copy()
+        out.alpha[inside] = 0.0
+        return out
 
 
 def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerFeed | None) -> tuple[list[np.ndarray], np.ndarray]:
@@ -89,8 +112,7 @@ def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerF
     With ``feed`` the reamer moves by the regressor, resting on the bone (autonomous); without,
     it follows the recorded positions (tool-forced).
     """
-    alpha = case.alpha[start].copy()
-    hazard = np.zeros_like(alpha)
+    state = BoneState.start(case.alpha[start], None if case.damage is None else case.damage[start])
     centre = case.positions[start].copy()
     masks, centres = [], []
     for k in range(1, frames + 1):
@@ -98,10 +120,10 @@ def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerF
             new_centre = case.positions[start + k]
         else:
             impulse = case.force_n * case.frame_dt_s * (start + k - 1)
-            new_centre = centre + feed.advance_m(alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse) * case.axis
+            new_centre = centre + feed.advance_m(state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse) * case.axis
         moved = float((new_centre - centre) @ case.axis)
-        alpha, hazard = step(alpha, hazard, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
-        removed = alpha < threshold
+        state = step(state, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
+        removed = state.alpha < threshold
         centre = new_centre
         masks.append(removed)
         centres.append(centre)

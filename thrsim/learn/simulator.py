@@ -26,7 +26,7 @@ from thrsim.learn.compiled import compile_network
 from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model
-from thrsim.learn.rollout import LearnedStep
+from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
@@ -59,8 +59,7 @@ class SimulatorSnapshot:
 
     side: str
     frame: int
-    alpha: np.ndarray
-    hazard: np.ndarray
+    bone: BoneState
     centre: np.ndarray | None
     start: np.ndarray | None
     impulse_n_s: float = 0.0
@@ -148,7 +147,7 @@ class ReamingSimulator:
         axis = np.array([0.0, 0.0, -1.0])
         centre = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m) + 0.5e-3 * axis
         alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
-        _, inputs = self._step.inputs(alpha, centre, axis, 230.0, 0.5e-3, self.model.omega_rad_s)
+        _, inputs = self._step.inputs(BoneState.start(alpha), centre, axis, 230.0, 0.5e-3, self.model.omega_rad_s)
         if inputs is None:
             raise ThrsimInputError("the model's mesh has no bone within the reamer's reach at its pole")
         return inputs
@@ -172,8 +171,7 @@ class ReamingSimulator:
             raise ThrsimInputError(f"unknown side {side!r}: choose right or left")
         self.side = side
         self.frame = 0
-        self.alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
-        self.hazard = np.zeros(self.n_elements, dtype=np.float32)  # accumulated removal hazard
+        self.bone = BoneState.start(np.full(self.n_elements, self._intact_alpha, dtype=np.float32))
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
         self._impulse_n_s = 0.0  # push impulse since the reamer was placed (the regressor's input)
@@ -181,18 +179,22 @@ class ReamingSimulator:
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
         copy = lambda v: None if v is None else v.copy()  # noqa: E731
-        return SimulatorSnapshot(self.side, self.frame, self.alpha.copy(), self.hazard.copy(), copy(self._centre), copy(self._start), self._impulse_n_s)
+        return SimulatorSnapshot(self.side, self.frame, self.bone.copy(), copy(self._centre), copy(self._start), self._impulse_n_s)
 
     def restore(self, snapshot: SimulatorSnapshot) -> None:
         """Go back to a state taken by :meth:`snapshot` (same model)."""
-        if snapshot.alpha.shape != self.alpha.shape:
-            raise ThrsimInputError(f"snapshot of {snapshot.alpha.size} elements, this model's mesh has {self.alpha.size}")
+        if snapshot.bone.alpha.shape != self.alpha.shape:
+            raise ThrsimInputError(f"snapshot of {snapshot.bone.alpha.size} elements, this model's mesh has {self.alpha.size}")
         self.side, self.frame = snapshot.side, snapshot.frame
-        self.alpha = snapshot.alpha.copy()
-        self.hazard = snapshot.hazard.copy()
+        self.bone = snapshot.bone.copy()
         self._centre = None if snapshot.centre is None else snapshot.centre.copy()
         self._start = None if snapshot.start is None else snapshot.start.copy()
         self._impulse_n_s = snapshot.impulse_n_s
+
+    @property
+    def alpha(self) -> np.ndarray:
+        """α of every element now (the simulator's own array: copy before changing it)."""
+        return self.bone.alpha
 
     @property
     def removed(self) -> np.ndarray:
@@ -231,7 +233,7 @@ class ReamingSimulator:
             new_centre = self._centre + self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s) * axis
         advance = float((new_centre - self._centre) @ axis)
         before = self.removed
-        self.alpha, self.hazard = self._step(self.alpha, self.hazard, new_centre, axis, force, advance, self.model.omega_rad_s)
+        self.bone = self._step(self.bone, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre

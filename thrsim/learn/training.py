@@ -9,7 +9,8 @@ solver's: single steps from the solver's state were right at γ = 0 while the ch
 the rim at half the solver's rate, because the network's own states drift from the ones it was
 trained on. Both networks see the same batches.
 The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49), plus
-the removal head's on whether they are removed at t + 1.
+the removal head's on whether they are removed at t + 1 and, for models with damage, D(t+1)'s
+(whose input D(t) gets the same kind of noise as α).
 Input normalisers are fitted once on the first samples of a fixed permutation, then frozen.
 
 Determinism: every epoch draws its sample order and noise from ``(seed, epoch)`` alone, so a run
@@ -36,13 +37,13 @@ from safetensors.torch import save_file as save_tensors
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import case_samples, fit_advance
-from thrsim.learn.cases import CaseArrays
+from thrsim.learn.cases import CaseArrays, require_damage
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.metrics import Counts
-from thrsim.learn.rollout import LearnedStep, rollout
+from thrsim.learn.rollout import BoneState, LearnedStep, rollout
 from thrsim.learn.settings import ModelSettings
 from thrsim.provenance import config_hash
 
@@ -68,6 +69,8 @@ class Trainer:
         self.graph, self.train_cases, self.validation = graph, train, validation
         self.settings, self.teeth_radius_m, self.threshold = settings, teeth_radius_m, threshold
         self.reach_m = teeth_radius_m + settings.features.reach_margin_mm * 1e-3
+        if settings.features.damage:
+            require_damage([*train, *validation], 'regenerate the data or train with --settings holding {"features": {"damage": false}}')
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
         if len(self.samples) == 0:
             raise ThrsimInputError("the training cases hold no frame pairs")
@@ -109,23 +112,36 @@ class Trainer:
             return 0
         return int(rng.integers(1, min(t, train.pushforward_steps) + 1))
 
-    def _pushed_alpha(self, case: CaseArrays, t: int, steps: int) -> np.ndarray:
-        """α at t from the Graph Network's tool-forced rollout of ``steps`` frames from the ground truth."""
+    def _pushed_state(self, case: CaseArrays, t: int, steps: int) -> BoneState:
+        """The bone at t from the Graph Network's tool-forced rollout of ``steps`` frames from the ground truth."""
         was_training = self.gn.training
         step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
-        alpha = case.alpha[t - steps].copy()
-        hazard = np.zeros_like(alpha)
+        state = BoneState.start(case.alpha[t - steps], None if case.damage is None else case.damage[t - steps])
         for frame in range(t - steps + 1, t + 1):
             moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
-            alpha, hazard = step(alpha, hazard, case.positions[frame], case.axis, case.force_n, moved, case.omega_rad_s)
+            state = step(state, case.positions[frame], case.axis, case.force_n, moved, case.omega_rad_s)
         self.gn.train(was_training)
-        return alpha
+        return state
+
+    def _noisy(self, values: np.ndarray, active: np.ndarray, low: float, rng: np.random.Generator | None) -> np.ndarray:
+        """``values`` with Gaussian noise (σ ``alpha_noise``) on active elements, clipped to [low, 1]."""
+        sigma = self.settings.train.alpha_noise
+        if rng is None or sigma == 0:
+            return values
+        noisy = np.clip(values + rng.normal(0.0, sigma, len(values)).astype(np.float32), low, 1.0)
+        return np.where(active, noisy, values).astype(np.float32)
 
     def _sample(self, index: int, rng: np.random.Generator | None):
+        """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes."""
         case_index, t = self.samples[index]
         case = self.train_cases[case_index]
         pushed = self._pushed_steps(int(t), rng)
-        alpha_t = case.alpha[t] if pushed == 0 else self._pushed_alpha(case, int(t), pushed)
+        with_damage = self.settings.features.damage
+        if pushed:
+            state = self._pushed_state(case, int(t), pushed)
+            alpha_t, damage_t = state.alpha, state.damage
+        else:
+            alpha_t, damage_t = case.alpha[t], (case.damage[t] if with_damage else None)
         centre = case.positions[t + 1].copy()
         if rng is not None and self.settings.train.position_noise_mm > 0:
             centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
@@ -137,20 +153,27 @@ class Trainer:
             region = graph.region(active_t, centre, self.reach_m, self.settings.features.front_hops)
             sub = graph.subgraph(region, self.settings.features.halo_hops)
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
-        if rng is not None and self.settings.train.alpha_noise > 0:
-            active = alpha_in >= self.threshold
-            noisy = alpha_in + rng.normal(0.0, self.settings.train.alpha_noise, len(alpha_in)).astype(np.float32)
-            alpha_in = np.where(active, np.clip(noisy, self.threshold, 1.0), alpha_in).astype(np.float32)
+        active = alpha_in >= self.threshold
+        alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
+        damage_in = None if not with_damage else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
         reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
-        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t)
-        return (sub, alpha_in, arrays), case.alpha[t + 1][sub.nodes]
+        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t, damage_in)
+        damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
+        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
+
+    def _batch(self, drawn: list) -> tuple:
+        """Network inputs, α(t+1) and D(t+1) (None without damage) of drawn samples."""
+        with_damage = self.settings.features.damage
+        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None)
+        alpha_next = torch.from_numpy(np.concatenate([d[2] for d in drawn]).astype(np.float32))
+        damage_next = torch.from_numpy(np.concatenate([d[3] for d in drawn]).astype(np.float32)) if with_damage else None
+        return inputs, alpha_next, damage_next
 
     def _fit_normalisers(self) -> None:
         rng = np.random.default_rng([self.settings.train.seed, 10**6])
         chosen = rng.permutation(len(self.samples))[: self.settings.train.normaliser_samples]
-        parts = [self._sample(int(i), None)[0] for i in chosen]
-        inputs = batch(parts)
+        inputs, _, _ = self._batch([self._sample(int(i), None) for i in chosen])
         self.gn.fit_normalisers(inputs)
         self.mlp.fit_normalisers(inputs)
 
@@ -176,13 +199,11 @@ class Trainer:
         batches = math.ceil(len(order) / t.batch_size)
         for b in range(batches):
             chosen = order[b * t.batch_size : (b + 1) * t.batch_size]
-            drawn = [self._sample(int(i), rng) for i in chosen]
-            inputs = batch([d[0] for d in drawn])
-            target = torch.from_numpy(np.concatenate([d[1] for d in drawn]).astype(np.float32))
+            inputs, alpha_next, damage_next = self._batch([self._sample(int(i), rng) for i in chosen])
             for name, model in (("gn", self.gn), ("mlp", self.mlp)):
                 optimiser = self.optimisers[name]
                 optimiser.zero_grad(set_to_none=True)
-                loss = model.loss(inputs, target)
+                loss = model.loss(inputs, alpha_next, damage_next)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), t.gradient_clip)
                 optimiser.step()

@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from thrsim.learn.settings import ArchSettings, FeatureSettings, ModelSettings, TrainSettings
+from thrsim.learn.settings import ArchSettings, ModelSettings, TrainSettings, preset
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -25,4 +25,4 @@ def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
         global_encoder=(4,), message_passing_steps=2, mlp_baseline=(8,),
     )
     options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, "advance_trees": 5, **train}
-    return ModelSettings(arch=arch, features=FeatureSettings(damage=True), train=TrainSettings(**options))
+    return ModelSettings(arch=arch, features=preset("production").features, train=TrainSettings(**options))

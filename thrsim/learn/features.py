@@ -17,12 +17,14 @@ from thrsim.learn.settings import FeatureSet, FeatureSettings
 
 #: widths of (node, edge, global) inputs per feature set, before the damage column
 WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3)}
+#: node columns of ``FeatureSettings.corners``: four sorted corner distances, the nearest at t − 1
+CORNER_COLUMNS = 5
 
 
 def input_widths(features: FeatureSettings) -> tuple[int, int, int]:
-    """Widths of (node, edge, global) inputs: the feature set's, plus one node column with damage."""
+    """Widths of (node, edge, global) inputs: the feature set's, plus the corner and damage node columns."""
     node, edge, global_ = WIDTHS[features.feature_set]
-    return node + int(features.damage), edge, global_
+    return node + CORNER_COLUMNS * int(features.corners) + int(features.damage), edge, global_
 
 
 @dataclass(frozen=True)
@@ -56,9 +58,10 @@ class GraphBatch:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
 
 
-def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reamer: ReamerState, feature_set: FeatureSet, threshold: float, active_all: np.ndarray, damage_sub: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``
-    and ``damage_sub``, when given, D there (the last node column).
+def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reamer: ReamerState, feature_set: FeatureSet, threshold: float, active_all: np.ndarray, damage_sub: np.ndarray | None = None, corners: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``,
+    ``damage_sub``, when given, D there (the last node column); ``corners`` adds the corner
+    distances (``FeatureSettings.corners``) before it.
 
     ``active_all`` (every element's active flag) gives each node its count of open faces
     (no active tet behind them), which tells the network where the free surface is even when
@@ -83,6 +86,11 @@ def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reame
         normal_cos = (centroids @ reamer.axis) / radius
         open_faces = graph.open_faces(active_all, sub.nodes)
         nodes = np.column_stack([rel, axial, radial, signed, reamer.omega_rad_s * radial, normal_cos, radius, alpha_sub, active, open_faces])
+        if corners:
+            tet_corners = graph.corners[sub.nodes]
+            now = np.sort(np.linalg.norm(tet_corners - reamer.centre, axis=2), axis=1) - reamer.teeth_radius_m
+            before = np.linalg.norm(tet_corners - (reamer.centre - reamer.advance_m * reamer.axis), axis=2).min(axis=1) - reamer.teeth_radius_m
+            nodes = np.column_stack([nodes, now, before])
         offset = centroids[sub.receivers] - centroids[sub.senders]
         edges = np.column_stack([one_hot, offset, np.linalg.norm(offset, axis=1)])
         globals_ = np.concatenate([force, [reamer.force_n, reamer.advance_m]])[None, :]

@@ -55,6 +55,7 @@ class StaticGraph:
         self.mesh = mesh
         self.n_nodes = mesh.n_tets
         self.centroids = np.ascontiguousarray(mesh.centroids, dtype=np.float64)
+        self.corners = np.ascontiguousarray(mesh.nodes[mesh.tets], dtype=np.float64)  # (E, 4, 3)
         self.volumes = np.abs(mesh.volumes)
         self.neighbours = mesh.adjacency.neighbours
         pairs = mesh.adjacency.pairs

@@ -70,7 +70,7 @@ class LearnedStep:
         reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
         alpha_sub = state.alpha[sub.nodes]
         damage_sub = state.damage[sub.nodes] if self.features.damage else None
-        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub)
+        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub, self.features.corners)
         return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
 
     def __call__(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> BoneState:

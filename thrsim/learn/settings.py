@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 FeatureSet = Literal["full", "thesis"]
 
@@ -60,14 +60,26 @@ class FeatureSettings(_Frozen):
     Mises stress only, so without D the network cannot see how close a loaded element is to
     deletion; the solver's own repeatability of newly removed elements one frame on is 96 %.
     Needs cases that record damage (solver 0.4.0 and later).
+
+    ``corners`` (with ``full``): each node also reads its tetrahedron's four corner distances to
+    the teeth's sphere (sorted; negative inside) and its nearest corner's at the previous frame's
+    centre. The teeth cut at the nodes, and a centroid cannot tell a tet that pokes one corner
+    into the teeth's path from one that lies flat along it.
     """
 
     feature_set: FeatureSet = "full"
+    corners: bool = Field(False, description="node inputs: the tet's corner distances to the teeth's sphere (full set only)")
     damage: bool = Field(False, description="node input D(t) and output D(t+1) (cases must record damage)")
     reach_margin_mm: float = Field(1.0, gt=0, description="front elements whose centroid is within teeth reach + this of the reamer centre")
     front_hops: int = Field(1, ge=0, description="face-hops the updated region grows from the front into the bone")
     halo_hops: int = Field(0, ge=0, description="face-hops of context around the region (not updated)")
     whole_graph: bool = Field(False, description="update every element every frame (the thesis's way)")
+
+    @model_validator(mode="after")
+    def _corners_need_the_full_set(self) -> FeatureSettings:
+        if self.corners and self.feature_set != "full":
+            raise ValueError("corners are inputs of the full feature set only")
+        return self
 
 
 class TrainSettings(_Frozen):
@@ -129,7 +141,7 @@ def thesis_arch() -> ArchSettings:
 def preset(name: str) -> ModelSettings:
     """``production`` (sized for an interactive CPU step) or ``thesis`` (the reference)."""
     if name == "production":
-        return ModelSettings(arch=ArchSettings(removal_head=True), features=FeatureSettings(damage=True))
+        return ModelSettings(arch=ArchSettings(removal_head=True), features=FeatureSettings(damage=True, corners=True))
     if name == "thesis":
         return ModelSettings(arch=thesis_arch(), features=FeatureSettings(feature_set="thesis"))
     from thrsim.errors import ThrsimInputError

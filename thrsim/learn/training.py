@@ -158,7 +158,7 @@ class Trainer:
         damage_in = None if not with_damage else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
         reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
-        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t, damage_in)
+        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t, damage_in, self.settings.features.corners)
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
         return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
 

@@ -1,0 +1,61 @@
+"""Per-frame node inputs: widths per feature settings, the corner distances and the damage column."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pydantic import ValidationError
+
+from thrsim.data.synthetic import block_mesh
+from thrsim.learn.features import CORNER_COLUMNS, WIDTHS, ReamerState, frame_arrays, input_widths
+from thrsim.learn.graph import StaticGraph
+from thrsim.learn.settings import FeatureSettings
+
+MESH = block_mesh(n=4)
+GRAPH = StaticGraph(MESH)
+TEETH_M = 22.5e-3
+
+
+def _arrays(centre, axis=(0.0, 0.0, -1.0), advance_m=2e-4, damage=None, corners=False, feature_set="full"):
+    active = np.ones(MESH.n_tets, dtype=bool)
+    sub = GRAPH.subgraph(np.arange(MESH.n_tets), 0)
+    alpha = np.full(len(sub.nodes), 0.58, dtype=np.float32)
+    reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), 230.0, advance_m, 136.0, TEETH_M)
+    return sub, frame_arrays(GRAPH, sub, alpha, reamer, feature_set, 0.3, active, damage, corners)
+
+
+@pytest.mark.parametrize("feature_set", ["full", "thesis"])
+@pytest.mark.parametrize("damage", [False, True])
+@pytest.mark.parametrize("corners", [False, True])
+def test_input_widths_are_the_widths_frame_arrays_builds(feature_set, damage, corners):
+    if corners and feature_set == "thesis":
+        with pytest.raises(ValidationError, match="corners"):
+            FeatureSettings(feature_set=feature_set, damage=damage, corners=corners)
+        return
+    features = FeatureSettings(feature_set=feature_set, damage=damage, corners=corners)
+    d = np.linspace(0.0, 1.0, MESH.n_tets, dtype=np.float32) if damage else None
+    _, (nodes, edges, globals_) = _arrays((0.0, 0.0, -0.02), damage=d, corners=corners, feature_set=feature_set)
+    assert (nodes.shape[1], edges.shape[1], globals_.shape[1]) == input_widths(features)
+    if damage:
+        assert np.array_equal(nodes[:, -1], d)  # D is the last column
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.floats(-0.03, -0.01), st.floats(-3e-3, 3e-3), st.floats(0.0, 5e-4))
+def test_corner_distances_are_each_tets_corners_to_the_teeth_sphere(z, x, advance_m):
+    centre, axis = np.array([x, 0.0, z]), np.array([0.0, 0.0, -1.0])
+    sub, (nodes, _, _) = _arrays(centre, advance_m=advance_m, corners=True)
+    base = WIDTHS["full"][0]
+    now, before = nodes[:, base : base + 4], nodes[:, base + 4]
+    assert nodes.shape[1] == base + CORNER_COLUMNS
+    corners = MESH.nodes[MESH.tets[sub.nodes]]
+    expected = np.sort(np.linalg.norm(corners - centre, axis=2), axis=1) - TEETH_M
+    assert np.allclose(now, expected, atol=1e-9)
+    assert np.all(np.diff(now, axis=1) >= 0)
+    previous = centre - advance_m * axis
+    assert np.allclose(before, np.linalg.norm(corners - previous, axis=2).min(axis=1) - TEETH_M, atol=1e-9)
+    # distance to a point is convex: the centroid is never farther than its corners' mean
+    signed_centroid = nodes[:, 5]
+    assert np.all(signed_centroid <= now.mean(axis=1) + 1e-6)

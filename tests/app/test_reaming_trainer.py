@@ -69,6 +69,45 @@ def test_a_slow_tick_steps_at_most_two_frames_and_says_it_fell_behind(clock):
     assert state["reaming"]["frame"] == 20 and state["reaming"]["behind_frames"] == 40
 
 
+def _steered_run(simulator, with_early: bool) -> tuple[list[dict], dict[int, dict]]:
+    """One second of reaming with the reamer re-aimed before every tick: each tick's state and,
+    with ``with_early``, the early states by tick."""
+    clock = Clock(ReamingTrainer(simulator=simulator))
+    clock.control({"type": "run", "action": "start"})
+    states: list[dict] = []
+    early: dict[int, dict] = {}
+
+    def take(state: dict) -> None:
+        assert len(states) not in early  # at most once per tick
+        early[len(states)] = state
+
+    for k in range(60):
+        clock.control({"type": "reamer", "inclination_deg": 40 + 5 * math.sin(k / 5), "anteversion_deg": 20})
+        clock.now += STEP
+        states.append(clock.trainer.step(clock.now, take if with_early else None))
+    return states, early
+
+
+def test_a_tick_with_frames_hands_out_the_new_pose_first_and_steps_the_same(shipped_simulator):
+    states, early = _steered_run(shipped_simulator, True)
+    before = [0] + [s["reaming"]["frame"] for s in states]
+    stepped = {k for k, s in enumerate(states) if s["reaming"]["frame"] > before[k]}
+    assert set(early) == stepped and len(stepped) >= 55  # every tick that stepped a frame, and only those
+    for k, first in early.items():
+        assert first["reaming"]["frame"] == before[k]  # the bone before this tick's frames ...
+        assert first["reaming"]["gamma_deg"] == states[k]["reaming"]["gamma_deg"]  # ... under this tick's pose
+        assert first["reaming"]["removed"] <= states[k]["reaming"]["removed"]
+    plain, none = _steered_run(shipped_simulator, False)
+    assert not none
+
+    def without_events(state: dict) -> dict:
+        return {k: v for k, v in state["reaming"].items() if k not in ("events", "step_ms")}
+
+    assert [without_events(s) for s in plain] == [without_events(s) for s in states]  # a replay (no early) lives it alike
+    handed_out = [e for k, s in enumerate(states) for e in (early[k]["reaming"]["events"] if k in early else []) + s["reaming"]["events"]]
+    assert handed_out == [e for s in plain for e in s["reaming"]["events"]]  # every event once, in order
+
+
 def test_undo_goes_back_one_second_and_reset_restores_the_bone(clock):
     trainer = clock.trainer
     clock.control({"type": "run", "action": "start"})

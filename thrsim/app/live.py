@@ -3,7 +3,11 @@
 Times given to the trainer are seconds since the session started; inputs are logged before the
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
 The server steps sessions on a worker thread while inputs arrive on its event loop: every entry
-point holds the session's lock, so an input lands between two steps, never inside one.
+point holds the session's lock, so an input lands between two steps, never inside one. Tracker
+poses and force readings do not wait for the lock: a step of the reaming mode holds it for tens
+of milliseconds, and the event loop blocked on it would hold back the states it publishes too.
+They queue with their arrival times and are logged and applied, in order, as the next step or
+control takes the lock, which is when they would have landed had they waited.
 """
 
 from __future__ import annotations
@@ -11,7 +15,9 @@ from __future__ import annotations
 import datetime as dt
 import json
 import secrets
+import logging
 import threading
+from collections import deque
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
@@ -19,8 +25,11 @@ from pathlib import Path
 import numpy as np
 
 from thrsim.app.modes import Mode
+from thrsim.errors import ThrsimInputError
 from thrsim.provenance import package_versions
 from thrsim.session.file import InputLog, write_session
+
+log = logging.getLogger(__name__)
 
 STATIC = Path(__file__).parent / "static"
 THREE_DIR = STATIC / "node_modules" / "three"
@@ -57,6 +66,7 @@ class LiveSession:
         self.started_utc = dt.datetime.now(dt.UTC)
         self.last_state: dict | None = None
         self.lock = threading.RLock()
+        self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
 
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
@@ -65,6 +75,7 @@ class LiveSession:
         """Validate, log and apply one control; ThrsimInputError (logged first) when refused."""
         control = self.mode.parse_control(message)
         with self.lock:
+            self._apply_arrived()
             now = self.elapsed()
             self.inputs.control(now, control.model_dump())
             if control.type == "end_session":  # the app's to act on: it saves this session
@@ -72,23 +83,42 @@ class LiveSession:
             return control, self.trainer.apply_control(control, now)
 
     def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:
-        with self.lock:
-            now = self.elapsed(clock_time)
-            self.inputs.pose(now, device, pose)
-            self.trainer.apply_pose(device, pose, now)
+        """Queue a tracker pose (applied when the lock is next taken; see the module docstring)."""
+        self._arrived.append(("pose", device, np.array(pose, dtype=np.float64), clock_time))
 
     def force(self, newton: float, clock_time: float) -> None:
-        with self.lock:
-            now = self.elapsed(clock_time)
-            self.inputs.force(now, newton)
-            self.trainer.apply_force(newton, now)
+        """Queue a force reading, as :meth:`pose`."""
+        self._arrived.append(("force", float(newton), clock_time))
 
-    def tick(self) -> dict:
+    def _apply_arrived(self) -> None:
+        """Log and apply the queued poses and forces in arrival order (the lock held); a refused
+        one is logged as an input, as a refused control is, and the rest go on."""
+        while self._arrived:
+            entry = self._arrived.popleft()
+            try:
+                if entry[0] == "pose":
+                    _, device, pose, clock_time = entry
+                    now = self.elapsed(clock_time)
+                    self.inputs.pose(now, device, pose)
+                    self.trainer.apply_pose(device, pose, now)
+                else:
+                    _, newton, clock_time = entry
+                    now = self.elapsed(clock_time)
+                    self.inputs.force(now, newton)
+                    self.trainer.apply_force(newton, now)
+            except ThrsimInputError as error:
+                log.warning("%s refused: %s", entry[0], error)
+
+    def tick(self, early: Callable[[dict], None] | None = None) -> dict:
+        """Step the trainer to now; ``early`` gets the state of the new poses ahead of a slow step's
+        rest (see :class:`thrsim.app.modes.Trainer`)."""
         with self.lock:
+            self._apply_arrived()
             now = self.elapsed()
             self.inputs.tick(now)
-            state = self.trainer.step(now)
-            state["session"] = {"id": self.id, "elapsed_s": now}
+            session = {"id": self.id, "elapsed_s": now}
+            state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
+            state["session"] = session
             self.last_state = state
             return state
 
@@ -104,4 +134,5 @@ class LiveSession:
             "versions": json.dumps(versions()),
         }
         with self.lock:
+            self._apply_arrived()
             return write_session(folder / f"{self.id}.h5", attrs, self.inputs, {self.mode.name: self.trainer.write})

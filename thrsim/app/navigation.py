@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 from array import array
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -384,8 +385,9 @@ class NavigationTrainer:
         except ThrsimInputError:
             return None  # pointing medially: no clinical angle
 
-    def step(self, time_s: float) -> dict:
-        """Advance to ``time_s``: registration, visibility, angles; returns the state for viewers."""
+    def step(self, time_s: float, early: Callable[[dict], None] | None = None) -> dict:
+        """Advance to ``time_s``: registration, visibility, angles; returns the state for viewers.
+        Nothing here is slow, so ``early`` (see :class:`thrsim.app.modes.Trainer`) is never called."""
         if self._probe_on is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
             self._set_page_probe_tremor(time_s)
         visibility = self._visibility(time_s)

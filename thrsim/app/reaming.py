@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -213,7 +214,10 @@ class ReamingTrainer:
 
     # ---- stepping -----------------------------------------------------------------------------
 
-    def step(self, time_s: float) -> dict:
+    def step(self, time_s: float, early: Callable[[dict], None] | None = None) -> dict:
+        """Navigation, then the simulator frames due by ``time_s``; the state for viewers. With frames
+        to step, ``early`` first gets the state of the new poses on the bone as it was (the frames
+        take 10–30 ms; the reamer drawn at its new pose need not wait for them)."""
         nav_state = self.navigation.step(time_s)
         axis = self.reamer_axis(nav_state)
         force, force_source = self.force_n(time_s)
@@ -227,6 +231,8 @@ class ReamingTrainer:
                 note = "reamer not measured: reaming holds"
                 self.running_s = self.frames_run / FRAME_RATE_HZ  # the held time is not owed
             else:
+                if due > 0 and early is not None:
+                    early(self._state(time_s, nav_state, axis, force, force_source, note))
                 for _ in range(min(due, self.max_frames_per_tick)):
                     if not self._step_frame(time_s, axis, force, nav_state):
                         break

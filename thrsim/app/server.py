@@ -28,6 +28,7 @@ import re
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from urllib.parse import parse_qs, urlsplit
@@ -184,26 +185,26 @@ class TrainerHub:
         return {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}
 
     def on_pose(self, device: str, pose, clock_time: float) -> None:
+        """A tracker pose for every mode's session (queued there: this never waits for a step)."""
         for session in self.sessions.values():
-            try:
-                session.pose(device, pose, clock_time)
-            except ThrsimInputError as error:
-                log.warning("pose %s refused: %s", device, error)
+            session.pose(device, pose, clock_time)
 
     def on_force(self, newton: float, clock_time: float) -> None:
         for session in self.sessions.values():
-            try:
-                session.force(newton, clock_time)
-            except ThrsimInputError as error:
-                log.warning("force reading refused: %s", error)
+            session.force(newton, clock_time)
 
-    def tick(self) -> dict[str, str]:
-        """Step every mode's session (on the ticker's worker thread); the state texts to publish."""
+    def tick(self, publish_early: Callable[[str, str], None] | None = None) -> dict[str, str]:
+        """Step every mode's session (on the ticker's worker thread); the state texts to publish.
+        ``publish_early(mode, text)`` publishes a state a slow step hands out ahead of its end."""
         self.ticks += 1
         texts = {}
         for name, session in list(self.sessions.items()):
+
+            def early(state: dict, name: str = name) -> None:
+                publish_early(name, json.dumps(state, allow_nan=False))
+
             try:
-                state = session.tick()
+                state = session.tick(early if publish_early is not None and self.viewers[name] else None)
                 if self.viewers[name]:
                     texts[name] = json.dumps(state, allow_nan=False)
             except Exception:  # a trainer bug must not stop the other modes or lose the session
@@ -252,8 +253,12 @@ class _ForwardingSession(NavigationSession):
 async def _ticker(hub: TrainerHub, period: float) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time()
+
+    def publish_early(name: str, text: str) -> None:  # on the worker thread: hand over to the event loop
+        loop.call_soon_threadsafe(hub.publish, {name: text})
+
     while True:
-        hub.publish(await asyncio.to_thread(hub.tick))
+        hub.publish(await asyncio.to_thread(hub.tick, publish_early))
         deadline += period
         delay = deadline - loop.time()
         if delay < -period:

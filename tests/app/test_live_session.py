@@ -1,0 +1,52 @@
+"""A live session's inputs: tracker poses and force readings never wait for a step in flight, and
+land in the log and the trainer in arrival order, before the next step or control."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+
+from thrsim.app.live import LiveSession
+from thrsim.app.modes import MODES
+
+
+def _session() -> tuple[LiveSession, list[float]]:
+    now = [0.0]
+    return LiveSession(MODES["navigation"], {"side": "right", "seed": 1}, lambda: now[0]), now
+
+
+def _reamer_pose(session: LiveSession) -> np.ndarray:
+    pose = session.trainer.tools["Reamer"].pose.copy()
+    pose[:3, 3] += 0.01
+    return pose
+
+
+def test_a_pose_arriving_during_a_step_returns_at_once_and_lands_before_the_next_step():
+    session, now = _session()
+    session.tick()
+    pose = _reamer_pose(session)
+    done = threading.Event()
+    with session.lock:  # a step in flight, as the ticker's worker thread holds it
+        worker = threading.Thread(target=lambda: (session.pose("ReamerToReference", pose, 0.5), session.force(120.0, 0.6), done.set()))
+        worker.start()
+        assert done.wait(5.0)  # did not wait for the lock
+        assert session.inputs.count == 1  # queued, not yet logged
+    now[0] = 1.0
+    session.tick()
+    kinds = [(kind, time_s) for kind, time_s, _ in session.inputs.replay()]
+    assert kinds == [("tick", 0.0), ("pose", 0.5), ("force", 0.6), ("tick", 1.0)]
+    assert session.trainer.force_n == 120.0
+
+
+def test_a_control_applies_the_queued_readings_first_and_a_refused_pose_is_logged_and_skipped():
+    session, now = _session()
+    session.tick()
+    before = session.trainer.tools["Reamer"].pose.copy()
+    session.pose("ReamerToReference", np.full((4, 4), np.nan), 0.2)  # not a pose: refused when applied
+    session.force(90.0, 0.3)
+    now[0] = 0.4
+    session.control({"type": "reamer", "inclination_deg": 42, "anteversion_deg": 18})
+    assert [kind for kind, _, _ in session.inputs.replay()] == ["tick", "pose", "force", "control"]
+    assert session.trainer.force_n == 90.0  # the reading after the refused pose still landed
+    assert not np.isnan(session.trainer.tools["Reamer"].pose).any() and not np.array_equal(session.trainer.tools["Reamer"].pose, before)

@@ -2,8 +2,9 @@
 
 A step takes the bone state at t (:class:`BoneState`: α, the accumulated removal hazard and, for
 models with damage, D per element), the reamer centre at t + 1 (given, or advanced by the
-regressor), the axis and the force, and returns the state at t + 1. Only the region near the reamer is evaluated (see :mod:`thrsim.learn.graph`);
-elements outside it keep their α and hazard, since nothing reaches them. An element whose
+regressor), the axis and the force, and returns the state at t + 1. Only the region near the
+reamer is evaluated (see :mod:`thrsim.learn.graph`); elements outside it keep their state, since
+nothing reaches them. An element whose
 hazard reaches ``REMOVAL_HAZARD`` is removed (α = 0, as the solver's deleted elements).
 """
 

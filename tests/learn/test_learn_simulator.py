@@ -128,6 +128,20 @@ def test_thrsim_exports_the_simulator_lazily():
     assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr
 
 
+def test_threads_limit_numpys_blas_as_well_as_torch(tiny_model):
+    code = (
+        "import sys, torch; from threadpoolctl import threadpool_info; from thrsim.learn.simulator import ReamingSimulator; "
+        "ReamingSimulator(sys.argv[1], threads=1); "
+        "blas = [i['num_threads'] for i in threadpool_info() if i['user_api'] == 'blas']; "
+        "print(torch.get_num_threads(), blas)"
+    )
+    env = {**checkout_env(), "OPENBLAS_NUM_THREADS": "2", "OMP_NUM_THREADS": "2"}
+    result = subprocess.run([sys.executable, "-c", code, str(tiny_model)], cwd=REPO, capture_output=True, text=True, timeout=120, env=env)
+    assert result.returncode == 0, result.stderr
+    torch_threads, blas = result.stdout.split(" ", 1)
+    assert torch_threads == "1" and blas.strip() in ("[1]", "[1, 1]")
+
+
 def test_only_the_region_near_the_reamer_changes(simulator):
     model = simulator.model
     step = simulator._step

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from threadpoolctl import threadpool_limits
 
 from thrsim.config import LabelConfig
 from thrsim.data.labels import alpha as alpha_label
@@ -124,10 +125,15 @@ class ReamingSimulator:
     """
 
     def __init__(self, model_dir: str | os.PathLike | None = None, *, model: LoadedModel | None = None, threads: int | None = None, compile: bool = False):
-        """``compile``: run the network through ``torch.compile`` (see :mod:`thrsim.learn.compiled`),
+        """``threads``: PyTorch's threads and NumPy's BLAS threads, for the whole process. A step's
+        NumPy work is small (thousands of rows), where OpenBLAS's threads cost more than they
+        save, much more on a loaded machine: a boolean mask times the volumes took 1.6 ms with
+        two BLAS threads beside other work, 0.07 ms with one.
+        ``compile``: run the network through ``torch.compile`` (see :mod:`thrsim.learn.compiled`),
         compiling now; if that fails the simulator stays eager and ``compile_error`` says why."""
         if threads is not None:
             torch.set_num_threads(threads)
+            threadpool_limits(threads, user_api="blas")
         self.model = model if model is not None else load_model(model_dir)
         self._step = LearnedStep(self.model.gn, self.model.graph, self.model.settings.features, self.model.teeth_radius_m)
         self._feed = self.model.reamer_feed()
@@ -202,7 +208,7 @@ class ReamingSimulator:
 
     @property
     def removed_volume_m3(self) -> float:
-        return float(self.removed @ self.model.graph.volumes)
+        return float(self.model.graph.volumes[self.removed].sum())
 
     def reamer_start(self, reamer_axis) -> np.ndarray:
         """Where the reamer starts on this axis (teeth just clear of the bone), in this side's frame."""
@@ -246,7 +252,7 @@ class ReamingSimulator:
             removed=after,
             newly_removed=newly,
             reamer_position=self._to_side(new_centre.copy()),
-            removed_volume_m3=float(after @ self.model.graph.volumes),
+            removed_volume_m3=float(self.model.graph.volumes[after].sum()),
             advance_m=advance,
             seconds=time.perf_counter() - started,
             end_reason=end_reason,

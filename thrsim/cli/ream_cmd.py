@@ -18,7 +18,7 @@ def ream(
     frames: int = typer.Option(120, "--frames", help="frames at 60 per second", metavar="N"),
     side: str = typer.Option("right", "--side", help="hip side: right or left"),
     model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
-    threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
+    threads: int = typer.Option(1, "--threads", help="PyTorch and BLAS threads", metavar="N"),
     png: Optional[Path] = typer.Option(None, "--png", help="also draw the last frame (offscreen OpenGL) to this PNG", metavar="FILE.png"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -27,12 +27,9 @@ def ream(
 
     if threads < 1:
         raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
-    import torch
-
     from thrsim.learn.ream import ream as run_ream
 
-    torch.set_num_threads(threads)
-    summary = run_ream(inclination, anteversion, force, frames, side, out, model, png)
+    summary = run_ream(inclination, anteversion, force, frames, side, out, model, png, threads)
     if as_json:
         print_json(summary)
     else:

@@ -47,9 +47,10 @@ def check_out(out: Path) -> None:
 
 def ream(
     inclination_deg: float, anteversion_deg: float, force_n: float, frames: int, side: str, out: str | os.PathLike,
-    model_dir: str | os.PathLike | None = None, png: str | os.PathLike | None = None,
+    model_dir: str | os.PathLike | None = None, png: str | os.PathLike | None = None, threads: int | None = None,
 ) -> dict:  # fmt: skip
-    """Roll the learned simulator out and write the series (and, with ``png``, a picture of the last frame)."""
+    """Roll the learned simulator out and write the series (and, with ``png``, a picture of the last frame);
+    ``threads``: the simulator's (PyTorch's and NumPy's BLAS)."""
     out = Path(out)
     if frames < 1:
         raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
@@ -63,7 +64,7 @@ def ream(
     if png is not None and Path(png).suffix.lower() != ".png":
         raise ThrsimInputError(f"{png}: --png writes a PNG; give a .png name")
     check_out(out)
-    simulator = ReamingSimulator(model_dir)
+    simulator = ReamingSimulator(model_dir, threads=threads)
     simulator.reset(side)
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
     if side == "left":

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import secrets
 import logging
+import secrets
 import threading
 from collections import deque
 from collections.abc import Callable

@@ -15,7 +15,7 @@ import torch
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.settings import FeatureSet, FeatureSettings
 
-#: widths of (node, edge, global) inputs per feature set, before the damage column
+#: widths of (node, edge, global) inputs per feature set, before the corner and damage columns
 WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3)}
 #: node columns of ``FeatureSettings.corners``: four sorted corner distances, the nearest at t − 1
 CORNER_COLUMNS = 5

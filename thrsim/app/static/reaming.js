@@ -24,6 +24,7 @@ let steer = { inclination_deg: 40, anteversion_deg: 15 };
 let force = 230;
 let running = false;
 let dirty = true;
+let hudStale = false;
 let pendingBone = [];
 
 function resize() { view.resize(window.innerWidth, window.innerHeight); dirty = true; }
@@ -106,7 +107,8 @@ function receive(message) {
     view.apply(message);
     placeReamer(message.reaming);
     if (!stats.framed && bone) frameView();
-    showState(message);
+    running = message.reaming.running;
+    hudStale = true; // the panel's text follows at the next drawn frame: states come up to twice a tick
     for (const e of message.reaming.events) feedback(e);
     dirty = true;
   } else if (message.type === "hello" || message.type === "scene") {
@@ -311,6 +313,7 @@ function frame(now) {
       placeReamer(stats.last.reaming);
     }
     render();
+    if (hudStale) { hudStale = false; showState(stats.last); }
     if (stats.probe.arrived && !stats.probe.drawn) stats.probe.drawn = performance.now();
   }
   requestAnimationFrame(frame);

@@ -42,9 +42,11 @@ def test_dataset_then_info(tmp_path, monkeypatch, capsys):
     assert len(info["removed_fraction_per_frame"]) == 3 and info["removed_fraction_per_frame"][0] == 0.0
     assert info["peeq_range"][0] == 0.0 and info["von_mises_range_pa"][1] > 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert info["size_mb"] > 0 and info["worker_hours"] > 0
+    assert {k: g["cases"] for k, g in info["solver_rates"].items()} == {"0/230": 1, "30/230": 2}
 
     code, out, err = run_main(monkeypatch, capsys, "dataset", "info", str(root))  # rich table
-    assert code == 0 and "removed fraction" in out
+    assert code == 0 and "removed fraction" in out and "γ 30°, 230 N" in out
 
     # without --json, every finished case gets its own line: a sweep logged to a file shows progress
     code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "logged"), *SMALL)

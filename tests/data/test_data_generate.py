@@ -199,3 +199,22 @@ def test_solvers_by_name_are_thrsims_own_only(tmp_path, monkeypatch):
     assert not marker.exists() and not (tmp_path / "ds").exists()
     assert resolve_solver("synthetic") is synthetic_run_case
     assert resolve_solver(crash_once) is crash_once  # Python callers may pass their own callable
+
+
+def test_solver_rates_group_complete_cases_by_inclination_and_force():
+    from thrsim.data.info import solver_rates
+
+    def case(gamma, force, feed, end="perforated", status="complete", wall_s=1800.0):
+        summary = {"end_reason": end, "frames": 90, "feed_rate_mm_s": feed, "removal_rate_mm3_s": 200 * feed if feed is not None else None}
+        return {"status": status, "params": {"inclination_deg": gamma, "force_n": force}, "solver_summary": summary, "wall_s": wall_s}
+
+    entries = {
+        "a": case(15, 230, 1.0), "b": case(15, 230, 3.0), "c": case(15, 230, 1.4, end="completed"),
+        "d": case(0, 150, None, end="completed"), "e": case(45, 230, 9.0, status="pending"), "f": case(0, 230, 0.9),
+    }
+    rates = solver_rates(entries)
+    assert list(rates) == ["0/150", "0/230", "15/230"]  # by γ, then force; pending cases left out
+    assert rates["15/230"]["cases"] == 3 and rates["15/230"]["end_reasons"] == {"perforated": 2, "completed": 1}
+    assert rates["15/230"]["feed_rate_mm_s"] == 1.4 and rates["15/230"]["removal_rate_mm3_s"] == 280.0  # medians
+    assert rates["15/230"]["worker_hours"] == 1.5
+    assert rates["0/150"]["feed_rate_mm_s"] is None and rates["0/150"]["excursion_median_mm"] is None

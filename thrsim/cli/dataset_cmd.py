@@ -188,7 +188,15 @@ def info(
         print_json(summary)
         return
     per_frame = summary.pop("removed_fraction_per_frame")
+    rates = summary.pop("solver_rates")
     rows = {k: v for k, v in summary.items() if k not in ("split_rule",)}
+    for key, group in rates.items():
+        gamma, force = key.split("/")
+        figures = [f"{group['cases']} case(s)", ", ".join(f"{n} {end}" for end, n in group["end_reasons"].items())]
+        if group["feed_rate_mm_s"] is not None:
+            figures.append(f"feed {group['feed_rate_mm_s']:.2f} mm/s, removal {group['removal_rate_mm3_s']:.0f} mm³/s (medians)")
+        figures.append(f"{group['worker_hours']:.2f} worker h")
+        rows[f"γ {gamma}°, {force} N"] = "; ".join(figures)
     if per_frame:
         rows["removed fraction, last frame"] = per_frame[-1]
         step = max(1, len(per_frame) // 8)

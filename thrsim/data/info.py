@@ -22,8 +22,39 @@ from thrsim.errors import ThrsimInputError
 ALPHA_BINS = np.linspace(0.0, 1.0, 51)
 
 
+#: per-case figures of the solver's summary that :func:`solver_rates` reports as medians
+RATE_FIELDS = ("frames", "feed_rate_mm_s", "removal_rate_mm3_s", "excursion_median_mm", "contact_fraction_mean", "energy_balance_error")
+
+
+def solver_rates(entries: dict) -> dict:
+    """Per inclination and push force ("γ/F", e.g. "15/230"), over complete cases: how many, how they
+    ended, the median of each of :data:`RATE_FIELDS` (None where no case reports it) and the
+    worker hours they took. The solver's own summary per case (the manifest's) is the source."""
+    groups: dict[str, list[dict]] = {}
+    for entry in entries.values():
+        if entry.get("status") != "complete":
+            continue
+        params = entry["params"]
+        groups.setdefault(f"{params['inclination_deg']:g}/{params['force_n']:g}", []).append(entry)
+    rates = {}
+    for key in sorted(groups, key=lambda k: tuple(float(v) for v in k.split("/"))):
+        cases = groups[key]
+        summaries = [c.get("solver_summary") or {} for c in cases]
+        ends: dict[str, int] = {}
+        for summary in summaries:
+            ends[str(summary.get("end_reason"))] = ends.get(str(summary.get("end_reason")), 0) + 1
+        group = {"cases": len(cases), "end_reasons": ends}
+        for field in RATE_FIELDS:
+            values = [float(v) for v in (summary.get(field) for summary in summaries) if v is not None]
+            group[field] = float(np.median(values)) if values else None
+        group["worker_hours"] = sum(float(c.get("wall_s", 0.0)) for c in cases) / 3600.0
+        rates[key] = group
+    return rates
+
+
 def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, histograms: bool = False) -> dict:
-    """Cases, frames, splits, removed fraction per frame (mean over cases), PEEQ/von Mises ranges, α counts."""
+    """Cases, frames, splits, removed fraction per frame (mean over cases), PEEQ/von Mises ranges, α counts,
+    worker hours and size on disk, and the solver's rates per inclination and force (:func:`solver_rates`)."""
     root = Path(root)
     labels = labels or LabelConfig()
     if not root.is_dir():
@@ -99,6 +130,9 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
             k: (below_threshold[k] / totals[k] if totals[k] else None) for k in totals
         },
         "split_rule": manifest.get("split_rule"),
+        "worker_hours": sum(float(e.get("wall_s", 0.0)) for e in complete.values()) / 3600.0,
+        "size_mb": sum((root / e["file"]).stat().st_size for k, e in complete.items() if k not in missing) / 1e6,
+        "solver_rates": solver_rates(complete),
     }
     if histograms:
         info["alpha_histogram"] = {"bins": ALPHA_BINS.tolist(), "removed": hist_removed.tolist(), "remaining": hist_remaining.tolist()}

@@ -72,8 +72,11 @@ TOOL_STATES: tuple[str, ...] = REASONS + ("stale", "missing")
 DEFAULT_CAMERA = {"azimuth_deg": 50.0, "elevation_deg": -37.0, "distance_mm": 1600.0}
 DEFAULT_REAMER = {"inclination_deg": 60.0, "anteversion_deg": 10.0}  # outside the zone, in view
 # A hand holding a probe on a landmark: a steady offset within the acquisition tolerance, and a
-# tremor well inside the still tolerance (so a touch is acquired after the dwell).
+# tremor well inside the still tolerance (so a touch is acquired after the dwell). The offset is
+# shortened to a fraction of the tolerance: a touch from the page is meant to be on the landmark,
+# and an unbounded Gaussian would leave one touch in about a thousand outside it for good.
 _HAND_OFFSET_SD_M = 1.2e-3
+_HAND_OFFSET_MAX_FRACTION = 0.6
 _HAND_TREMOR_SD_M = 0.2e-3
 # Noise of the display calibration step: the headset's view of the image target (rotation
 # noise is multiplied by the ~1.6 m lever arm to the IR camera, so it is kept at 0.3°) and the
@@ -318,9 +321,14 @@ class NavigationTrainer:
         if name not in self.targets:
             raise ThrsimInputError(f"unknown landmark {name!r}")
         self._probe_on = name
-        self._probe_offset = self.rng.normal(0.0, _HAND_OFFSET_SD_M, 3)
+        self._probe_offset = self._hand_offset()
         self._set_page_probe(name, time_s)
         return f"probe on {name}"
+
+    def _hand_offset(self) -> np.ndarray:
+        offset = self.rng.normal(0.0, _HAND_OFFSET_SD_M, 3)
+        limit_m = _HAND_OFFSET_MAX_FRACTION * self.tracking.landmark_tolerance_mm * 1e-3
+        return offset * min(1.0, limit_m / max(float(np.linalg.norm(offset)), 1e-12))
 
     def _registration_control(self, action: str, time_s: float) -> str:
         if action == "restart":

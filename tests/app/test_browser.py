@@ -137,8 +137,9 @@ def test_render_scale_follows_the_frame_rate(page):
     assert feed((1, 0, 1), (20 * window, slow, 1), (20 * window, 20, 1)) == [1, 1]  # 30 and 50 Hz displays, kept up with
     # Slow, then keeping up: stays down for the wait, then tries one step up.
     assert feed(display, (judged + 1, slow, 1), (keeping_up - window, fast, 1), (3 * window, fast, 1)) == [steps[1], steps[1], 1]
-    # A try that turns out slow steps back down and doubles the wait before the next try.
-    chunks = [display, (judged + 1, slow, 1), (keeping_up + window, fast, 1), (judged, slow, 1), (2 * keeping_up - window, fast, 1), (3 * window, fast, 1)]
+    # A try that turns out slow steps back down after one slow window and doubles the wait before
+    # the next try.
+    chunks = [display, (judged + 1, slow, 1), (keeping_up + window, fast, 1), (window, slow, 1), (2 * keeping_up - window, fast, 1), (3 * window, fast, 1)]
     tried = page.evaluate(_FEED, chunks)
     assert tried["seen"][1:] == [steps[1], 1, steps[1], steps[1], 1] and tried["wait"] == 2 * wait
 

@@ -38,3 +38,19 @@ def test_browser_benchmark_counts_the_frames_the_page_draws():
 def test_browser_only_refuses_learned():
     completed = run_thrsim("bench", "--browser-only", "--learned")
     assert completed.returncode == 2 and "--learned" in completed.stderr
+
+
+@pytest.mark.timeout(400)
+def test_reaming_page_benchmark_reams_and_times_the_page():
+    """The shipped model behind a real server, a 60 Hz OpenIGTLink tracker, the reaming page."""
+    completed = run_thrsim("bench", "--browser-only", "--reaming-page", "--browser-seconds", "2", timeout=380)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    figures = json.loads(completed.stdout)["reaming_page"]
+    assert figures["seconds"] >= 2 and figures["simulator_frames_per_s"] > 0 and figures["fps"] > 0
+    assert figures["bone_frames_per_s"] > 0 and 0 < figures["bone_bytes_fraction_of_whole"] < 1  # deltas, not whole arrays
+    assert figures["whole_alpha_bytes"] == 4 * figures["elements"] > 0
+    for latency in ("pose_to_state_ms", "pose_to_drawn_ms"):
+        assert 0 < figures[latency]["median"] <= figures[latency]["p90"]
+    assert figures["pose_to_state_ms"]["median"] <= figures["pose_to_drawn_ms"]["median"]
+    assert figures["render_scale"] in RENDER_SCALE_STEPS and figures["render_scale_at_start"] in RENDER_SCALE_STEPS
+    assert 0 < figures["warmup_s"] < 40 and figures["render_scale_changes"] >= 0

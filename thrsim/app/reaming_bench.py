@@ -11,9 +11,12 @@ over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee re
   float32 (the whole array), states per second;
 * frames drawn per second (while reaming the page draws every display frame: the reamer turns),
   Chromium's CPU per drawn frame and the render scale the page ended at (its canvas's resolution,
-  lowered while frames are slow: thrsim/app/static/render_scale.js);
-* latency from an OpenIGTLink pose to the page: the reamer is re-aimed by a TRANSFORM message
-  and the page timestamps the state showing the new angle and its first drawing (median, p90).
+  lowered while frames are slow: thrsim/app/static/render_scale.js). The page starts at full
+  resolution, so the count starts once the scale has settled (no change over 3 s of reaming, at
+  most 30 s of warm-up, reported); the page's later tries of a finer scale are counted;
+* latency from an OpenIGTLink pose to the page while the simulator reams: the reamer is re-aimed
+  by a TRANSFORM message and the page timestamps the state showing the new angle and its first
+  drawing (median, p90).
 """
 
 from __future__ import annotations
@@ -61,6 +64,38 @@ class _Tracker:
         self.sock.close()
 
 
+_PROBE = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
+_SCALE_CHANGES = "trainer.view.renderScale.changes"
+_SETTLE_S = 3.0  # reaming this long with no change of the render scale: settled
+_WARMUP_MAX_S = 30.0
+
+
+def _start_run(page) -> None:
+    """Restore the intact bone and start reaming; returns once the simulator is a few frames in."""
+    page.evaluate("trainer.send({type: 'run', action: 'reset'})")
+    page.wait_for_function("trainer.stats.last.reaming.frame === 0", timeout=60_000)
+    page.evaluate("trainer.send({type: 'run', action: 'start'})")
+    page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
+
+
+def _ream(page, seconds: float) -> tuple[np.ndarray, float]:
+    """Ream for ``seconds`` of counted time: the differences of ``_PROBE`` and Chromium's CPU
+    seconds. A run reams the patch through in about 2 s of frames and pauses there, so the window
+    is made of runs: restore the bone, start, count while it reams, until the window is full."""
+    totals, cpu_seconds = np.zeros(6), 0.0
+    while totals[0] < seconds * 1000:
+        _start_run(page)
+        cpu_first = chromium_cpu_seconds()
+        first = page.evaluate(_PROBE)
+        until = first[0] + seconds * 1000 - totals[0]  # a run that never ends fills the window
+        page.wait_for_function(f"!trainer.stats.last.reaming.running || performance.now() > {until}", timeout=seconds * 1000 + 60_000)
+        last = page.evaluate(_PROBE)
+        cpu_last = chromium_cpu_seconds()
+        totals += np.array(last) - np.array(first)
+        cpu_seconds += 0.0 if cpu_first is None else cpu_last - cpu_first
+    return totals, cpu_seconds
+
+
 def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, compile: bool = True) -> dict:
     aim = NavigationTrainer(side="right", seed=_SEED)
     poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
@@ -75,38 +110,35 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
         tracker = _Tracker(int(page.evaluate("trainer.stats.hello.igtl[1]")))
         streaming = {"pose": poses[40.0], "on": True}
 
-        def stream() -> None:
+        def stream() -> None:  # a 60 Hz tracker: samples on a fixed schedule, whatever the replies take
+            next_sample = time.monotonic()
             while streaming["on"]:
                 tracker.send(streaming["pose"])
-                time.sleep(1 / 60)
+                next_sample += 1 / 60
+                time.sleep(max(0.0, next_sample - time.monotonic()))
 
         thread = threading.Thread(target=stream, daemon=True)
         thread.start()
         try:
             page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
-            probe = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
-            totals = np.zeros(6)
-            cpu_seconds = 0.0
-            # a run reams the patch through in about 2 s of frames and pauses there, so the window is
-            # made of runs: restore the bone, start, count while it reams, until `seconds` are counted
-            while totals[0] < seconds * 1000:
-                page.evaluate("trainer.send({type: 'run', action: 'reset'})")
-                page.wait_for_function("trainer.stats.last.reaming.frame === 0", timeout=60_000)
-                page.evaluate("trainer.send({type: 'run', action: 'start'})")
-                page.wait_for_function("trainer.stats.last.reaming.frame > 5", timeout=60_000)
-                cpu_first = chromium_cpu_seconds()
-                first = page.evaluate(probe)
-                until = first[0] + seconds * 1000 - totals[0]  # a run that never ends fills the window
-                page.wait_for_function(f"!trainer.stats.last.reaming.running || performance.now() > {until}", timeout=seconds * 1000 + 60_000)
-                last = page.evaluate(probe)
-                cpu_last = chromium_cpu_seconds()
-                totals += np.array(last) - np.array(first)
-                cpu_seconds += 0.0 if cpu_first is None else cpu_last - cpu_first
+            # the page starts at full resolution and lowers it while it draws slowly: ream until
+            # its render scale has settled, then count (its later tries of a finer scale stay in)
+            warmup_s, scale_changes = 0.0, page.evaluate(_SCALE_CHANGES)
+            while warmup_s < _WARMUP_MAX_S:
+                warmup_s += _ream(page, _SETTLE_S)[0][0] / 1000
+                scale_changes, before = page.evaluate(_SCALE_CHANGES), scale_changes
+                if scale_changes == before:
+                    break
+            scale_at_start = page.evaluate("trainer.view.renderScale.scale")
+            totals, cpu_seconds = _ream(page, seconds)
+            scale_changes = page.evaluate(_SCALE_CHANGES) - scale_changes
             reaming = page.evaluate("trainer.stats.last.reaming")
             render_scale = page.evaluate("trainer.view.renderScale.scale")  # the canvas's resolution (render_scale.js)
             arrived, drawn = [], []
             for k in range(latency_trials):
                 target = 38.0 if k % 2 == 0 else 42.0
+                if not page.evaluate("trainer.stats.last.reaming.running"):  # timed while the simulator reams
+                    _start_run(page)
                 sent_at = page.evaluate("performance.now()")
                 streaming["pose"] = poses[target]
                 page.wait_for_function(f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000)
@@ -142,6 +174,9 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
         "seconds": elapsed,
         "viewport": [width, height],
         "render_scale": render_scale,
+        "render_scale_at_start": scale_at_start,
+        "render_scale_changes": scale_changes,
+        "warmup_s": warmup_s,
         "chromium": chromium_version,
         "load_average_1min": [load_before[0], os.getloadavg()[0]],
     }

@@ -40,6 +40,13 @@ export function parseMesh(buffer) {
   return { nodes, tets, positions, indices, neighbours };
 }
 
+// A face's slot in the vertex buffers is kept while the face stays on the boundary, so a frame
+// rewrites and re-uploads only the slots of faces it changed (a few hundred of ~5,500 while
+// reaming) instead of every boundary face: the upload was an eighth of the page's CPU per frame
+// under software WebGL. A freed slot is written degenerate (zero area: never rasterised) and
+// reused by the next new face; the draw range is the highest slot in use.
+const MERGE_GAP_SLOTS = 32; // changed slots closer than this are uploaded as one range
+
 export class BonePatch {
   constructor(mesh, placementRowMajor, levels) {
     this.mesh = mesh;
@@ -47,10 +54,15 @@ export class BonePatch {
     this.colours = palette(levels);
     this.frame = -1;
     this.visibleFaces = 0;
-    const capacity = mesh.tets * 4 * 3;
-    this.positions = new Float32Array(capacity * 3);
-    this.normals = new Float32Array(capacity * 3);
-    this.rgb = new Float32Array(capacity * 3);
+    const capacity = mesh.tets * 4; // faces
+    this.slotOf = new Int32Array(capacity).fill(-1); // face (4·tet + f) → slot, −1 when not drawn
+    this.faceAt = new Int32Array(capacity).fill(-1); // slot → face, −1 when free
+    this.freeSlots = [];
+    this.slotsUsed = 0; // slots below this are drawn (free ones degenerate)
+    this.changedSlots = [];
+    this.positions = new Float32Array(capacity * 9);
+    this.normals = new Float32Array(capacity * 9);
+    this.rgb = new Float32Array(capacity * 9);
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute("position", new THREE.BufferAttribute(this.positions, 3).setUsage(THREE.DynamicDrawUsage));
     geometry.setAttribute("normal", new THREE.BufferAttribute(this.normals, 3).setUsage(THREE.DynamicDrawUsage));
@@ -75,6 +87,8 @@ export class BonePatch {
     if (kind === "K") {
       if (count !== this.levels.length || body.length !== count) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
       this.levels.set(body);
+      this.frame = frame;
+      this.rebuild();
     } else if (kind === "D") {
       // ids ascending, each the gap to the previous one minus one as a LEB128 varint; then the levels
       let read = 0, id = -1;
@@ -87,50 +101,122 @@ export class BonePatch {
       }
       if (read + count !== body.length || (count && id >= this.levels.length)) throw new Error(`malformed delta of ${count} elements`);
       for (let i = 0; i < count; i++) this.levels[ids[i]] = body[read + i];
+      this.frame = frame;
+      this.update(ids);
     } else {
       throw new Error(`unknown bone frame ${kind}`);
     }
-    this.frame = frame;
-    this.rebuild();
     return frame;
   }
 
-  // Every boundary face of the remaining bone, with its tet's colour and a flat normal.
+  // Every boundary face of the remaining bone from scratch (a keyframe, a new patch), in order.
   rebuild() {
-    const { positions: nodes, indices, neighbours } = this.mesh;
-    const levels = this.levels, pos = this.positions, nor = this.normals, rgb = this.rgb;
-    let w = 0;
-    for (let tet = 0; tet < levels.length; tet++) {
-      const level = levels[tet];
-      if (level === 0) continue;
-      const colour = this.colours[level];
+    this.slotOf.fill(-1);
+    this.faceAt.fill(-1);
+    this.freeSlots = [];
+    this.slotsUsed = 0;
+    this.visibleFaces = 0;
+    for (let face = 0; face < this.slotOf.length; face++) if (this.drawn(face)) this.place(face);
+    this.upload([[0, this.slotsUsed]]);
+  }
+
+  // The faces of the changed tets and the faces of their neighbours across them: all that a
+  // change of these tets' levels can show, hide or recolour.
+  update(ids) {
+    const { neighbours } = this.mesh;
+    this.changedSlots.length = 0;
+    for (const tet of ids) {
       for (let f = 0; f < 4; f++) {
+        this.refresh(4 * tet + f);
         const across = neighbours[4 * tet + f];
-        if (across >= 0 && levels[across] !== 0) continue;
-        const face = FACES[f];
-        const a = 3 * indices[4 * tet + face[0]], b = 3 * indices[4 * tet + face[1]], c = 3 * indices[4 * tet + face[2]];
-        const ux = nodes[b] - nodes[a], uy = nodes[b + 1] - nodes[a + 1], uz = nodes[b + 2] - nodes[a + 2];
-        const vx = nodes[c] - nodes[a], vy = nodes[c + 1] - nodes[a + 1], vz = nodes[c + 2] - nodes[a + 2];
-        let nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
-        const length = Math.hypot(nx, ny, nz) || 1;
-        nx /= length; ny /= length; nz /= length;
-        for (const node of [a, b, c]) {
-          pos[w] = nodes[node]; pos[w + 1] = nodes[node + 1]; pos[w + 2] = nodes[node + 2];
-          nor[w] = nx; nor[w + 1] = ny; nor[w + 2] = nz;
-          rgb[w] = colour[0]; rgb[w + 1] = colour[1]; rgb[w + 2] = colour[2];
-          w += 3;
-        }
+        if (across < 0) continue;
+        for (let g = 0; g < 4; g++) if (neighbours[4 * across + g] === tet) this.refresh(4 * across + g);
       }
     }
-    this.visibleFaces = w / 9;
+    while (this.slotsUsed > 0 && this.faceAt[this.slotsUsed - 1] < 0) this.slotsUsed--; // the draw range shrinks back
+    const slots = this.changedSlots.filter((slot) => slot < this.slotsUsed).sort((a, b) => a - b);
+    const ranges = [];
+    for (const slot of slots) {
+      const last = ranges[ranges.length - 1];
+      if (last && slot - last[1] <= MERGE_GAP_SLOTS) last[1] = slot + 1;
+      else ranges.push([slot, slot + 1]);
+    }
+    this.upload(ranges);
+  }
+
+  drawn(face) {
+    const tet = face >> 2, levels = this.levels;
+    if (levels[tet] === 0) return false;
+    const across = this.mesh.neighbours[face];
+    return across < 0 || levels[across] === 0;
+  }
+
+  refresh(face) {
+    const slot = this.slotOf[face];
+    if (this.drawn(face)) {
+      if (slot < 0) this.place(face);
+      else this.write(slot, face); // its tet's level may have changed: its colour did
+      this.changedSlots.push(this.slotOf[face]);
+    } else if (slot >= 0) {
+      this.positions.fill(0, 9 * slot, 9 * slot + 9); // degenerate: nothing rasterised
+      this.slotOf[face] = -1;
+      this.faceAt[slot] = -1;
+      this.freeSlots.push(slot);
+      this.visibleFaces -= 1;
+      this.changedSlots.push(slot);
+    }
+  }
+
+  place(face) {
+    const slot = this.freeSlots.length ? this.freeSlots.pop() : this.slotsUsed++;
+    this.slotOf[face] = slot;
+    this.faceAt[slot] = face;
+    this.visibleFaces += 1;
+    this.write(slot, face);
+  }
+
+  // One face's three vertices: positions, its flat outward normal, its tet's colour.
+  write(slot, face) {
+    const { positions: nodes, indices } = this.mesh;
+    const tet = face >> 2, corners = FACES[face & 3], colour = this.colours[this.levels[tet]];
+    const a = 3 * indices[4 * tet + corners[0]], b = 3 * indices[4 * tet + corners[1]], c = 3 * indices[4 * tet + corners[2]];
+    const ux = nodes[b] - nodes[a], uy = nodes[b + 1] - nodes[a + 1], uz = nodes[b + 2] - nodes[a + 2];
+    const vx = nodes[c] - nodes[a], vy = nodes[c + 1] - nodes[a + 1], vz = nodes[c + 2] - nodes[a + 2];
+    let nx = uy * vz - uz * vy, ny = uz * vx - ux * vz, nz = ux * vy - uy * vx;
+    const length = Math.hypot(nx, ny, nz) || 1;
+    nx /= length; ny /= length; nz /= length;
+    const pos = this.positions, nor = this.normals, rgb = this.rgb;
+    let w = 9 * slot;
+    for (const node of [a, b, c]) {
+      pos[w] = nodes[node]; pos[w + 1] = nodes[node + 1]; pos[w + 2] = nodes[node + 2];
+      nor[w] = nx; nor[w + 1] = ny; nor[w + 2] = nz;
+      rgb[w] = colour[0]; rgb[w + 1] = colour[1]; rgb[w + 2] = colour[2];
+      w += 3;
+    }
+  }
+
+  // Ranges of slots [first, end) whose vertices go to the GPU with the next drawing (three.js
+  // keeps adding ranges until it uploads them, so frames applied between two drawings all go).
+  upload(ranges) {
     const geometry = this.object.geometry;
-    geometry.setDrawRange(0, w / 3);
+    geometry.setDrawRange(0, 3 * this.slotsUsed);
+    if (!ranges.length) return;
     for (const name of ["position", "normal", "color"]) {
       const attribute = geometry.attributes[name];
-      attribute.clearUpdateRanges();
-      attribute.addUpdateRange(0, w);
+      for (const [first, end] of ranges) attribute.addUpdateRange(9 * first, 9 * (end - first));
       attribute.needsUpdate = true;
     }
+  }
+
+  // Occupied slots as sorted "face:9 positions:3 colour" strings, to compare with a rebuild.
+  faceSignature() {
+    const rows = [];
+    for (let slot = 0; slot < this.slotsUsed; slot++) {
+      const face = this.faceAt[slot];
+      if (face < 0) continue;
+      rows.push(`${face}:${Array.from(this.positions.subarray(9 * slot, 9 * slot + 9)).join(",")}:${Array.from(this.rgb.subarray(9 * slot, 9 * slot + 3)).join(",")}`);
+    }
+    return rows.sort().join(";");
   }
 
   removedCount() {

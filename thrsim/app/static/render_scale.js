@@ -10,7 +10,9 @@
 //   down (one slow window alone is a hiccup, such as the page's start or new shaders compiling);
 // * a window at STEADY of it (58 of 60) or faster, the wait (FIRST_WAIT_MS) after the last
 //   change: one step up, to try; a try undone within TRY_WINDOWS windows doubles the wait (up to
-//   LONGEST_WAIT_MS), so the scale settles at the finest one the machine keeps up with.
+//   LONGEST_WAIT_MS), so the scale settles at the finest one the machine keeps up with; during a
+//   try one slow window is enough to step back (the try is known to be risky: a second slow
+//   window at the finer scale was a second of stutter, a fifth of a 10 s count in `thrsim bench`).
 // ?render-scale=S pins it (0 < S <= 1).
 export const STEPS = [1, 0.75, 0.5];
 export const WINDOW = 60; // a second at 60 Hz
@@ -70,8 +72,9 @@ export class RenderScale {
     this.count = 0;
     this.windows += 1;
     this.slowWindows = rate < SLOW ? this.slowWindows + 1 : 0;
-    if (this.slowWindows >= SLOW_WINDOWS && this.step < STEPS.length - 1) {
-      if (this.tried && this.windows <= TRY_WINDOWS) this.wait = Math.min(2 * this.wait, LONGEST_WAIT_MS);
+    const trying = this.tried && this.windows <= TRY_WINDOWS;
+    if (this.slowWindows >= (trying ? 1 : SLOW_WINDOWS) && this.step < STEPS.length - 1) {
+      if (trying) this.wait = Math.min(2 * this.wait, LONGEST_WAIT_MS);
       return this.change(this.step + 1, now);
     }
     if (rate >= STEADY && this.step > 0 && now - this.changedAt >= this.wait) return this.change(this.step - 1, now);

@@ -114,7 +114,7 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
             next_sample = time.monotonic()
             while streaming["on"]:
                 tracker.send(streaming["pose"])
-                next_sample += 1 / 60
+                next_sample = max(next_sample + 1 / 60, time.monotonic() - 1 / 60)  # late: no burst to catch up
                 time.sleep(max(0.0, next_sample - time.monotonic()))
 
         thread = threading.Thread(target=stream, daemon=True)

@@ -15,7 +15,7 @@ from thrsim.cli import main
 from thrsim.config import LabelConfig
 from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.case_file import read_case
-from thrsim.data.pack import ALPHA_LEVELS, DAMAGE_LEVELS, dequantise_alpha, dequantise_damage, quantise_alpha, quantise_damage, read_pack, removal_frames
+from thrsim.data.pack import ALPHA_LEVELS, DAMAGE_LEVELS, dequantise_alpha, dequantise_damage, is_pack, pack_files, quantise_alpha, quantise_damage, read_pack, removal_frames, write_pack
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 
@@ -55,6 +55,56 @@ def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, c
     assert changed >= 3  # the sweep removes elements: the comparison above is not of constant arrays
     _, test_only = load_cases(pack, splits=("test",))
     assert {c.split for c in test_only} == {"test"} and len(test_only) == 2
+
+
+def _same_cases(a, b) -> bool:
+    return [c.case_id for c in a] == [c.case_id for c in b] and all(
+        np.array_equal(x.alpha, y.alpha) and np.array_equal(x.status, y.status) and np.array_equal(x.damage, y.damage) and x.split == y.split for x, y in zip(a, b)
+    )
+
+
+def test_a_pack_folder_splits_the_cases_into_files_and_reads_back_as_one(dataset, tmp_path, monkeypatch, capsys):
+    single = tmp_path / "one.h5"
+    write_pack(dataset, single)
+    limit_mb = single.stat().st_size / 3 / 1e6  # about three files
+    partial = tmp_path / "partial"  # a sweep gathered in two goes: four cases, then all seven
+    shutil.copytree(dataset, partial)
+    manifest = read_manifest(partial)
+    later = sorted(manifest["cases"])[4:]
+    for case_id in later:
+        manifest["cases"][case_id]["status"] = "pending"
+    write_manifest(partial, manifest)
+    folder = tmp_path / "pack"
+    first = write_pack(partial, folder, shard_mb=limit_mb)
+    assert first["cases"] == 4 and first["kept"] == 0
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(folder), "--shard-mb", "1", "--json")
+    assert code == 0, err  # the CLI's least limit holds all here: the rest joins the last file
+    summary = write_pack(dataset, tmp_path / "pack-small", shard_mb=limit_mb)
+    files = pack_files(tmp_path / "pack-small")
+    assert summary["cases"] == 7 and len(files) >= 3 and [p.name for p in files] == summary["files"]
+    assert all(p.stat().st_size <= 1.5 * limit_mb * 1e6 for p in files)  # a file closes near the limit
+    assert is_pack(tmp_path / "pack-small") and not is_pack(dataset) and not is_pack(tmp_path / "nowhere")
+    merged = json.loads(out)
+    assert merged["cases"] == 7 and merged["kept"] == 4 and sorted(merged["added"]) == later
+    _, from_single = read_pack(single)
+    for packed in (folder, tmp_path / "pack-small"):
+        _, from_folder = read_pack(packed)
+        assert _same_cases(from_single, from_folder)
+        _, test_only = load_cases(packed, splits=("test",))
+        assert {c.split for c in test_only} == {"test"} and len(test_only) == 2
+    again = write_pack(dataset, tmp_path / "pack-small", shard_mb=limit_mb)
+    assert again["added"] == [] and again["kept"] == 7 and pack_files(tmp_path / "pack-small") == files
+    # a case in two files, or a file from another pack, is refused in one line
+    shutil.copy(files[0], tmp_path / "pack-small" / "part-999.h5")
+    with pytest.raises(ThrsimInputError, match="in two pack files"):
+        read_pack(tmp_path / "pack-small")
+    (tmp_path / "pack-small" / "part-999.h5").unlink()
+    with h5py.File(files[-1], "r+") as f:
+        f.attrs["identity_hash"] = "another"
+    with pytest.raises(ThrsimInputError, match="another dataset"):
+        read_pack(tmp_path / "pack-small")
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(single / "x"))
+    assert code != 0 and err.count("\n") == 1
 
 
 def test_a_pack_keeps_each_elements_damage_to_a_hundredth(dataset, tmp_path, monkeypatch, capsys):
@@ -113,7 +163,11 @@ def test_bad_targets_and_sources_get_one_line(dataset, tmp_path, monkeypatch, ca
     code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(tmp_path / "nothing"), "--out", str(tmp_path / "p.h5"))
     assert code != 0 and "not a thrsim dataset" in err and err.count("\n") == 1
     code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(dataset / "manifest.json"))
-    assert code != 0 and "not a learning pack" in err and err.count("\n") == 1
+    assert code != 0 and "is not a folder" in err and err.count("\n") == 1  # not *.h5: a pack folder
+    not_a_pack = tmp_path / "other.h5"
+    not_a_pack.write_bytes(b"not hdf5")
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(not_a_pack))
+    assert code != 0 and "not a learning pack" in err and err.count("\n") == 1 and not_a_pack.read_bytes() == b"not hdf5"
     assert json.loads((dataset / "manifest.json").read_text())["format"] == "thrsim-dataset"
     pack = tmp_path / "p.h5"
     code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))

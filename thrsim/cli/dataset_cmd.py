@@ -209,17 +209,18 @@ def info(
 @app.command("pack")
 def pack(
     directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
-    out: Path = typer.Option(..., "--out", help="learning pack to write (an existing pack of the same dataset keeps its cases and gains these)", metavar="FILE.h5"),
+    out: Path = typer.Option(..., "--out", help="learning pack to write: one FILE.h5, or a FOLDER of files of at most --shard-mb each (an existing pack of the same dataset keeps its cases and gains these)", metavar="FILE.h5|FOLDER"),
+    shard_mb: float = typer.Option(15.0, "--shard-mb", min=1.0, help="largest size of one file of a pack folder", metavar="MB"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Reduce a dataset's complete cases to what the learned simulator reads (α, removals, reamer path) in one small file."""
+    """Reduce a dataset's complete cases to what the learned simulator reads (α, removals, reamer path) in one small file or a folder of them."""
     from thrsim.data.pack import write_pack
 
-    summary = write_pack(directory, out)
+    summary = write_pack(directory, out, shard_mb=shard_mb)
     if as_json:
         print_json(summary)
         return
-    print_table(f"learning pack {out}", {**summary, "added": ", ".join(summary["added"]) or "none"})
+    print_table(f"learning pack {out}", {**summary, "added": ", ".join(summary["added"]) or "none", **({"files": ", ".join(summary["files"])} if "files" in summary else {})})
 
 
 _SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")

@@ -61,6 +61,9 @@ PACK_VERSION = 1
 ALPHA_LEVELS = 50
 DAMAGE_LEVELS = 100
 _SMALL_PER_FRAME = ("time", "reamer_position", "energy", *OPTIONAL_PER_FRAME)
+SHARD_MB = 15.0
+SHARD_NAME = "part-{:03d}.h5"
+SHARD_GLOB = "part-*.h5"
 _ALPHA_COMPRESSION = {"compression": "gzip", "compression_opts": 9, "shuffle": False}
 
 
@@ -80,8 +83,19 @@ class PackedCase:
     damage_initiation: np.ndarray | None = None  # (T,E) float32 ω
 
 
+def pack_files(path: str | os.PathLike) -> list[Path]:
+    """The files of a pack: the file itself, or a pack folder's ``part-*.h5`` in order."""
+    path = Path(path)
+    return sorted(path.glob(SHARD_GLOB)) if path.is_dir() else [path]
+
+
 def is_pack(path: str | os.PathLike) -> bool:
-    """True for an HDF5 file whose format attribute says it is a learning pack."""
+    """True for a learning pack: an HDF5 file whose format attribute says so, or a folder of them."""
+    files = pack_files(path)
+    return bool(files) and all(_is_pack_file(f) for f in files)
+
+
+def _is_pack_file(path: Path) -> bool:
     try:
         with h5py.File(path, "r") as f:
             value = f.attrs.get("format")
@@ -183,12 +197,17 @@ def _check_same_source(existing: h5py.File, attrs: dict[str, Any], out: Path) ->
             raise ThrsimInputError(f"{out}: an existing pack of another dataset or format ({key} differs); give another --out")
 
 
-def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: LabelConfig | None = None) -> dict[str, Any]:
+def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: LabelConfig | None = None, shard_mb: float = SHARD_MB) -> dict[str, Any]:
     """Pack every complete case of ``dataset_dir`` into ``out``, keeping the cases ``out`` already holds.
+
+    ``out`` ending in ``.h5`` is one file; otherwise a folder of pack files (``part-000.h5``, …),
+    each a whole pack of some of the cases, a new one begun when the last would pass ``shard_mb``
+    megabytes (git hosts refuse or warn about single files over 20–100 MB).
 
     Adding to an existing pack is how a sweep spread over several machines or sessions is
     gathered: the pack must come from the same dataset identity, labels and mesh, and a case
-    present in both must have the same data digest. Written to a temporary name and renamed.
+    present in both must have the same data digest. Each file is written to a temporary name
+    and renamed.
     """
     from thrsim.data.generate import load_dataset, read_manifest
 
@@ -199,14 +218,59 @@ def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: L
         raise ThrsimInputError(f"{root}: not a thrsim dataset (no manifest.json)")
     entries = load_dataset(root)
     attrs = _pack_attrs(manifest, labels)
-    kept, added = [], []
-    if not entries and not out.exists():
+    if out.suffix == ".h5":
+        if not entries and not out.exists():
+            raise ThrsimInputError(f"{root}: no complete case to pack")
+        kept, added = _write_pack_file(out, entries, attrs, labels)
+        return {"pack": str(out), "cases": len(kept) + len(added), "added": sorted(added), "kept": len(kept), "bytes": out.stat().st_size}
+    if out.exists() and not out.is_dir():
+        raise ThrsimInputError(f"{out}: exists and is not a folder (a one-file pack is named *.h5)")
+    if not out.parent.is_dir():
+        raise ThrsimInputError(f"{out}: parent folder {out.parent} does not exist")
+    shards = pack_files(out) if out.is_dir() else []
+    held: dict[str, str] = {}
+    for shard in shards:
+        if not _is_pack_file(shard):
+            raise ThrsimInputError(f"{shard}: is not a learning pack; give another --out")
+        with h5py.File(shard, "r") as existing:
+            _check_same_source(existing, attrs, shard)
+            held.update({case_id: existing["cases"][case_id].attrs["source_data_digest"] for case_id in existing["cases"]})
+    if not entries and not held:
         raise ThrsimInputError(f"{root}: no complete case to pack")
+    out.mkdir(exist_ok=True)
+    limit = shard_mb * 1e6
+    added = []
+    for entry in entries:
+        if entry["case_id"] in held:
+            if held[entry["case_id"]] != (entry.get("data_digest") or data_digest(entry["path"])):
+                raise ThrsimInputError(f"{out}: case {entry['case_id']} is packed from other data than {entry['path']}")
+            continue
+        target = shards[-1] if shards and shards[-1].stat().st_size + _estimated_bytes(shards[-1], entry) <= limit else None
+        if target is None:
+            target = out / SHARD_NAME.format(len(shards))
+            shards.append(target)
+        _write_pack_file(target, [entry], attrs, labels)
+        added.append(entry["case_id"])
+    return {"pack": str(out), "files": [p.name for p in shards], "cases": len(held) + len(added), "added": sorted(added), "kept": len(held), "bytes": sum(p.stat().st_size for p in shards)}
+
+
+def _estimated_bytes(shard: Path, entry: dict) -> float:
+    """A case's packed size, from the shard's bytes per packed frame (its mesh included: an overestimate)."""
+    with h5py.File(shard, "r") as f:
+        frames = sum(f["cases"][case_id]["alpha"].shape[1] for case_id in f["cases"])
+    with CaseReader(entry["path"]) as reader:
+        case_frames = reader.n_frames
+    return shard.stat().st_size / max(frames, 1) * case_frames
+
+
+def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labels: LabelConfig) -> tuple[list[str], list[str]]:
+    """One pack file: the cases ``out`` holds (checked to be of the same source) plus ``entries``; (kept, added)."""
+    kept, added = [], []
     with atomic_path(out, suffix=".tmp") as tmp, h5py.File(tmp, "w") as f:
         cases = f.create_group("cases")
         mesh = None
         if out.exists():
-            if not is_pack(out):
+            if not _is_pack_file(out):
                 raise ThrsimInputError(f"{out}: exists and is not a learning pack; give another --out")
             with h5py.File(out, "r") as existing:
                 mesh = read_mesh_group(existing["mesh"])
@@ -228,46 +292,66 @@ def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: L
                 added.append(entry["case_id"])
         write_mesh_group(f.create_group("mesh"), mesh)
         f.attrs.update({**attrs, "thrsim_version": __version__, "versions": _json_attr(package_versions()), "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")})
-    return {"pack": str(out), "cases": len(kept) + len(added), "added": sorted(added), "kept": len(kept), "bytes": out.stat().st_size}
+    return kept, added
 
 
 def read_pack(path: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[PackedCase]]:
-    """The mesh and the cases (optionally some splits only) of a learning pack."""
+    """The mesh and the cases (optionally some splits only) of a learning pack (one file or a folder of them)."""
     path = Path(path)
     if not is_pack(path):
         raise ThrsimInputError(f"{path}: not a thrsim learning pack")
-    with h5py.File(path, "r") as f:
-        version = int(f.attrs.get("version", -1))
-        if version != PACK_VERSION:
-            raise ThrsimInputError(f"{path}: learning pack version {version}; this thrsim reads version {PACK_VERSION}")
-        packed_labels = json.loads(f.attrs["labels"])
-        if labels is not None and labels.model_dump() != packed_labels:
-            raise ThrsimInputError(f"{path}: packed with label constants {packed_labels}; α cannot be recomputed with others from a pack")
-        levels = float(f.attrs["alpha_levels"])
-        damage_levels = float(f.attrs.get("damage_levels", DAMAGE_LEVELS))
-        mesh = read_mesh_group(f["mesh"])
-        out = []
-        for case_id in sorted(f["cases"]):
-            g = f["cases"][case_id]
-            attrs = decode_attrs(g.attrs)
-            split = attrs.pop("split", None)
-            split = None if split in (None, "None") else split
-            if splits is not None and split not in splits:
-                continue
-            quantised = g["alpha"][()]
-            if quantised.shape[0] != mesh.n_tets:
-                raise ThrsimInputError(f"{path}: case {case_id} has {quantised.shape[0]} elements, the mesh {mesh.n_tets}")
-            status = _status_from(g["removed_frame"][()], quantised.shape[1])
-            alpha = np.where(status == 1, dequantise_alpha(quantised, levels), np.float32(0.0))
-            out.append(PackedCase(
-                case_id=case_id,
-                alpha=alpha.astype(np.float32),
-                status=status,
-                reamer_position=g["reamer_position"][()],
-                reamer_axis=g["reamer_axis"][()],
-                split=split,
-                attrs=attrs,
-                data_digest=str(attrs.get("source_data_digest", "")),
-                **{name: dequantise_damage(g[name][()], damage_levels) if name in g else None for name in OPTIONAL_PER_ELEMENT},
-            ))  # fmt: skip
+    mesh, out, first = None, {}, None
+    for shard in pack_files(path):
+        with h5py.File(shard, "r") as f:
+            source = {key: f.attrs.get(key) for key in ("identity_hash", "labels", "alpha_levels")}
+            if first is None:
+                first = source
+            elif source != first:
+                raise ThrsimInputError(f"{shard}: packed from another dataset or with other constants than {pack_files(path)[0].name}")
+            shard_mesh, cases = _read_pack_file(shard, f, splits, labels)
+        if mesh is None:
+            mesh = shard_mesh
+        elif not _same_mesh(mesh, shard_mesh):
+            raise ThrsimInputError(f"{shard}: its mesh differs from the other pack files'")
+        for case in cases:
+            if case.case_id in out:
+                raise ThrsimInputError(f"{path}: case {case.case_id} is in two pack files")
+            out[case.case_id] = case
+    return mesh, [out[case_id] for case_id in sorted(out)]
+
+
+def _read_pack_file(path: Path, f: h5py.File, splits: tuple[str, ...] | None, labels: LabelConfig | None) -> tuple[TetMesh, list[PackedCase]]:
+    version = int(f.attrs.get("version", -1))
+    if version != PACK_VERSION:
+        raise ThrsimInputError(f"{path}: learning pack version {version}; this thrsim reads version {PACK_VERSION}")
+    packed_labels = json.loads(f.attrs["labels"])
+    if labels is not None and labels.model_dump() != packed_labels:
+        raise ThrsimInputError(f"{path}: packed with label constants {packed_labels}; α cannot be recomputed with others from a pack")
+    levels = float(f.attrs["alpha_levels"])
+    damage_levels = float(f.attrs.get("damage_levels", DAMAGE_LEVELS))
+    mesh = read_mesh_group(f["mesh"])
+    out = []
+    for case_id in sorted(f["cases"]):
+        g = f["cases"][case_id]
+        attrs = decode_attrs(g.attrs)
+        split = attrs.pop("split", None)
+        split = None if split in (None, "None") else split
+        if splits is not None and split not in splits:
+            continue
+        quantised = g["alpha"][()]
+        if quantised.shape[0] != mesh.n_tets:
+            raise ThrsimInputError(f"{path}: case {case_id} has {quantised.shape[0]} elements, the mesh {mesh.n_tets}")
+        status = _status_from(g["removed_frame"][()], quantised.shape[1])
+        alpha = np.where(status == 1, dequantise_alpha(quantised, levels), np.float32(0.0))
+        out.append(PackedCase(
+            case_id=case_id,
+            alpha=alpha.astype(np.float32),
+            status=status,
+            reamer_position=g["reamer_position"][()],
+            reamer_axis=g["reamer_axis"][()],
+            split=split,
+            attrs=attrs,
+            data_digest=str(attrs.get("source_data_digest", "")),
+            **{name: dequantise_damage(g[name][()], damage_levels) if name in g else None for name in OPTIONAL_PER_ELEMENT},
+        ))  # fmt: skip
     return mesh, out

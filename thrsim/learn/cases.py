@@ -101,7 +101,7 @@ def load_cases(source: str | os.PathLike, splits: tuple[str, ...] | None = None,
 
     labels = labels or LabelConfig()
     source = Path(source)
-    if source.is_file() and is_pack(source):
+    if is_pack(source):
         mesh, cases = _read_pack(source, splits, labels)
         cases = [case for case in cases if case.frames >= 2]
         if not cases:

@@ -44,7 +44,8 @@ export function parseMesh(buffer) {
 // rewrites and re-uploads only the slots of faces it changed (a few hundred of ~5,500 while
 // reaming) instead of every boundary face: the upload was an eighth of the page's CPU per frame
 // under software WebGL. A freed slot is written degenerate (zero area: never rasterised) and
-// reused by the next new face; the draw range is the highest slot in use.
+// reused by the next new face; the draw range is the highest slot ever used since the last
+// rebuild (free slots inside it stay on the free list, so it does not grow with the session).
 const MERGE_GAP_SLOTS = 32; // changed slots closer than this are uploaded as one range
 
 export class BonePatch {
@@ -133,8 +134,7 @@ export class BonePatch {
         for (let g = 0; g < 4; g++) if (neighbours[4 * across + g] === tet) this.refresh(4 * across + g);
       }
     }
-    while (this.slotsUsed > 0 && this.faceAt[this.slotsUsed - 1] < 0) this.slotsUsed--; // the draw range shrinks back
-    const slots = this.changedSlots.filter((slot) => slot < this.slotsUsed).sort((a, b) => a - b);
+    const slots = this.changedSlots.sort((a, b) => a - b);
     const ranges = [];
     for (const slot of slots) {
       const last = ranges[ranges.length - 1];

@@ -59,3 +59,38 @@ def test_corner_distances_are_each_tets_corners_to_the_teeth_sphere(z, x, advanc
     # distance to a point is convex: the centroid is never farther than its corners' mean
     signed_centroid = nodes[:, 5]
     assert np.all(signed_centroid <= now.mean(axis=1) + 1e-6)
+
+
+@settings(max_examples=25)
+@given(st.integers(0, 2**31 - 1))
+def test_full_tables_are_the_formulas_of_each_column(seed):
+    """The compiled feature loops against the plain NumPy formulas, column by column, on a random
+    partly reamed state, a random subgraph and a random reamer pose."""
+    rng = np.random.default_rng(seed)
+    alpha_all = np.where(rng.random(MESH.n_tets) < 0.3, 0.0, rng.uniform(0.3, 1.0, MESH.n_tets))
+    active_all = alpha_all >= 0.3
+    sub = GRAPH.subgraph(np.sort(rng.choice(MESH.n_tets, MESH.n_tets // 2, replace=False)), 1)
+    alpha, damage = alpha_all[sub.nodes], rng.random(len(sub.nodes))
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    reamer = ReamerState(rng.uniform(-0.03, 0.03, 3), axis, 230.0, rng.uniform(0, 5e-4), 136.0, TEETH_M)
+    nodes, edges, globals_ = frame_arrays(GRAPH, sub, alpha, reamer, "full", 0.3, active_all, damage, corners=True)
+
+    centroids = MESH.centroids[sub.nodes]
+    rel = centroids - reamer.centre
+    axial = rel @ axis
+    radial = np.linalg.norm(rel - axial[:, None] * axis, axis=1)
+    radius = np.linalg.norm(centroids, axis=1)
+    neighbours = GRAPH.neighbours[sub.nodes]
+    open_faces = ((neighbours < 0) | ~active_all[np.maximum(neighbours, 0)]).sum(axis=1)
+    corners = MESH.nodes[MESH.tets[sub.nodes]]
+    now = np.sort(np.linalg.norm(corners - reamer.centre, axis=2), axis=1) - TEETH_M
+    before = np.linalg.norm(corners - (reamer.centre - reamer.advance_m * axis), axis=2).min(axis=1) - TEETH_M
+    expected = np.column_stack([rel, axial, radial, np.linalg.norm(rel, axis=1) - TEETH_M, 136.0 * radial, centroids @ axis / radius, radius, alpha, alpha >= 0.3, open_faces, now, before, damage])
+    assert nodes.dtype == np.float32 and nodes.shape == expected.shape
+    assert np.allclose(nodes, expected.astype(np.float32), rtol=1e-6, atol=1e-9)
+    present = (alpha >= 0.3)[sub.senders] & (alpha >= 0.3)[sub.receivers]
+    offset = centroids[sub.receivers] - centroids[sub.senders]
+    expected_edges = np.column_stack([present, ~present, offset, np.linalg.norm(offset, axis=1)])
+    assert np.allclose(edges, expected_edges.astype(np.float32), rtol=1e-6, atol=1e-12)
+    assert np.allclose(globals_, np.r_[230.0 * axis, 230.0, reamer.advance_m][None, :].astype(np.float32))

@@ -81,11 +81,6 @@ class StaticGraph:
         removed_neighbour = ((table >= 0) & ~active[np.maximum(table, 0)]).any(axis=1)
         return active & (removed_neighbour | self._inner_tet)
 
-    def open_faces(self, active: np.ndarray, ids: np.ndarray) -> np.ndarray:
-        """Per element of ``ids``: how many of its four faces have no active tet behind them."""
-        table = self.neighbours[ids]
-        return ((table < 0) | ~active[np.maximum(table, 0)]).sum(axis=1)
-
     def region(self, active: np.ndarray, centre: np.ndarray, reach_m: float, hops: int) -> np.ndarray:
         """Sorted ids of the elements that can change this frame.
 

@@ -48,6 +48,7 @@ def test_reaming_page_benchmark_reams_and_times_the_page():
     figures = json.loads(completed.stdout)["reaming_page"]
     assert figures["seconds"] >= 2 and figures["simulator_frames_per_s"] > 0 and figures["fps"] > 0
     assert figures["bone_frames_per_s"] > 0 and 0 < figures["bone_bytes_fraction_of_whole"] < 1  # deltas, not whole arrays
+    assert 0 < figures["bone_bytes_per_simulator_frame_fraction_of_whole"] < 1
     assert figures["whole_alpha_bytes"] == 4 * figures["elements"] > 0
     for latency in ("pose_to_state_ms", "pose_to_drawn_ms"):
         assert 0 < figures[latency]["median"] <= figures[latency]["p90"]

@@ -162,6 +162,8 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
         "bone_bytes_per_frame": bytes_per_frame,
         "whole_alpha_bytes": 4 * elements,
         "bone_bytes_fraction_of_whole": None if bytes_per_frame is None else bytes_per_frame / (4 * elements),
+        # a bone frame can carry two simulator frames' changes when the page or the server fell behind
+        "bone_bytes_per_simulator_frame_fraction_of_whole": totals[4] / totals[5] / (4 * elements) if totals[5] else None,
         "fps": drawn_frames / elapsed,
         "chromium_cpu_ms_per_frame": None if chromium_cpu_seconds() is None or not drawn_frames else 1e3 * cpu_seconds / drawn_frames,
         "pose_to_state_ms": {"median": statistics.median(arrived), "p90": float(np.percentile(arrived, 90))},

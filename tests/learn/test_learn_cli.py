@@ -85,9 +85,12 @@ def test_evaluate_json_is_keyed_by_inclination_then_horizon(tiny_model, syntheti
             assert set(source[g]) == {"1", "end", "longest_horizon"}
             _check_scores(source[g]["1"])
             _check_scores(source[g]["end"])
-    assert report["15"]["1"]["windows"] == 1
+    assert report["15"]["1"]["windows"] == 11  # t+1 from every frame with a next one
+    assert report["15"]["end"]["windows"] == 1
     assert report["thesis_table_10_percent"]["0"]["60"]["f1"] == 92.9
-    assert report["by_force"]["230"]["windows"] == 2  # one window in each of the two test cases
+    assert report["by_force"]["230"]["windows"] == 2  # one full window in each of the two test cases
+    sparse = json.loads(run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--one-step-stride", "30", "--json").stdout)
+    assert sparse["15"]["1"]["windows"] == 1 and sparse["15"]["end"] == report["15"]["end"]
     table = run_thrsim("evaluate", "--data", str(synthetic_dataset / "cases" / "g015.0_t045.0_f230N_h1mm.h5"), "--model", str(tiny_model))
     assert table.returncode == 0, table.stderr
     assert "thesis Table 10" in table.stdout and "geometric" in table.stdout
@@ -111,8 +114,17 @@ def test_evaluate_refuses_cases_without_damage_for_a_model_that_reads_it(tiny_mo
 
 
 def test_windows_cover_every_horizon_or_the_end():
-    assert windows(12, 30) == [(0, ["1", "end"], 11)]
-    assert windows(121, 30) == [(0, ["1", "30", "60"], 60), (30, ["1", "30", "60"], 60), (60, ["1", "30", "60"], 60), (90, ["1", "30", "end"], 30)]
+    assert windows(12, 30, one_step_stride=30) == [(0, ["1", "end"], 11)]
+    full = [(0, ["1", "30", "60"], 60), (30, ["1", "30", "60"], 60), (60, ["1", "30", "60"], 60), (90, ["1", "30", "end"], 30)]
+    assert windows(121, 30, one_step_stride=30) == full
+
+
+def test_one_step_windows_fill_every_frame_between_the_full_ones():
+    every = windows(121, 30)
+    assert [w for w in every if w[1] != ["1"]] == windows(121, 30, one_step_stride=30)
+    assert sorted(start for start, _, _ in every) == list(range(120))  # t+1 from every frame that has a next one
+    assert all(length == 1 for start, keys, length in every if keys == ["1"])
+    assert [start for start, keys, _ in windows(121, 30, one_step_stride=7) if keys == ["1"]] == [s for s in range(120) if s % 7 == 0 and s % 30]
 
 
 def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
@@ -189,3 +201,9 @@ def test_the_shipped_model_reams_a_tilted_case_through_and_stops_there(tmp_path)
     assert 6 <= summary["frames"] <= 24 and len(summary["removed_per_frame"]) == summary["frames"]
     assert summary["removed"] >= 0.9 * summary["elements"]
     assert (out / "ream.pvd").read_text().count("<DataSet") == 2 * (summary["frames"] + 1)
+
+
+@pytest.mark.parametrize("option", ["--start-stride", "--one-step-stride"])
+def test_evaluate_refuses_a_stride_below_one(tiny_model, synthetic_dataset, option):
+    result = run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), option, "0")
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and option in result.stderr

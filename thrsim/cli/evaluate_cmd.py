@@ -22,14 +22,16 @@ def evaluate(
     model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
     split: str = typer.Option("test", "--split", help="split of a dataset directory to score: test, validation, train or all"),
     start_stride: int = typer.Option(30, "--start-stride", help="frames between the start frames of the rollout windows", metavar="N"),
+    one_step_stride: int = typer.Option(1, "--one-step-stride", help="frames between the start frames of the one-step (t+1) windows", metavar="N"),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Roll the model out from ground-truth frames and score newly removed elements at t+1, t+30, t+60 (and to a case's end)."""
     if split not in ("test", "validation", "train", "all"):
         raise ThrsimInputError(f"--split must be test, validation, train or all, got {split!r}")
-    if start_stride < 1:
-        raise ThrsimInputError(f"--start-stride must be at least 1, got {start_stride}")
+    for name, stride in (("--start-stride", start_stride), ("--one-step-stride", one_step_stride)):
+        if stride < 1:
+            raise ThrsimInputError(f"{name} must be at least 1, got {stride}")
     if threads < 1:
         raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
     import torch
@@ -43,7 +45,7 @@ def evaluate(
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
     mesh, cases = load_cases(data, splits=splits)
     loaded = load_model(model, expect_mesh=mesh)
-    report = run_evaluation(loaded, cases, start_stride=start_stride, on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"))
+    report = run_evaluation(loaded, cases, start_stride=start_stride, one_step_stride=one_step_stride, on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"))
     report["model"] = {"path": str(loaded.path), "arch": loaded.card.get("arch"), "data_digest": loaded.card["data"]["digest"]}
     report["data"] = {"source": str(data), "split": split if splits else "all"}
     if as_json:

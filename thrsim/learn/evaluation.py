@@ -4,8 +4,10 @@ Windows: from several start frames of every case (every ``start_stride`` frames)
 rolls out from the ground truth at the start; at horizons 1, 30 and 60 the elements it has
 removed since the start are compared with those the solver removed. A case that ends
 (perforated, passed through, or simply recorded fewer frames) before a start's longest horizon
-contributes that start's rollout to its last frame under "end" instead. Counts are summed
-(micro-averaged) over the windows of all cases of one inclination γ.
+contributes that start's rollout to its last frame under "end" instead. Horizon 1 is scored from
+every ``one_step_stride``-th frame as well (one step each, so cheap): one frame's removal
+varies from frame to frame, and a handful of start frames is too few to judge it by. Counts are
+summed (micro-averaged) over the windows of all cases of one inclination γ.
 
 Modes and baselines: ``autonomous`` (the regressor advances the reamer: the headline),
 ``tool_forced`` (recorded reamer positions), ``mlp`` (the node-wise MLP, autonomous) and
@@ -41,15 +43,20 @@ def gamma_key(inclination_deg: float) -> str:
     return f"{inclination_deg:g}"
 
 
-def windows(frames: int, start_stride: int, horizons: tuple[int, ...] = HORIZONS) -> list[tuple[int, list[str], int]]:
-    """(start, horizon keys, frames to roll out) for every start frame of a case of ``frames`` frames."""
+def windows(frames: int, start_stride: int, one_step_stride: int = 1, horizons: tuple[int, ...] = HORIZONS) -> list[tuple[int, list[str], int]]:
+    """(start, horizon keys, frames to roll out) for every start frame of a case of ``frames``
+    frames: the full windows every ``start_stride`` frames, one-step windows (key "1" alone)
+    every ``one_step_stride`` frames between them."""
     last = frames - 1
     out = []
-    for start in range(0, last, start_stride):
-        keys = [str(h) for h in horizons if start + h <= last]
-        if start + max(horizons) > last:
-            keys.append("end")
-        out.append((start, keys, min(last, start + max(horizons)) - start))
+    for start in range(0, last):
+        if start % start_stride == 0:
+            keys = [str(h) for h in horizons if start + h <= last]
+            if start + max(horizons) > last:
+                keys.append("end")
+            out.append((start, keys, min(last, start + max(horizons)) - start))
+        elif start % one_step_stride == 0:
+            out.append((start, ["1"], 1))
     return out
 
 
@@ -64,8 +71,8 @@ def _steppers(model: LoadedModel) -> dict:
     }
 
 
-def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None) -> dict:
-    """Scores per mode, γ and horizon, plus volume and surface errors at each window's longest horizon."""
+def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:
+    """Scores per mode, γ and horizon, plus volume and surface errors at each full window's longest horizon."""
     if model.settings.features.damage:
         require_damage(cases, "evaluate it on data of solver 0.4.0 or later")
     threshold = model.threshold
@@ -77,13 +84,15 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     for index, case in enumerate(cases):
         g = gamma_key(case.inclination_deg)
         truth_removed = case.alpha < threshold
-        for start, keys, length in windows(case.frames, start_stride):
+        for start, keys, length in windows(case.frames, start_stride, one_step_stride):
             initial = truth_removed[start]
             for mode, (step, feed) in steppers.items():
                 masks, _ = rollout(step, case, start, length, threshold, feed)
                 for key in keys:
                     k = length if key == "end" else int(key)
                     counts[mode][g][key].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)
+                if start % start_stride:
+                    continue  # a one-step window: no longest horizon of its own
                 final_pred, final_true = masks[-1], truth_removed[start + length]
                 true_volume = float((final_true & ~initial) @ volumes)
                 pred_volume = float((final_pred & ~initial) @ volumes)

@@ -81,7 +81,9 @@ def main() -> None:
             raise RuntimeError(f"only {reaming['removed']} elements removed in {reaming['time_s']:.1f} s of reaming")
         page.wait_for_timeout(500)  # the last state drawn
         size = save_png(page.screenshot(), DOCS / "reaming.png")
-        print(f"docs/reaming.png: {size} bytes; {reaming['removed']} elements, {reaming['removed_volume_mm3']:.1f} mm³, depth {reaming['depth_mm']:.2f} mm in {reaming['time_s']:.1f} s")
+        print(
+            f"docs/reaming.png: {size} bytes; {reaming['removed']} elements, {reaming['removed_volume_mm3']:.1f} mm³, depth {reaming['depth_mm']:.2f} mm in {reaming['time_s']:.1f} s"
+        )
 
         page.click("#end")
         page.wait_for_function("trainer.stats.saved", timeout=WAIT_MS)

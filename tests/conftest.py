@@ -25,8 +25,22 @@ def synthetic_dataset(tmp_path_factory) -> Path:
     """Synthetic sweep: γ 0, 15, 30 × θ 0 (train), 45 (test), 90 (validation); 12 frames, 192 tets."""
     out = tmp_path_factory.mktemp("learn-data") / "synthetic"
     result = run_thrsim(
-        "dataset", "--solver", "synthetic", "--out", str(out), "--inclinations", "0,15,30", "--anteversions", "0,45,90",
-        "--frames", "12", "--element-sizes", "1.0", "--extra-forces", "none", "--json",
+        "dataset",
+        "--solver",
+        "synthetic",
+        "--out",
+        str(out),
+        "--inclinations",
+        "0,15,30",
+        "--anteversions",
+        "0,45,90",
+        "--frames",
+        "12",
+        "--element-sizes",
+        "1.0",
+        "--extra-forces",
+        "none",
+        "--json",
     )
     assert result.returncode == 0, result.stderr
     return out

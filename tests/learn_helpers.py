@@ -21,8 +21,22 @@ def run_thrsim(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
 def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
     """Networks a few units wide, a handful of samples per epoch; features as the production preset."""
     arch = ArchSettings(
-        node_encoder=(8,), node_core=(8,), node_decoder=(8,), edge_encoder=(8,), edge_core=(8,),
-        global_encoder=(4,), message_passing_steps=2, mlp_baseline=(8,),
+        node_encoder=(8,),
+        node_core=(8,),
+        node_decoder=(8,),
+        edge_encoder=(8,),
+        edge_core=(8,),
+        global_encoder=(4,),
+        message_passing_steps=2,
+        mlp_baseline=(8,),
     )
-    options = {"epochs": epochs, "batch_size": 2, "max_samples_per_epoch": 8, "normaliser_samples": 8, "validation_horizon": 4, "advance_trees": 5, **train}
+    options = {
+        "epochs": epochs,
+        "batch_size": 2,
+        "max_samples_per_epoch": 8,
+        "normaliser_samples": 8,
+        "validation_horizon": 4,
+        "advance_trees": 5,
+        **train,
+    }
     return ModelSettings(arch=arch, features=preset("production").features, train=TrainSettings(**options))

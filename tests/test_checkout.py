@@ -38,7 +38,12 @@ def _impostor(tmp_path: Path) -> dict[str, str]:
 def test_subprocess_command_runs_this_checkout_despite_another_install(tmp_path):
     env = _impostor(tmp_path)
     where = subprocess.run(
-        [sys.executable, "-c", "import thrsim; print(thrsim.__file__)"], env=checkout_env(env), cwd=tmp_path, capture_output=True, text=True, timeout=60
+        [sys.executable, "-c", "import thrsim; print(thrsim.__file__)"],
+        env=checkout_env(env),
+        cwd=tmp_path,
+        capture_output=True,
+        text=True,
+        timeout=60,
     )
     assert Path(where.stdout.strip()).resolve().is_relative_to(REPO_ROOT / "thrsim"), where
     version = run_thrsim("--version", cwd=tmp_path, env=env)
@@ -48,7 +53,9 @@ def test_subprocess_command_runs_this_checkout_despite_another_install(tmp_path)
 
 def test_no_test_starts_a_thrsim_found_on_path():
     """Commands found on PATH (or beside the interpreter) may be another checkout's."""
-    suspicious = re.compile(r"""shutil\.which\(\s*["']thrsim|with_name\(\s*["']thrsim|\[\s*["']thrsim["']\s*,\s*["'](?:dataset|track|verify|mesh|fem|nav|bench)""")
+    suspicious = re.compile(
+        r"""shutil\.which\(\s*["']thrsim|with_name\(\s*["']thrsim|\[\s*["']thrsim["']\s*,\s*["'](?:dataset|track|verify|mesh|fem|nav|bench)"""
+    )
     offenders = [
         f"{path.relative_to(REPO_ROOT)}:{number}"
         for path in sorted((REPO_ROOT / "tests").rglob("*.py"))

@@ -137,9 +137,7 @@ class ReamerConfig(_Frozen):
     density_kg_m3: float = Field(7800.0, gt=0, description="AISI 420 steel [Table 9]")
     youngs_modulus_pa: float = Field(200e9, gt=0)
     poisson_ratio: float = Field(0.3, gt=-1.0, lt=0.5)
-    wall_thickness_mm: float | None = Field(
-        None, gt=0, description="hollow head's wall; None = the thesis's simplified solid head"
-    )
+    wall_thickness_mm: float | None = Field(None, gt=0, description="hollow head's wall; None = the thesis's simplified solid head")
 
     @model_validator(mode="after")
     def _tooth_range(self) -> "ReamerConfig":
@@ -329,7 +327,9 @@ class IgtlConfig(_Frozen):
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
     idle_timeout_s: float = Field(15.0, gt=0, description="a connection that sends no message for this long is closed")
-    reclaim_after_s: float = Field(1.0, ge=0, description="when all slots are taken, a connection silent this long since connecting gives its slot to a newcomer")
+    reclaim_after_s: float = Field(
+        1.0, ge=0, description="when all slots are taken, a connection silent this long since connecting gives its slot to a newcomer"
+    )
     stale_pose_s: float = Field(0.5, gt=0, description="a pose older than this no longer counts as tracked")
     known_devices: tuple[str, ...] = Field(KNOWN_TRACKER_DEVICES, description="TRANSFORM device names always accepted")
     max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")

@@ -49,7 +49,10 @@ THRSIM: dict[str, tuple[str, str]] = {
     "a": (PARTIAL, "a 3-D scene the trainee orbits on a monitor or a headset's browser; not the surgeon's head-tracked view"),
     "b": (NOT_MET, "a stylised pelvis and tools with simple shading"),
     "c": (PARTIAL, "real tracked tools over OpenIGTLink, or mouse and keyboard; no haptics"),
-    "d": (PARTIAL, "the reaming mode removes bone live from the push force and the reamer's pose (the shipped learned simulator); the bone does not visibly deform"),
+    "d": (
+        PARTIAL,
+        "the reaming mode removes bone live from the push force and the reamer's pose (the shipped learned simulator); the bone does not visibly deform",
+    ),
     "e": (NOT_MET, "the patient's position cannot be changed"),
     "f": (PARTIAL, "only the 27 landmark points respond to the probe"),
     "g": (PARTIAL, "camera placement, retakes and the confirmed cup orientation are the trainee's; no branching case"),

@@ -45,7 +45,22 @@ class ServedTrainer:
         self.sessions = sessions
         flags = () if compile else ("--no-compile",)
         self.process = subprocess.Popen(
-            [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7", *flags, *extra],
+            [
+                sys.executable,
+                "-m",
+                "thrsim",
+                "serve",
+                "--port",
+                "0",
+                "--igtl-port",
+                "0",
+                "--sessions",
+                str(sessions),
+                "--seed",
+                "7",
+                *flags,
+                *extra,
+            ],
             cwd=REPO,
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
@@ -104,7 +119,9 @@ def send_force(port: int, newton: float, device: str = "ForceSensor", timeout: f
         return read_message(sock)
 
 
-def send_transform(port: int, device: str, pose_m: np.ndarray, count: int = 1, interval_s: float = 0.0, timeout: float = 5.0) -> igtl.Message:
+def send_transform(
+    port: int, device: str, pose_m: np.ndarray, count: int = 1, interval_s: float = 0.0, timeout: float = 5.0
+) -> igtl.Message:
     """Send TRANSFORM message(s) of a pose in metres (the codec writes mm) and return the last reply."""
     with socket.create_connection(("127.0.0.1", port), timeout=timeout) as sock:
         reply = None

@@ -118,7 +118,9 @@ _FEED = """async (steps) => {
 
 
 def test_render_scale_follows_the_frame_rate(page):
-    rules = page.evaluate("import('/static/render_scale.js').then((m) => ({ steps: m.STEPS, window: m.WINDOW, slow: m.SLOW_WINDOWS, wait: m.FIRST_WAIT_MS }))")
+    rules = page.evaluate(
+        "import('/static/render_scale.js').then((m) => ({ steps: m.STEPS, window: m.WINDOW, slow: m.SLOW_WINDOWS, wait: m.FIRST_WAIT_MS }))"
+    )
     steps, window, wait = rules["steps"], rules["window"], rules["wait"]
     judged = rules["slow"] * window  # slow frames before a step down
 
@@ -139,7 +141,14 @@ def test_render_scale_follows_the_frame_rate(page):
     assert feed(display, (judged + 1, slow, 1), (keeping_up - window, fast, 1), (3 * window, fast, 1)) == [steps[1], steps[1], 1]
     # A try that turns out slow steps back down after one slow window and doubles the wait before
     # the next try.
-    chunks = [display, (judged + 1, slow, 1), (keeping_up + window, fast, 1), (window, slow, 1), (2 * keeping_up - window, fast, 1), (3 * window, fast, 1)]
+    chunks = [
+        display,
+        (judged + 1, slow, 1),
+        (keeping_up + window, fast, 1),
+        (window, slow, 1),
+        (2 * keeping_up - window, fast, 1),
+        (3 * window, fast, 1),
+    ]
     tried = page.evaluate(_FEED, chunks)
     assert tried["seen"][1:] == [steps[1], 1, steps[1], steps[1], 1] and tried["wait"] == 2 * wait
 
@@ -163,7 +172,9 @@ def test_render_scale_drops_when_frames_are_slow_and_the_page_still_draws(page, 
         slowed.evaluate(_BURN)  # every animation frame 40 ms longer: about 20 frames/s on any machine
         slowed.wait_for_function("trainer.view.renderScale.scale < 1", timeout=60_000)
         slowed.evaluate("window.burning = false")
-        scale, canvas = slowed.evaluate("[trainer.view.renderScale.scale, [trainer.view.renderer.domElement.width, trainer.view.renderer.domElement.height]]")
+        scale, canvas = slowed.evaluate(
+            "[trainer.view.renderScale.scale, [trainer.view.renderer.domElement.width, trainer.view.renderer.domElement.height]]"
+        )
         assert canvas == [int(1100 * scale), int(720 * scale)]
         frames = slowed.evaluate("trainer.stats.frames")
         slowed.wait_for_function(f"trainer.stats.frames > {frames + 5}", timeout=30_000)

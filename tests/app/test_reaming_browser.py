@@ -29,7 +29,9 @@ def page(tmp_path_factory):
             problems: list[str] = []
             page.on("pageerror", lambda error: problems.append(str(error)))
             page.goto(served.url + "/reaming?render-scale=1", timeout=30_000)  # pictures compared over time: one resolution
-            page.wait_for_function("window.trainer && trainer.stats.states > 5 && trainer.stats.visibleFaces > 0 && trainer.stats.frames > 2", timeout=60_000)
+            page.wait_for_function(
+                "window.trainer && trainer.stats.states > 5 && trainer.stats.visibleFaces > 0 && trainer.stats.frames > 2", timeout=60_000
+            )
             page.problems = problems
             yield page
             browser.close()
@@ -56,7 +58,9 @@ def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
     page.wait_for_function("trainer.stats.removed === trainer.stats.last.reaming.removed", timeout=10_000)
     # the faces kept up to date frame by frame (only the changed tets' and their neighbours') are
     # exactly the boundary a rebuild from the levels finds, with the same vertices and colours
-    kept = page.evaluate("(() => { const b = trainer.bone(); const s = b.faceSignature(), n = b.visibleFaces; b.rebuild(); return [s, n, b.faceSignature(), b.visibleFaces]; })()")
+    kept = page.evaluate(
+        "(() => { const b = trainer.bone(); const s = b.faceSignature(), n = b.visibleFaces; b.rebuild(); return [s, n, b.faceSignature(), b.visibleFaces]; })()"
+    )
     assert kept[0] == kept[2] and kept[1] == kept[3] > 50
     page.wait_for_timeout(300)
     after = picture(page)

@@ -130,8 +130,14 @@ def test_without_a_usable_model_reaming_says_why_and_navigation_serves(tmp_path)
 
     from app_helpers import REPO, checkout_env
 
-    missing = subprocess.run([sys.executable, "-m", "thrsim", "serve", "--model", str(tmp_path / "missing"), "--sessions", str(tmp_path)],
-                             cwd=REPO, capture_output=True, text=True, timeout=60, env=checkout_env())
+    missing = subprocess.run(
+        [sys.executable, "-m", "thrsim", "serve", "--model", str(tmp_path / "missing"), "--sessions", str(tmp_path)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=checkout_env(),
+    )
     assert missing.returncode == 2 and "no such model folder" in missing.stderr and missing.stderr.count("\n") == 1
     empty = tmp_path / "not-a-model"
     empty.mkdir()
@@ -171,6 +177,13 @@ def test_served_as_users_run_it_the_network_is_compiled_and_the_session_replays_
     finally:
         server.stop()
     assert read_session(saved["file"]).settings["compile"] is True
-    replay = subprocess.run([sys.executable, "-m", "thrsim", "replay", saved["file"], "--json"], cwd=REPO, capture_output=True, text=True, timeout=300, env=checkout_env())
+    replay = subprocess.run(
+        [sys.executable, "-m", "thrsim", "replay", saved["file"], "--json"],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        env=checkout_env(),
+    )
     assert replay.returncode == 0, replay.stderr
     assert json.loads(replay.stdout)["reproduced"] is True

@@ -57,7 +57,9 @@ def test_frames_follow_the_running_time_and_bone_is_removed(clock):
     volumes = clock.trainer.trace.removed_volume_mm3
     assert volumes[-1] > 0 and all(b >= a for a, b in zip(volumes, volumes[1:]))  # removal never undoes itself
     assert reaming["removed"] > 0 and reaming["depth_mm"] > 0 and reaming["removed_volume_mm3"] == pytest.approx(volumes[-1])
-    assert reaming["gamma_deg"] == pytest.approx(math.degrees(math.acos(local_axis_from_angles(40, 15) @ local_axis_from_angles(45, 20))), abs=1e-6)
+    assert reaming["gamma_deg"] == pytest.approx(
+        math.degrees(math.acos(local_axis_from_angles(40, 15) @ local_axis_from_angles(45, 20))), abs=1e-6
+    )
     clock.control({"type": "run", "action": "pause"})
     frames = reaming["frame"]
     assert clock.run(0.5)["reaming"]["frame"] == frames
@@ -183,7 +185,10 @@ def test_without_a_model_the_mode_says_why_and_navigation_still_works():
     assert state["tools"]["Reamer"]["tracked"] in (True, False) and "angles" in state
     with pytest.raises(ThrsimInputError, match="unavailable"):
         trainer.apply_control(parse_reaming_control({"type": "run", "action": "start"}), STEP)
-    assert trainer.apply_control(parse_reaming_control({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}), STEP) == "reamer steered"
+    assert (
+        trainer.apply_control(parse_reaming_control({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}), STEP)
+        == "reamer steered"
+    )
 
 
 def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tmp_path):
@@ -233,13 +238,38 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
     centroids = mesh.centroids
     radius = np.linalg.norm(centroids, axis=1)
     outer = np.isin(mesh.tets, mesh.node_sets["outer"]).sum(axis=1) >= 3
-    geometry = {"centroids_m": centroids, "outer": outer, "inner_radius_m": 0.022, "outer_radius_m": 0.024, "teeth_radius_m": 0.0229, "threshold": 0.3}
+    geometry = {
+        "centroids_m": centroids,
+        "outer": outer,
+        "inner_radius_m": 0.022,
+        "outer_radius_m": 0.024,
+        "teeth_radius_m": 0.0229,
+        "threshold": 0.3,
+    }
 
     def record(removed: np.ndarray) -> ReamingRecord:
         empty = np.zeros((0, 3))
         nav = ReamingTrainer().navigation.record()
-        return ReamingRecord("right", {}, "", np.eye(4), np.zeros(0), np.zeros(0, int), np.zeros(0), empty, empty, np.zeros(0, int),
-                             np.zeros(0), np.zeros(0), empty, [], np.where(removed, 0.0, 0.8).astype(np.float32), 0, nav, geometry)
+        return ReamingRecord(
+            "right",
+            {},
+            "",
+            np.eye(4),
+            np.zeros(0),
+            np.zeros(0, int),
+            np.zeros(0),
+            empty,
+            empty,
+            np.zeros(0, int),
+            np.zeros(0),
+            np.zeros(0),
+            empty,
+            [],
+            np.where(removed, 0.0, 0.8).astype(np.float32),
+            0,
+            nav,
+            geometry,
+        )
 
     planned = cavity_map(record(radius < 0.0229))
     assert planned["fractions"]["on plan"] > 0.9 and planned["fractions"]["perforated"] == 0
@@ -257,7 +287,13 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
         now[0] += STEP
         session.tick()
     report = build_report(session.save(tmp_path))
-    for title in ("Reaming: removal, depth and push", "Reaming: the final cavity", "Reaming: orientation while cutting", "no perforation", "safe zone while cutting"):
+    for title in (
+        "Reaming: removal, depth and push",
+        "Reaming: the final cavity",
+        "Reaming: orientation while cutting",
+        "no perforation",
+        "safe zone while cutting",
+    ):
         assert title in report
     assert report.count("data:image/png;base64,") >= 2
 

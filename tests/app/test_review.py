@@ -44,5 +44,7 @@ def test_thrsim_is_scored_with_a_reason_per_criterion():
     own = review()["thrsim"]
     assert set(own["marks"]) == set(CRITERIA) and all(own["reasons"][c] for c in CRITERIA)
     assert own["marks"]["i"] == MET and own["marks"]["d"] == PARTIAL
-    done = subprocess.run([sys.executable, "-m", "thrsim", "review", "--json"], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env())
+    done = subprocess.run(
+        [sys.executable, "-m", "thrsim", "review", "--json"], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env()
+    )
     assert done.returncode == 0 and json.loads(done.stdout)["thrsim"]["scores"] == own["scores"]

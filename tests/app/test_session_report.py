@@ -108,7 +108,14 @@ def test_report_is_self_contained_with_plots_and_scored_criteria(saved):
     assert not re.search(r"""(src|href)=["']?(https?:|//|/)""", html)  # nothing fetched from elsewhere
     for heading in ("Summary score", "Landmark registration", "Cup orientation against the safe zone", "Tracking dropouts"):
         assert heading in html
-    for criterion in ("registration completed", "registration accuracy", "time in the safe zone while aiming", "confirmed cup orientation", "markers kept visible", "retakes"):
+    for criterion in (
+        "registration completed",
+        "registration accuracy",
+        "time in the safe zone while aiming",
+        "confirmed cup orientation",
+        "markers kept visible",
+        "retakes",
+    ):
         assert criterion in html
     score = re.search(r'class="score">([\d.]+) / ([\d.]+)<', html)
     assert score and 0 < float(score.group(1)) <= float(score.group(2)) == 100
@@ -141,7 +148,9 @@ def test_garbled_missing_and_foreign_session_files_are_refused(saved, tmp_path):
 
 
 def _thrsim(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env())
+    return subprocess.run(
+        [sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env()
+    )
 
 
 def test_report_and_replay_commands(saved, tmp_path):
@@ -155,7 +164,9 @@ def test_report_and_replay_commands(saved, tmp_path):
 
 @pytest.mark.parametrize("args", [("report", "absent.h5", "--out", "r.html"), ("replay", "absent.h5")])
 def test_commands_refuse_a_missing_session_in_one_line(tmp_path, args):
-    done = subprocess.run([sys.executable, "-m", "thrsim", *args], cwd=tmp_path, capture_output=True, text=True, timeout=120, env=checkout_env())
+    done = subprocess.run(
+        [sys.executable, "-m", "thrsim", *args], cwd=tmp_path, capture_output=True, text=True, timeout=120, env=checkout_env()
+    )
     assert done.returncode == 2
     assert done.stderr.count("\n") == 1 and "no such session file" in done.stderr
     assert not (tmp_path / "r.html").exists()

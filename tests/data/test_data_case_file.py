@@ -46,9 +46,17 @@ def _write(path, mesh=None, frames=None, **extra):
     mesh = mesh or block_mesh(3)
     frames = frames or _frames(mesh)
     return write_case(
-        path, mesh, frames, (0.0, 0.0, -1.0),
-        inclination_deg=15.0, anteversion_deg=30.0, force_n=230.0, omega_rad_s=136.0, frame_dt_s=1 / 60,
-        config={"a": 1, "nested": {"b": [1, 2]}}, extra_attrs=extra or None,
+        path,
+        mesh,
+        frames,
+        (0.0, 0.0, -1.0),
+        inclination_deg=15.0,
+        anteversion_deg=30.0,
+        force_n=230.0,
+        omega_rad_s=136.0,
+        frame_dt_s=1 / 60,
+        config={"a": 1, "nested": {"b": [1, 2]}},
+        extra_attrs=extra or None,
     )
 
 

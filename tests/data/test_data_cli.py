@@ -158,7 +158,9 @@ def test_dataset_refuses_other_configuration_and_missing_out(tmp_path, monkeypat
     root = tmp_path / "ds"
     assert run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL, "--json")[0] == 0
     before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
-    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(root), *SMALL[:-4], "--frames", "5", "--extra-forces", "none", "--solver", "synthetic")
+    code, out, err = run_main(
+        monkeypatch, capsys, "dataset", "--out", str(root), *SMALL[:-4], "--frames", "5", "--extra-forces", "none", "--solver", "synthetic"
+    )
     assert code == 2 and "different configuration" in err and "frames" in err
     assert {p: p.stat().st_mtime_ns for p in root.rglob("*")} == before
     code, out, err = run_main(monkeypatch, capsys, "dataset", *SMALL)
@@ -181,8 +183,25 @@ def _children(pid: int) -> list[int]:
 
 def test_kill9_parent_then_resume(tmp_path):
     root = tmp_path / "ds"
-    cmd = [*THRSIM, "dataset", "--out", str(root), "--inclinations", "0,15,30", "--anteversions", "0,90", "--frames", "3",
-                  "--extra-forces", "none", "--solver", "synthetic", "--workers", "2", "--json"]
+    cmd = [
+        *THRSIM,
+        "dataset",
+        "--out",
+        str(root),
+        "--inclinations",
+        "0,15,30",
+        "--anteversions",
+        "0,90",
+        "--frames",
+        "3",
+        "--extra-forces",
+        "none",
+        "--solver",
+        "synthetic",
+        "--workers",
+        "2",
+        "--json",
+    ]
     env = checkout_env(THRSIM_SYNTHETIC_SECONDS_PER_FRAME="0.4")
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     deadline = time.time() + 60

@@ -77,8 +77,19 @@ def dask_cluster(tmp_path):
         start(
             "worker",
             _dask(
-                "worker", address, "--nworkers", "2", "--nthreads", "1", "--no-dashboard", "--host", "127.0.0.1",
-                "--local-directory", str(tmp_path / "dask-worker-space"), "--death-timeout", "60",
+                "worker",
+                address,
+                "--nworkers",
+                "2",
+                "--nthreads",
+                "1",
+                "--no-dashboard",
+                "--host",
+                "127.0.0.1",
+                "--local-directory",
+                str(tmp_path / "dask-worker-space"),
+                "--death-timeout",
+                "60",
             ),
         )
         yield address, procs, logs

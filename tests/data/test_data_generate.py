@@ -145,9 +145,7 @@ def test_dask_cluster_matches_local(tmp_path):
     distributed = pytest.importorskip("distributed")
     plan = small_plan()
     local = run_sweep(tmp_path / "local", plan, solver="synthetic", workers=2)
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
-    ) as cluster:
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
         remote = run_sweep(tmp_path / "dask", plan, solver="synthetic", scheduler=cluster.scheduler_address)
     assert remote.complete == local.complete == 3
     assert "Dask scheduler" in remote.executor
@@ -159,7 +157,15 @@ def test_dask_cluster_matches_local(tmp_path):
         import h5py
 
         with h5py.File(fa) as x, h5py.File(fb) as y:
-            for name in ("mesh/nodes", "mesh/tets", "frames/status", "frames/peeq", "frames/von_mises", "frames/reamer_position", "frames/energy"):
+            for name in (
+                "mesh/nodes",
+                "mesh/tets",
+                "frames/status",
+                "frames/peeq",
+                "frames/von_mises",
+                "frames/reamer_position",
+                "frames/energy",
+            ):
                 np.testing.assert_array_equal(x[name][()], y[name][()])
 
 
@@ -173,9 +179,7 @@ def test_real_solver_sweep_local_matches_dask(tmp_path):
     pytest.importorskip("thrsim.physics.reaming")
     plan = plan_sweep((30.0,), (0.0, 90.0), frames=2, extra_forces_n=(), element_sizes_mm=(1.2,))
     local = run_sweep(tmp_path / "local", plan, solver="fem", workers=2, threads=1)
-    with distributed.LocalCluster(
-        n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None
-    ) as cluster:
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
         remote = run_sweep(tmp_path / "dask", plan, solver="fem", scheduler=cluster.scheduler_address, threads=1)
     assert local.complete == remote.complete == 2 and not local.failed and not remote.failed
     a, b = read_manifest(tmp_path / "local")["cases"], read_manifest(tmp_path / "dask")["cases"]
@@ -209,8 +213,12 @@ def test_solver_rates_group_complete_cases_by_inclination_and_force():
         return {"status": status, "params": {"inclination_deg": gamma, "force_n": force}, "solver_summary": summary, "wall_s": wall_s}
 
     entries = {
-        "a": case(15, 230, 1.0), "b": case(15, 230, 3.0), "c": case(15, 230, 1.4, end="completed"),
-        "d": case(0, 150, None, end="completed"), "e": case(45, 230, 9.0, status="pending"), "f": case(0, 230, 0.9),
+        "a": case(15, 230, 1.0),
+        "b": case(15, 230, 3.0),
+        "c": case(15, 230, 1.4, end="completed"),
+        "d": case(0, 150, None, end="completed"),
+        "e": case(45, 230, 9.0, status="pending"),
+        "f": case(0, 230, 0.9),
     }
     rates = solver_rates(entries)
     assert list(rates) == ["0/150", "0/230", "15/230"]  # by γ, then force; pending cases left out

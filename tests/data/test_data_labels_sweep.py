@@ -127,7 +127,9 @@ def test_sweep_defaults_are_defined_once_in_the_configuration():
     from thrsim.config import SweepConfig
 
     config = SweepConfig()
-    options = {name: p.default.default for name, p in inspect.signature(dataset_cmd.dataset).parameters.items() if hasattr(p.default, "default")}
+    options = {
+        name: p.default.default for name, p in inspect.signature(dataset_cmd.dataset).parameters.items() if hasattr(p.default, "default")
+    }
     assert parse_list(options["inclinations"], "") == config.inclinations_deg
     assert parse_list(options["anteversions"], "") == config.anteversions_deg
     assert parse_list(options["forces"], "") == config.forces_n
@@ -135,19 +137,27 @@ def test_sweep_defaults_are_defined_once_in_the_configuration():
     assert parse_list(options["extra_force_anteversions"], "", allow_empty=True) == config.extra_force_anteversions_deg
     assert options["frames"] == config.frames
     defaults = {name: p.default for name, p in inspect.signature(plan_sweep).parameters.items()}
-    assert (defaults["inclinations"], defaults["anteversions"], defaults["frames"]) == (config.inclinations_deg, config.anteversions_deg, config.frames)
+    assert (defaults["inclinations"], defaults["anteversions"], defaults["frames"]) == (
+        config.inclinations_deg,
+        config.anteversions_deg,
+        config.frames,
+    )
     assert (defaults["force_n"], defaults["extra_forces_n"], defaults["extra_force_anteversions"]) == (
         config.forces_n, config.extra_forces_n, config.extra_force_anteversions_deg,
     )  # fmt: skip
 
 
-@pytest.mark.parametrize("values", [(0.0, 15.0, 30.0, 45.0), tuple(float(a) for a in range(0, 181, 15)), (150.0, 310.0), (0.5, 1.25, 2.0, 2.75, 3.5), ()])
+@pytest.mark.parametrize(
+    "values", [(0.0, 15.0, 30.0, 45.0), tuple(float(a) for a in range(0, 181, 15)), (150.0, 310.0), (0.5, 1.25, 2.0, 2.75, 3.5), ()]
+)
 def test_format_list_is_the_inverse_of_parse_list(values):
     assert parse_list(format_list(values), "", allow_empty=True) == values
 
 
 def test_coverage_order_starts_with_the_plans_own_main_force():
-    plan = plan_sweep((15.0, 30.0), (0.0, 90.0, 180.0), frames=2, force_n=(200.0,), extra_forces_n=(120.0,), extra_force_anteversions=(90.0,))
+    plan = plan_sweep(
+        (15.0, 30.0), (0.0, 90.0, 180.0), frames=2, force_n=(200.0,), extra_forces_n=(120.0,), extra_force_anteversions=(90.0,)
+    )
     ordered = coverage_order(plan.cases, plan.main_forces_n)
     assert plan.main_forces_n == (200.0,)
     assert ordered[0].force_n == 200.0 and sorted(c.case_id for c in ordered) == sorted(c.case_id for c in plan.cases)

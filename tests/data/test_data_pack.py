@@ -15,13 +15,38 @@ from thrsim.cli import main
 from thrsim.config import LabelConfig
 from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.case_file import read_case
-from thrsim.data.pack import ALPHA_LEVELS, DAMAGE_LEVELS, dequantise_alpha, dequantise_damage, is_pack, pack_files, quantise_alpha, quantise_damage, read_pack, removal_frames, write_pack
+from thrsim.data.pack import (
+    ALPHA_LEVELS,
+    DAMAGE_LEVELS,
+    dequantise_alpha,
+    dequantise_damage,
+    is_pack,
+    pack_files,
+    quantise_alpha,
+    quantise_damage,
+    read_pack,
+    removal_frames,
+    write_pack,
+)
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 
 pytestmark = pytest.mark.timeout(180)
 
-SWEEP = ["--inclinations", "0,15,30", "--anteversions", "0,45,90", "--frames", "8", "--extra-forces", "none", "--solver", "synthetic", "--element-sizes", "1.0"]
+SWEEP = [
+    "--inclinations",
+    "0,15,30",
+    "--anteversions",
+    "0,45,90",
+    "--frames",
+    "8",
+    "--extra-forces",
+    "none",
+    "--solver",
+    "synthetic",
+    "--element-sizes",
+    "1.0",
+]
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +84,11 @@ def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, c
 
 def _same_cases(a, b) -> bool:
     return [c.case_id for c in a] == [c.case_id for c in b] and all(
-        np.array_equal(x.alpha, y.alpha) and np.array_equal(x.status, y.status) and np.array_equal(x.damage, y.damage) and x.split == y.split for x, y in zip(a, b)
+        np.array_equal(x.alpha, y.alpha)
+        and np.array_equal(x.status, y.status)
+        and np.array_equal(x.damage, y.damage)
+        and x.split == y.split
+        for x, y in zip(a, b)
     )
 
 
@@ -117,7 +146,9 @@ def test_a_pack_keeps_each_elements_damage_to_a_hundredth(dataset, tmp_path, mon
         frames = read_case(paths[case.case_id]).frames
         for name in ("damage", "damage_initiation"):
             assert np.abs(getattr(case, name) - getattr(frames, name)).max() <= 0.5 / DAMAGE_LEVELS + 1e-6
-        assert np.all(case.damage[frames.damage == 0] == 0) and np.all(case.damage[frames.damage == 1] == 1)  # undamaged and deleted stay exact
+        assert np.all(case.damage[frames.damage == 0] == 0) and np.all(
+            case.damage[frames.damage == 1] == 1
+        )  # undamaged and deleted stay exact
         damaged += int((frames.damage > 0).sum())
     assert damaged > 0  # the sweep damages elements: the comparison above is not of zeros
 
@@ -152,7 +183,21 @@ def test_packs_gather_a_sweep_run_in_parts(dataset, tmp_path, monkeypatch, capsy
     code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(other_frames), "--out", str(pack))
     assert code != 0 and "another dataset" in err and err.count("\n") == 1
     other_mesh = tmp_path / "other-mesh"  # per-case element sizes stay out of the identity: the mesh check refuses
-    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(other_mesh), *SWEEP[:-2], "--element-sizes", "2.0", "--inclinations", "0", "--anteversions", "0", "--json")
+    code, _, err = run_main(
+        monkeypatch,
+        capsys,
+        "dataset",
+        "--out",
+        str(other_mesh),
+        *SWEEP[:-2],
+        "--element-sizes",
+        "2.0",
+        "--inclinations",
+        "0",
+        "--anteversions",
+        "0",
+        "--json",
+    )
     assert code == 0, err
     code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(other_mesh), "--out", str(pack))
     assert code != 0 and "mesh differs" in err and err.count("\n") == 1
@@ -183,7 +228,9 @@ def test_bad_targets_and_sources_get_one_line(dataset, tmp_path, monkeypatch, ca
 def test_quantisation_keeps_every_element_on_its_side_of_the_threshold():
     rng = np.random.default_rng(3)
     levels = np.arange(ALPHA_LEVELS + 1) / ALPHA_LEVELS
-    alpha = np.concatenate([rng.random(5000), levels, np.nextafter(levels, -1), np.nextafter(levels, 2)]).clip(0, 1).astype(np.float32)[None, :]
+    alpha = (
+        np.concatenate([rng.random(5000), levels, np.nextafter(levels, -1), np.nextafter(levels, 2)]).clip(0, 1).astype(np.float32)[None, :]
+    )
     back = dequantise_alpha(quantise_alpha(alpha))
     assert np.abs(back - alpha).max() <= 0.5 / ALPHA_LEVELS + 1e-6
     for threshold in (0.3, 0.5, 0.1):

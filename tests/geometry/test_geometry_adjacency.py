@@ -55,8 +55,9 @@ def test_five_tet_cube(cube):
         assert row[0] == 0
     # 6 cube faces × 2 triangles, all lying on the cube's faces
     assert len(adj.boundary_faces) == 12
-    on_cube_face = np.any(np.all(np.isin(nodes[adj.boundary_faces], (0.0, 1.0)), axis=1) &
-                          (np.ptp(nodes[adj.boundary_faces], axis=1) == 0), axis=1)
+    on_cube_face = np.any(
+        np.all(np.isin(nodes[adj.boundary_faces], (0.0, 1.0)), axis=1) & (np.ptp(nodes[adj.boundary_faces], axis=1) == 0), axis=1
+    )
     assert on_cube_face.all()
     assert_outward(nodes, tets, adj)
     assert adj.directed_edges.shape == (2, 8)
@@ -74,9 +75,7 @@ def test_exposed_faces_after_removing_tets(cube):
     everything = np.ones(5, dtype=bool)
     owner, local = exposed_faces(adj, everything)
     assert len(owner) == 12
-    assert set(zip(owner.tolist(), local.tolist())) == set(
-        zip(adj.boundary_owner.tolist(), adj.boundary_local_face.tolist())
-    )
+    assert set(zip(owner.tolist(), local.tolist())) == set(zip(adj.boundary_owner.tolist(), adj.boundary_local_face.tolist()))
 
     no_centre = everything.copy()
     no_centre[0] = False

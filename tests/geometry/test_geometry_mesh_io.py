@@ -132,8 +132,11 @@ def test_failed_write_leaves_nothing(tmp_path, cube_mesh, monkeypatch):
     ("name", "content", "problem"),
     [
         ("missing.inp", None, "no such file"),
-        ("hex.inp", "*NODE\n1,0,0,0\n2,1,0,0\n3,1,1,0\n4,0,1,0\n5,0,0,1\n6,1,0,1\n7,1,1,1\n8,0,1,1\n"
-                    "*ELEMENT, TYPE=C3D8\n1,1,2,3,4,5,6,7,8\n", "no tetrahedral elements"),
+        (
+            "hex.inp",
+            "*NODE\n1,0,0,0\n2,1,0,0\n3,1,1,0\n4,0,1,0\n5,0,0,1\n6,1,0,1\n7,1,1,1\n8,0,1,1\n*ELEMENT, TYPE=C3D8\n1,1,2,3,4,5,6,7,8\n",
+            "no tetrahedral elements",
+        ),
         ("empty.h5", b"", "cannot read HDF5"),
         ("garbage.vtu", "<VTKFile><<<", "cannot read mesh"),
     ],

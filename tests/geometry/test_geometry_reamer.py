@@ -35,6 +35,7 @@ def test_tooth_arcs_stay_on_the_dome(reamer):
     clipped = (start == 0) | (end == math.pi / 2)
     np.testing.assert_allclose(length[~clipped], 3.0e-3)
     assert np.all(length[clipped] < 3.0e-3 + 1e-12)
+
     # no bald rings: every polar angle from the pole to the last tooth is swept by an edge,
     # and away from the pole and the rim by several (arc length ≫ polar spacing)
     def coverage(lo_deg, hi_deg):

@@ -53,18 +53,22 @@ def test_swapping_two_nodes_inverts():
 
 
 def test_quality_report_counts_hand_made_tets():
-    nodes = np.vstack([
-        REGULAR,                                                    # 0-3 regular
-        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]],               # 4-7 four coplanar points
-        [[0, 0, 0], [1, 1, 0], [1, 0, 0.01], [0, 1, 0.01]],         # 8-11 flat sliver
-    ])
-    tets = np.array([
-        [0, 1, 2, 3],     # good
-        [0, 2, 1, 3],     # inverted
-        [4, 5, 6, 7],     # degenerate (zero volume)
-        [8, 10, 9, 11],   # sliver, positive
-        [8, 9, 10, 11],   # the same sliver inverted: counted as inverted, not as a sliver
-    ])
+    nodes = np.vstack(
+        [
+            REGULAR,  # 0-3 regular
+            [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]],  # 4-7 four coplanar points
+            [[0, 0, 0], [1, 1, 0], [1, 0, 0.01], [0, 1, 0.01]],  # 8-11 flat sliver
+        ]
+    )
+    tets = np.array(
+        [
+            [0, 1, 2, 3],  # good
+            [0, 2, 1, 3],  # inverted
+            [4, 5, 6, 7],  # degenerate (zero volume)
+            [8, 10, 9, 11],  # sliver, positive
+            [8, 9, 10, 11],  # the same sliver inverted: counted as inverted, not as a sliver
+        ]
+    )
     assert signed_volumes(nodes, tets[3:4])[0] > 0
     assert 0 < volume_quality(nodes, tets[3:4])[0] < SLIVER_QUALITY
     report = quality_report(nodes, tets)

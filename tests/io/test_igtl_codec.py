@@ -54,7 +54,11 @@ def test_pyigtl_transform_decodes_here(version):
 
 @pytest.mark.parametrize("version", [1, 2])
 def test_messages_encoded_here_decode_in_pyigtl(version):
-    raw = igtl.encode_message(igtl.Message("STRING", "NavigationState", igtl.pack_string('{"a": 1}'), version=version, metadata={"k": "v"} if version == 2 else {}))
+    raw = igtl.encode_message(
+        igtl.Message(
+            "STRING", "NavigationState", igtl.pack_string('{"a": 1}'), version=version, metadata={"k": "v"} if version == 2 else {}
+        )
+    )
     fields = pyigtl.MessageBase.parse_header(raw[:58])
     message = pyigtl.MessageBase.create_message(fields["message_type"])
     message.unpack(fields, raw[58:])
@@ -118,7 +122,12 @@ def test_version_2_extended_header_that_does_not_fit_is_refused():
 
 @pytest.mark.parametrize(
     "unpack, content",
-    [(igtl.unpack_transform, b"\0" * 47), (igtl.unpack_sensor, b"\x03\x00" + b"\0" * 8 + b"\0" * 16), (igtl.unpack_string, b"\x00\x03\x00\x10abc"), (igtl.unpack_status, b"\0" * 10)],
+    [
+        (igtl.unpack_transform, b"\0" * 47),
+        (igtl.unpack_sensor, b"\x03\x00" + b"\0" * 8 + b"\0" * 16),
+        (igtl.unpack_string, b"\x00\x03\x00\x10abc"),
+        (igtl.unpack_status, b"\0" * 10),
+    ],
 )
 def test_short_or_inconsistent_contents_are_refused(unpack, content):
     with pytest.raises(igtl.IgtlProtocolError):

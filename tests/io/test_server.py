@@ -215,7 +215,9 @@ def test_valid_client_keeps_being_served_during_a_garbage_burst(nav_server, pyig
     client = pyigtl_client()
     assert client.round_trip(reamer_pose_mm(), timeout=5.0) is not None  # a tracker streams from the start
     attackers = [
-        subprocess.Popen([sys.executable, str(GARBAGE_PEER), str(nav_server.port), "3"], stdout=subprocess.PIPE, text=True, env=checkout_env())
+        subprocess.Popen(
+            [sys.executable, str(GARBAGE_PEER), str(nav_server.port), "3"], stdout=subprocess.PIPE, text=True, env=checkout_env()
+        )
         for _ in range(2)
     ]
     stats = nav_server.server.stats

@@ -17,7 +17,13 @@ pytestmark = pytest.mark.timeout(60)
 
 
 def test_track_serves_pyigtl_and_stops_on_sigterm():
-    process = subprocess.Popen([*THRSIM, "track", "--igtl-port", "0", "--json-log", "--log-interval", "0.5"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=checkout_env())
+    process = subprocess.Popen(
+        [*THRSIM, "track", "--igtl-port", "0", "--json-log", "--log-interval", "0.5"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=checkout_env(),
+    )
     client = None
     try:
         listening = json.loads(process.stdout.readline())
@@ -45,7 +51,13 @@ def test_track_serves_pyigtl_and_stops_on_sigterm():
 
 
 def test_track_stops_after_duration_and_refuses_bad_flags():
-    finished = subprocess.run([*THRSIM, "track", "--igtl-port", "0", "--duration", "0.5", "--json-log"], capture_output=True, text=True, timeout=30, env=checkout_env())
+    finished = subprocess.run(
+        [*THRSIM, "track", "--igtl-port", "0", "--duration", "0.5", "--json-log"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=checkout_env(),
+    )
     assert finished.returncode == 0
     assert json.loads(finished.stdout.splitlines()[-1])["event"] == "stopped"
     bad = subprocess.run([*THRSIM, "track", "--duration", "-1"], capture_output=True, text=True, timeout=30, env=checkout_env())
@@ -55,12 +67,18 @@ def test_track_stops_after_duration_and_refuses_bad_flags():
 def test_nav_angles_json_and_errors():
     landmarks = ["--asis-right", "115,0,0", "--asis-left=-115,0,0", "--pubic-right", "22,0,-88", "--pubic-left=-22,0,-88"]
     ok = subprocess.run(
-        [*THRSIM, "nav", "angles", "--axis", "0.620885,0.258819,-0.739942", *landmarks, "--json"], capture_output=True, text=True, timeout=30, env=checkout_env()
+        [*THRSIM, "nav", "angles", "--axis", "0.620885,0.258819,-0.739942", *landmarks, "--json"],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        env=checkout_env(),
     )
     assert ok.returncode == 0, ok.stderr
     result = json.loads(ok.stdout)
     assert (result["inclination_deg"], result["anteversion_deg"]) == pytest.approx((40.0, 15.0), abs=1e-3)
     assert result["operative"]["inclination_deg"] == pytest.approx(38.38, abs=0.01)
     assert result["safe_zone"]["colour"] == "green"
-    bad = subprocess.run([*THRSIM, "nav", "angles", "--axis", "0,0,0", *landmarks], capture_output=True, text=True, timeout=30, env=checkout_env())
+    bad = subprocess.run(
+        [*THRSIM, "nav", "angles", "--axis", "0,0,0", *landmarks], capture_output=True, text=True, timeout=30, env=checkout_env()
+    )
     assert bad.returncode == 2 and bad.stderr.strip() == "thrsim: error: axis is the zero vector"

@@ -23,7 +23,22 @@ def _one_thread():
 def real_case(tmp_path_factory) -> Path:
     """One case of the real explicit solver on a 2 mm mesh (438 tets), 6 frames at γ 30°."""
     out = tmp_path_factory.mktemp("learn-real") / "g30.h5"
-    result = run_thrsim("fem", "--inclination", "30", "--anteversion", "0", "--frames", "6", "--element-size", "2.0", "--threads", "1", "--out", str(out), "--json")
+    result = run_thrsim(
+        "fem",
+        "--inclination",
+        "30",
+        "--anteversion",
+        "0",
+        "--frames",
+        "6",
+        "--element-size",
+        "2.0",
+        "--threads",
+        "1",
+        "--out",
+        str(out),
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     return out
 

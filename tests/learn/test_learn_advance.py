@@ -14,7 +14,9 @@ from thrsim.learn.advance import FEATURES, KINDS, ArrayRegressor, _candidates, c
 
 def _data(n=120, seed=0):
     rng = np.random.default_rng(seed)
-    X = np.column_stack([rng.uniform(0, 3, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n), rng.uniform(0, 460, n)])
+    X = np.column_stack(
+        [rng.uniform(0, 3, n), rng.choice([0, 15, 30], n), rng.uniform(0, 180, n), rng.choice([150, 230, 310], n), rng.uniform(0, 460, n)]
+    )
     y = 0.01 * X[:, 0] + 0.002 * X[:, 1] + 0.0005 * X[:, 3] + 1e-4 * X[:, 4] + rng.normal(0, 0.01, n)
     return X, y
 
@@ -70,7 +72,9 @@ def test_the_advance_is_learned_per_unit_push_so_the_push_carries_it_to_other_fo
     exceed 230 N's."""
     rng = np.random.default_rng(4)
     n = 240
-    X = np.column_stack([rng.uniform(0, 3, n), np.full(n, 15.0), rng.uniform(0, 180, n), rng.choice([150.0, 230.0], n), rng.uniform(0, 460, n)])
+    X = np.column_stack(
+        [rng.uniform(0, 3, n), np.full(n, 15.0), rng.uniform(0, 180, n), rng.choice([150.0, 230.0], n), rng.uniform(0, 460, n)]
+    )
     truth = lambda X: X[:, 3] * (4e-4 + 2e-4 * np.sin(X[:, 0]))
     regressor, table = fit_advance(X, truth(X), np.repeat(np.arange(6), 40), None, None, trees=20)
     assert regressor.reference_force_n == 230.0 and "230 N / push" in table["target"]
@@ -82,11 +86,29 @@ def test_the_advance_is_learned_per_unit_push_so_the_push_carries_it_to_other_fo
 
 def test_rows_carry_the_push_impulse_and_a_four_feature_regressor_reads_four():
     positions = np.array([[0.0, 0.0, -z] for z in (0.0, 1e-4, 3e-4, 4e-4)])
-    case = SimpleNamespace(frames=4, positions=positions, axis=np.array([0.0, 0.0, -1.0]), inclination_deg=0.0, anteversion_deg=0.0, force_n=240.0, frame_dt_s=1 / 60, advances=lambda: np.diff(positions, axis=0) @ [0.0, 0.0, -1.0])
+    case = SimpleNamespace(
+        frames=4,
+        positions=positions,
+        axis=np.array([0.0, 0.0, -1.0]),
+        inclination_deg=0.0,
+        anteversion_deg=0.0,
+        force_n=240.0,
+        frame_dt_s=1 / 60,
+        advances=lambda: np.diff(positions, axis=0) @ [0.0, 0.0, -1.0],
+    )
     X, y = case_samples(case)
     assert X.shape == (3, len(FEATURES)) and np.allclose(X[:, 4], [0.0, 4.0, 8.0])
     assert np.allclose(X[:, 0], [0.0, 0.1, 0.3]) and np.allclose(y, [0.1, 0.2, 0.1])
-    old = ArrayRegressor("linear", {"mean": np.zeros(4), "scale": np.ones(4), "coef": np.array([1.0, 0.0, 0.0, 0.0]), "intercept": np.array(0.0), "target_range": np.array([-9.0, 9.0])})
+    old = ArrayRegressor(
+        "linear",
+        {
+            "mean": np.zeros(4),
+            "scale": np.ones(4),
+            "coef": np.array([1.0, 0.0, 0.0, 0.0]),
+            "intercept": np.array(0.0),
+            "target_range": np.array([-9.0, 9.0]),
+        },
+    )
     assert old.n_features == 4 and old.reference_force_n is None and np.allclose(old.predict(X), X[:, 0])
 
 

@@ -46,7 +46,18 @@ def test_train_init_from_starts_from_a_trained_models_networks(tiny_model, synth
     from safetensors.numpy import load_file
 
     out = tmp_path / "tuned"
-    result = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(out), "--settings", str(settings_file), "--init-from", str(tiny_model), "--json")
+    result = run_thrsim(
+        "train",
+        "--data",
+        str(synthetic_dataset),
+        "--out",
+        str(out),
+        "--settings",
+        str(settings_file),
+        "--init-from",
+        str(tiny_model),
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     init = json.loads(result.stdout)["training"]["init_from"]
     assert init["source"] == str(tiny_model) and len(init["weights_digest"]) == 64
@@ -57,7 +68,17 @@ def test_train_init_from_starts_from_a_trained_models_networks(tiny_model, synth
     other = json.loads(settings_file.read_text())
     other["arch"]["message_passing_steps"] = 3
     settings_file.write_text(json.dumps(other))
-    refused = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(tmp_path / "other"), "--settings", str(settings_file), "--init-from", str(tiny_model))
+    refused = run_thrsim(
+        "train",
+        "--data",
+        str(synthetic_dataset),
+        "--out",
+        str(tmp_path / "other"),
+        "--settings",
+        str(settings_file),
+        "--init-from",
+        str(tiny_model),
+    )
     assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "architecture" in refused.stderr
     assert not (tmp_path / "other").exists()
 
@@ -89,7 +110,9 @@ def test_evaluate_json_is_keyed_by_inclination_then_horizon(tiny_model, syntheti
     assert report["15"]["end"]["windows"] == 1
     assert report["thesis_table_10_percent"]["0"]["60"]["f1"] == 92.9
     assert report["by_force"]["230"]["windows"] == 2  # one full window in each of the two test cases
-    sparse = json.loads(run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--one-step-stride", "30", "--json").stdout)
+    sparse = json.loads(
+        run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--one-step-stride", "30", "--json").stdout
+    )
     assert sparse["15"]["1"]["windows"] == 1 and sparse["15"]["end"] == report["15"]["end"]
     table = run_thrsim("evaluate", "--data", str(synthetic_dataset / "cases" / "g015.0_t045.0_f230N_h1mm.h5"), "--model", str(tiny_model))
     assert table.returncode == 0, table.stderr
@@ -124,13 +147,30 @@ def test_one_step_windows_fill_every_frame_between_the_full_ones():
     assert [w for w in every if w[1] != ["1"]] == windows(121, 30, one_step_stride=30)
     assert sorted(start for start, _, _ in every) == list(range(120))  # t+1 from every frame that has a next one
     assert all(length == 1 for start, keys, length in every if keys == ["1"])
-    assert [start for start, keys, _ in windows(121, 30, one_step_stride=7) if keys == ["1"]] == [s for s in range(120) if s % 7 == 0 and s % 30]
+    assert [start for start, keys, _ in windows(121, 30, one_step_stride=7) if keys == ["1"]] == [
+        s for s in range(120) if s % 7 == 0 and s % 30
+    ]
 
 
 def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
     out = tmp_path / "ream"
     png = tmp_path / "last.png"
-    result = run_thrsim("ream", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--model", str(tiny_model), "--out", str(out), "--png", str(png), "--json")
+    result = run_thrsim(
+        "ream",
+        "--inclination",
+        "15",
+        "--anteversion",
+        "30",
+        "--frames",
+        "3",
+        "--model",
+        str(tiny_model),
+        "--out",
+        str(out),
+        "--png",
+        str(png),
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["png"] == str(png)

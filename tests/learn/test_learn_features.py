@@ -86,7 +86,23 @@ def test_full_tables_are_the_formulas_of_each_column(seed):
     corners = MESH.nodes[MESH.tets[sub.nodes]]
     now = np.sort(np.linalg.norm(corners - reamer.centre, axis=2), axis=1) - TEETH_M
     before = np.linalg.norm(corners - (reamer.centre - reamer.advance_m * axis), axis=2).min(axis=1) - TEETH_M
-    expected = np.column_stack([rel, axial, radial, np.linalg.norm(rel, axis=1) - TEETH_M, 136.0 * radial, centroids @ axis / radius, radius, alpha, alpha >= 0.3, open_faces, now, before, damage])
+    expected = np.column_stack(
+        [
+            rel,
+            axial,
+            radial,
+            np.linalg.norm(rel, axis=1) - TEETH_M,
+            136.0 * radial,
+            centroids @ axis / radius,
+            radius,
+            alpha,
+            alpha >= 0.3,
+            open_faces,
+            now,
+            before,
+            damage,
+        ]
+    )
     assert nodes.dtype == np.float32 and nodes.shape == expected.shape
     assert np.allclose(nodes, expected.astype(np.float32), rtol=1e-6, atol=1e-9)
     present = (alpha >= 0.3)[sub.senders] & (alpha >= 0.3)[sub.receivers]

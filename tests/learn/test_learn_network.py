@@ -16,9 +16,13 @@ def _random_graph(n=30, m=90, seed=0, widths=WIDTHS["full"]):
     g = torch.Generator().manual_seed(seed)
     node_in, edge_in, global_in = widths
     return (
-        torch.randn(n, node_in, generator=g), torch.randn(m, edge_in, generator=g), torch.randn(1, global_in, generator=g),
-        torch.randint(0, n, (m,), generator=g), torch.randint(0, n, (m,), generator=g),
-        torch.zeros(n, dtype=torch.long), torch.zeros(m, dtype=torch.long),
+        torch.randn(n, node_in, generator=g),
+        torch.randn(m, edge_in, generator=g),
+        torch.randn(1, global_in, generator=g),
+        torch.randint(0, n, (m,), generator=g),
+        torch.randint(0, n, (m,), generator=g),
+        torch.zeros(n, dtype=torch.long),
+        torch.zeros(m, dtype=torch.long),
     )
 
 
@@ -62,7 +66,14 @@ def test_messages_travel_one_hop_per_step():
     r = torch.tensor([1, 0, 2, 1, 3, 2, 4, 3])
     nodes = torch.randn(5, WIDTHS["full"][0], dtype=torch.float64)
     edges = torch.randn(8, WIDTHS["full"][1], dtype=torch.float64)
-    args = (edges, torch.randn(1, WIDTHS["full"][2], dtype=torch.float64), s, r, torch.zeros(5, dtype=torch.long), torch.zeros(8, dtype=torch.long))
+    args = (
+        edges,
+        torch.randn(1, WIDTHS["full"][2], dtype=torch.float64),
+        s,
+        r,
+        torch.zeros(5, dtype=torch.long),
+        torch.zeros(8, dtype=torch.long),
+    )
     base = net(nodes, *args)
     changed = nodes.clone()
     changed[0] += 1.0
@@ -76,9 +87,15 @@ def _batch(n=20, alpha=None, node_in=WIDTHS["full"][0]):
     g = torch.Generator().manual_seed(5)
     s = torch.arange(n - 1)
     return GraphBatch(
-        nodes=torch.randn(n, node_in, generator=g), edges=torch.randn(2 * (n - 1), edge_in, generator=g), globals_=torch.randn(1, global_in, generator=g),
-        senders=torch.cat([s, s + 1]), receivers=torch.cat([s + 1, s]), node_graph=torch.zeros(n, dtype=torch.long), edge_graph=torch.zeros(2 * (n - 1), dtype=torch.long),
-        alpha=alpha if alpha is not None else torch.rand(n, generator=g), update=torch.arange(n) < n - 4,
+        nodes=torch.randn(n, node_in, generator=g),
+        edges=torch.randn(2 * (n - 1), edge_in, generator=g),
+        globals_=torch.randn(1, global_in, generator=g),
+        senders=torch.cat([s, s + 1]),
+        receivers=torch.cat([s + 1, s]),
+        node_graph=torch.zeros(n, dtype=torch.long),
+        edge_graph=torch.zeros(2 * (n - 1), dtype=torch.long),
+        alpha=alpha if alpha is not None else torch.rand(n, generator=g),
+        update=torch.arange(n) < n - 4,
     )
 
 

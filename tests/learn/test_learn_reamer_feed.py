@@ -44,7 +44,17 @@ def test_points_behind_the_head_or_too_few_give_no_support():
 
 def _constant_regressor(advance_mm):
     width = len(FEATURES)
-    return ArrayRegressor("linear", {"mean": np.zeros(width), "scale": np.ones(width), "coef": np.zeros(width), "intercept": np.array(advance_mm), "target_range": np.array([0.0, 1.0]), "n_features": np.array(width)})
+    return ArrayRegressor(
+        "linear",
+        {
+            "mean": np.zeros(width),
+            "scale": np.ones(width),
+            "coef": np.zeros(width),
+            "intercept": np.array(advance_mm),
+            "target_range": np.array([0.0, 1.0]),
+            "n_features": np.array(width),
+        },
+    )
 
 
 def test_the_reamer_rests_on_the_remaining_bone_and_otherwise_follows_the_regressor():

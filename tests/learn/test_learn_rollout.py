@@ -55,7 +55,9 @@ def test_without_hazard_nothing_is_removed_and_alpha_is_kept():
 
 def test_damage_is_carried_from_frame_to_frame_and_grows_only_in_the_region():
     step, centre, axis = _step_with_hazard(1e-6, damage_logit=1.0)
-    start = BoneState.start(np.full(step.graph.centroids.shape[0], 0.9, dtype=np.float32), np.full(step.graph.centroids.shape[0], 0.1, dtype=np.float32))
+    start = BoneState.start(
+        np.full(step.graph.centroids.shape[0], 0.9, dtype=np.float32), np.full(step.graph.centroids.shape[0], 0.1, dtype=np.float32)
+    )
     state = step(start, centre, axis, 230.0, 0.0, 136.0)
     region = state.damage > 0.1
     assert region.sum() == step.last.region > 0

@@ -38,7 +38,9 @@ def _entropy(target: torch.Tensor, mask: torch.Tensor) -> float:
 
 
 def test_training_lowers_the_loss_on_a_real_case(real):
-    settings = tiny_settings(epochs=8, max_samples_per_epoch=None, learning_rate=1e-2, final_learning_rate=1e-3, alpha_noise=0.0, position_noise_mm=0.0)
+    settings = tiny_settings(
+        epochs=8, max_samples_per_epoch=None, learning_rate=1e-2, final_learning_rate=1e-3, alpha_noise=0.0, position_noise_mm=0.0
+    )
     trainer = _trainer(real, settings)
     inputs, alpha_next, damage_next = trainer._batch([trainer._sample(i, None) for i in range(len(trainer.samples))])
     mask = trainer.gn.trainable_mask(inputs)

@@ -20,7 +20,10 @@ def recording(count: int, rotation_noise_deg: float, translation_noise_m: float,
     head, tracker = [], []
     for i in range(count):
         target = make_pose(Rotation.from_euler("zyx", rng.uniform(-30, 30, 3), degrees=True), rng.uniform(-0.3, 0.3, 3) + [0, 0, 1.5])
-        noise = make_pose(Rotation.from_rotvec(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), 3)), rng.normal(0, translation_noise_m / np.sqrt(3), 3))
+        noise = make_pose(
+            Rotation.from_rotvec(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), 3)),
+            rng.normal(0, translation_noise_m / np.sqrt(3), 3),
+        )
         if rng.random() < glitch_fraction:  # a headset tracking glitch: a pose far off
             noise = make_pose(Rotation.from_rotvec(rng.normal(0, 0.3, 3)), rng.normal(0, 0.1, 3))
         tracker.append(target)

@@ -78,7 +78,9 @@ def test_full_workflow_acquires_27_landmarks_with_sub_millimetre_residual(side):
     # A cup axis at radiographic 40/15 in the model pelvis reads 40/15 in the registered APP.
     lateral = [1.0 if side == "right" else -1.0, 0.0, 0.0]
     ri, ra = np.radians(40.0), np.radians(15.0)
-    axis_model = np.cos(ra) * np.sin(ri) * np.array(lateral) + np.sin(ra) * np.array([0, 1.0, 0]) + np.cos(ra) * np.cos(ri) * np.array([0, 0, -1.0])
+    axis_model = (
+        np.cos(ra) * np.sin(ri) * np.array(lateral) + np.sin(ra) * np.array([0, 1.0, 0]) + np.cos(ra) * np.cos(ri) * np.array([0, 0, -1.0])
+    )
     axis_reference = REFERENCE_FROM_MODEL[:3, :3] @ axis_model
     assert angles_in_frame(axis_reference, result.app) == pytest.approx((40.0, 15.0), abs=0.5)
 

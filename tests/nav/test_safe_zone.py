@@ -31,7 +31,9 @@ def test_colour_bands():
 
 
 def test_configurable_zone():
-    zone = SafeZone(inclination_deg=45.0, inclination_tolerance_deg=5.0, anteversion_deg=20.0, anteversion_tolerance_deg=5.0, warning_margin_deg=1.0)
+    zone = SafeZone(
+        inclination_deg=45.0, inclination_tolerance_deg=5.0, anteversion_deg=20.0, anteversion_tolerance_deg=5.0, warning_margin_deg=1.0
+    )
     assert safe_zone_status(40.0, 15.0, zone).inside  # the corner of this zone
     status = safe_zone_status(38.0, 20.0, zone)
     assert status.distance_deg == pytest.approx(2.0) and status.colour == "red"

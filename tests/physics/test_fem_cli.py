@@ -21,7 +21,22 @@ def thrsim(*args: str) -> subprocess.CompletedProcess:
 
 def test_fem_writes_a_valid_case(tmp_path):
     out = tmp_path / "c.h5"
-    result = thrsim("fem", "--inclination", "15", "--anteversion", "30", "--frames", "4", "--force", "460", "--element-size", "1.2", "--out", str(out), "--json")
+    result = thrsim(
+        "fem",
+        "--inclination",
+        "15",
+        "--anteversion",
+        "30",
+        "--frames",
+        "4",
+        "--force",
+        "460",
+        "--element-size",
+        "1.2",
+        "--out",
+        str(out),
+        "--json",
+    )
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["frames"] == 4 and summary["removed"] > 0
@@ -96,7 +111,11 @@ def test_a_blow_up_stops_with_the_frame_and_writes_nothing(tmp_path, monkeypatch
 
     monkeypatch.setattr(ReamingSimulation, "advance", unstable_advance)
     out = tmp_path / "c.h5"
-    monkeypatch.setattr(sys, "argv", ["thrsim", "fem", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--element-size", "1.2", "--out", str(out)])
+    monkeypatch.setattr(
+        sys,
+        "argv",
+        ["thrsim", "fem", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--element-size", "1.2", "--out", str(out)],
+    )
     with pytest.raises(SystemExit) as stopped:
         main()
     assert stopped.value.code == 3

@@ -69,7 +69,11 @@ def test_verify_exit_code_1_when_a_check_fails(monkeypatch) -> None:
     from thrsim.verification.base import Check, CheckResult
 
     def failing():
-        return [CheckResult(name="always-fails", figure="a figure that never passes", reference=1.0, value=2.0, error=1.0, tolerance=0.1, passed=False)]
+        return [
+            CheckResult(
+                name="always-fails", figure="a figure that never passes", reference=1.0, value=2.0, error=1.0, tolerance=0.1, passed=False
+            )
+        ]
 
     monkeypatch.setattr(verification, "registry", lambda: {"always-fails": Check("always-fails", "fails", failing, ("always-fails",))})
     result = CliRunner().invoke(app, ["verify", "--json"])

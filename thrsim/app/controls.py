@@ -108,7 +108,6 @@ class ForceControl(_Control):
     newton: float = Field(..., ge=0, le=MAX_FORCE_N)
 
 
-
 _NAVIGATION = (
     CameraControl,
     ReamerControl,

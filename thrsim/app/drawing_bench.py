@@ -48,7 +48,9 @@ _PAGE_INFO = """() => {
 }"""
 # Read at the start and the end of the count: time, frames drawn, states received, render scale
 # and how often it changed so far.
-_COUNTERS = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.view.renderScale.scale, trainer.view.renderScale.changes]"
+_COUNTERS = (
+    "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.view.renderScale.scale, trainer.view.renderScale.changes]"
+)
 
 
 def chromium_cpu_seconds() -> float | None:
@@ -83,7 +85,11 @@ def chromium_cpu_seconds() -> float | None:
 def serve_child(sessions: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     """``thrsim serve`` of this code in a child process on free ports; (process, page URL)."""
     code_root = str(Path(thrsim.__file__).resolve().parents[1])
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in [code_root, os.environ.get("PYTHONPATH", "")] if p), "PYTHONUNBUFFERED": "1"}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(p for p in [code_root, os.environ.get("PYTHONPATH", "")] if p),
+        "PYTHONUNBUFFERED": "1",
+    }
     process = subprocess.Popen(
         [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(sessions), "--seed", "7", *extra],
         stdout=subprocess.PIPE,
@@ -149,7 +155,9 @@ def served_page(path: str, width: int, height: int, *serve_args: str, chromium: 
             stop_child(process)
 
 
-def time_drawing(seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, render_scale: float | None = None) -> dict:
+def time_drawing(
+    seconds: float = 10.0, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, render_scale: float | None = None
+) -> dict:
     """Frames per second the trainer page draws with its reamer moving every frame; ``render_scale``
     pins the page's render scale (``?render-scale=``) instead of letting it follow the frame rate."""
     load_before = os.getloadavg()

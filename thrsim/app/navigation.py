@@ -274,7 +274,9 @@ class NavigationTrainer:
     def apply_control(self, control: c._Control, time_s: float) -> str:
         """Act on one validated control; returns a short acknowledgement. Refusals raise ThrsimInputError."""
         if isinstance(control, c.CameraControl):
-            self._place_page_camera({"azimuth_deg": control.azimuth_deg, "elevation_deg": control.elevation_deg, "distance_mm": control.distance_mm})
+            self._place_page_camera(
+                {"azimuth_deg": control.azimuth_deg, "elevation_deg": control.elevation_deg, "distance_mm": control.distance_mm}
+            )
             return "camera moved"
         if isinstance(control, c.ReamerControl):
             self._reamer_angles = {"inclination_deg": control.inclination_deg, "anteversion_deg": control.anteversion_deg}
@@ -356,7 +358,13 @@ class NavigationTrainer:
             raise ThrsimInputError("the reamer is not tracked: cannot confirm its orientation")
         inclination, anteversion = angles["radiographic"]
         zone = safe_zone_status(inclination, anteversion, self.zone)
-        record = {"time_s": time_s, "inclination_deg": inclination, "anteversion_deg": anteversion, "inside": zone.inside, "distance_deg": zone.distance_deg}
+        record = {
+            "time_s": time_s,
+            "inclination_deg": inclination,
+            "anteversion_deg": anteversion,
+            "inside": zone.inside,
+            "distance_deg": zone.distance_deg,
+        }
         self.log.confirmations.append(record)
         self._event(time_s, "cup_confirmed", detail=f"{inclination:.1f}/{anteversion:.1f}", value=zone.distance_deg)
         return f"cup orientation confirmed at {inclination:.1f}° / {anteversion:.1f}°"
@@ -471,7 +479,11 @@ class NavigationTrainer:
             summary.pop("transform")
             self._calibration.update(state="done", message="calibrated", result=summary)
             attempt.update(ok=True, message="calibrated", **summary)
-            self._event(time_s, "calibration_done", detail=f"{summary['rotation_residual_rms_deg']:.2f}° / {summary['translation_residual_rms_mm']:.2f} mm")
+            self._event(
+                time_s,
+                "calibration_done",
+                detail=f"{summary['rotation_residual_rms_deg']:.2f}° / {summary['translation_residual_rms_mm']:.2f} mm",
+            )
         self.log.calibrations.append(attempt)
 
     # ---- output -------------------------------------------------------------------------------
@@ -520,7 +532,13 @@ class NavigationTrainer:
             "retakes": sum(self.log.retakes.values()),
         }
         if angles is None:
-            note = "reamer not tracked" if visibility["Reamer"][0] != "tracked" else "reference array not tracked" if visibility["Reference"][0] != "tracked" else "reamer points medially"
+            note = (
+                "reamer not tracked"
+                if visibility["Reamer"][0] != "tracked"
+                else "reference array not tracked"
+                if visibility["Reference"][0] != "tracked"
+                else "reamer points medially"
+            )
         else:
             note = "" if self.result is not None else "angles in the planned APP: register the landmarks to measure them"
         events, self._pending_events = self._pending_events, []
@@ -530,7 +548,11 @@ class NavigationTrainer:
             "time_s": time_s,
             "side": self.side,
             "definition": self.definition,
-            "camera": {"pose": self._to_scene(self.camera_pose), "source": "page" if self.tracker_camera is None else "tracker", **self.camera_spherical},
+            "camera": {
+                "pose": self._to_scene(self.camera_pose),
+                "source": "page" if self.tracker_camera is None else "tracker",
+                **self.camera_spherical,
+            },
             "occluder": {"present": self.occluder, "boxes": [self._box_in_scene(box) for box in self._occluders()]},
             "tools": tools,
             "registration": registration,
@@ -545,7 +567,13 @@ class NavigationTrainer:
         }
 
     def settings(self) -> dict:
-        return {"side": self.side, "seed": self.seed, "zone": self.zone.model_dump(), "tracking": self.tracking.model_dump(), "stale_after_s": self.stale_after_s}
+        return {
+            "side": self.side,
+            "seed": self.seed,
+            "zone": self.zone.model_dump(),
+            "tracking": self.tracking.model_dump(),
+            "stale_after_s": self.stale_after_s,
+        }
 
     def record(self) -> NavigationRecord:
         """Everything the report needs from this session so far."""

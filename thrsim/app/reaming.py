@@ -263,7 +263,9 @@ class ReamingTrainer:
         trace.removed_volume_mm3.append(result.removed_volume_m3 * 1e9)
         trace.depth_mm.append(self.simulator.depth_m * 1e3)
         angles, zone = nav_state.get("angles"), nav_state.get("zone")
-        trace.angles.append((math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"]))
+        trace.angles.append(
+            (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"])
+        )
         if result.end_reason is not None:
             self.running = False
             self._event(time_s, result.end_reason, "reaming paused: undo (U) or reset (R) to go on")
@@ -302,7 +304,9 @@ class ReamingTrainer:
             "removed_volume_mm3": 0.0 if sim is None else sim.removed_volume_m3 * 1e9,
             "depth_mm": 0.0 if sim is None else sim.depth_m * 1e3,
             "step_ms": None if math.isnan(self._last_step_ms) else self._last_step_ms,
-            "reamer_centre": None if self._reamer_position is None else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
+            "reamer_centre": None
+            if self._reamer_position is None
+            else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
             "note": note,
             "events": events,
         }
@@ -331,7 +335,9 @@ class ReamingTrainer:
             **self.navigation.settings(),
             "max_frames_per_tick": self.max_frames_per_tick,
             "undo_frames": self.undo_frames,
-            "model": None if sim is None else {"path": str(sim.model.path), "mesh_digest": sim.model.graph.digest, "data_digest": sim.model.card["data"]["digest"]},
+            "model": None
+            if sim is None
+            else {"path": str(sim.model.path), "mesh_digest": sim.model.graph.digest, "data_digest": sim.model.card["data"]["digest"]},
         }
 
     def record(self) -> ReamingRecord:
@@ -378,4 +384,3 @@ class ReamingTrainer:
 
     def write(self, group) -> None:
         write_reaming(group, self.record(), self.settings())
-

@@ -96,7 +96,15 @@ def _ream(page, seconds: float) -> tuple[np.ndarray, float]:
     return totals, cpu_seconds
 
 
-def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_trials: int = 20, width: int = 1280, height: int = 720, chromium: str = CHROMIUM, compile: bool = True) -> dict:
+def time_reaming_page(
+    model: Path | None = None,
+    seconds: float = 10.0,
+    latency_trials: int = 20,
+    width: int = 1280,
+    height: int = 720,
+    chromium: str = CHROMIUM,
+    compile: bool = True,
+) -> dict:
     aim = NavigationTrainer(side="right", seed=_SEED)
     poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
     load_before = os.getloadavg()
@@ -141,7 +149,9 @@ def time_reaming_page(model: Path | None = None, seconds: float = 10.0, latency_
                     _start_run(page)
                 sent_at = page.evaluate("performance.now()")
                 streaming["pose"] = poses[target]
-                page.wait_for_function(f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000)
+                page.wait_for_function(
+                    f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000
+                )
                 timing = page.evaluate("trainer.stats.probe")
                 arrived.append(timing["arrived"] - sent_at)
                 drawn.append(timing["drawn"] - sent_at)

@@ -76,7 +76,11 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
     difference = float(np.nanmax(np.abs(recorded.angles - replayed.angles), initial=0.0)) if same_shape else float("inf")
     trace_match = same_shape and bool(np.array_equal(np.isnan(recorded.angles), np.isnan(replayed.angles))) and difference <= 1e-9
     if hasattr(recorded, "removed_volume_mm3"):  # reaming: the bone removed frame by frame, too
-        trace_match = trace_match and np.array_equal(recorded.removed, replayed.removed) and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
+        trace_match = (
+            trace_match
+            and np.array_equal(recorded.removed, replayed.removed)
+            and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
+        )
     return ReplayOutcome(
         mode=mode.name,
         inputs=session.inputs.count,
@@ -97,4 +101,6 @@ def _check_same_mesh(path, recorded, trainer) -> None:
     if model is None:
         raise ThrsimInputError(f"{path}: a reaming session needs its model to replay; none could be loaded ({trainer.unavailable})")
     if model["mesh_digest"] != wanted:
-        raise ThrsimInputError(f"{path}: reamed on mesh {wanted[:12]}, but the model at {model['path']} has mesh {model['mesh_digest'][:12]}")
+        raise ThrsimInputError(
+            f"{path}: reamed on mesh {wanted[:12]}, but the model at {model['path']} has mesh {model['mesh_digest'][:12]}"
+        )

@@ -269,7 +269,9 @@ async def _ticker(hub: TrainerHub, period: float) -> None:
 def _page(mode: Mode) -> HTMLResponse:
     html = (STATIC / mode.page).read_text()
     if not (THREE_DIR / "build" / "three.module.js").is_file():
-        html = html.replace("<body>", '<body><p class="fatal">three.js is not installed: run ./install.sh (or npm ci in thrsim/app/static).</p>', 1)
+        html = html.replace(
+            "<body>", '<body><p class="fatal">three.js is not installed: run ./install.sh (or npm ci in thrsim/app/static).</p>', 1
+        )
     return HTMLResponse(html, headers={"cache-control": "no-store"})
 
 
@@ -290,7 +292,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:
-                app.state.startup_error = f"cannot listen for OpenIGTLink on {settings.host}:{settings.igtl_port}: {error.strerror or error}"
+                app.state.startup_error = (
+                    f"cannot listen for OpenIGTLink on {settings.host}:{settings.igtl_port}: {error.strerror or error}"
+                )
                 raise ThrsimInputError(app.state.startup_error) from None
         ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
         app.state.ready = True
@@ -349,7 +353,13 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @app.get("/api/sessions")
     def sessions() -> dict:
         files = sorted(settings.sessions_dir.glob("*.h5"))
-        return {"sessions": [{"id": f.stem, "report": f"/sessions/{f.stem}/report", "file": f"/sessions/{f.stem}/file"} for f in files if _SESSION_ID.match(f.stem)]}
+        return {
+            "sessions": [
+                {"id": f.stem, "report": f"/sessions/{f.stem}/report", "file": f"/sessions/{f.stem}/file"}
+                for f in files
+                if _SESSION_ID.match(f.stem)
+            ]
+        }
 
     def _session_file(session_id: str) -> Path:
         path = settings.sessions_dir / f"{session_id}.h5"

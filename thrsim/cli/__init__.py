@@ -24,7 +24,6 @@ from thrsim.errors import SimulationError, ThrsimInputError
 app = command_group("Physically-based and learned simulation of acetabular reaming (total hip replacement training).", name="thrsim")
 
 
-
 def _print_version(value: bool) -> None:
     # runs while the options are parsed, so `thrsim --version` needs no subcommand
     if value:
@@ -34,9 +33,7 @@ def _print_version(value: bool) -> None:
 
 @app.callback()
 def _root(
-    version: bool = typer.Option(
-        False, "--version", help="print the thrsim version and exit", is_eager=True, callback=_print_version
-    ),
+    version: bool = typer.Option(False, "--version", help="print the thrsim version and exit", is_eager=True, callback=_print_version),
 ) -> None:
     """Physically-based and learned simulation of acetabular reaming (total hip replacement training)."""
 

@@ -14,12 +14,20 @@ from thrsim.errors import ThrsimInputError
 def bench(
     element_size: float = typer.Option(0.45, "--element-size", help="bone mesh element size in mm", metavar="MM"),
     frames: int = typer.Option(3, "--frames", min=1, help="solver frames to time (after a warm-up frame)"),
-    learned: bool = typer.Option(False, "--learned", help="also time the learned simulator (production step, the thesis's way, a 4x larger mesh)"),
-    model: Optional[Path] = typer.Option(None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"),
+    learned: bool = typer.Option(
+        False, "--learned", help="also time the learned simulator (production step, the thesis's way, a 4x larger mesh)"
+    ),
+    model: Optional[Path] = typer.Option(
+        None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"
+    ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
     browser_seconds: float = typer.Option(10.0, "--browser-seconds", min=1.0, help="how long to count the page's frames", metavar="S"),
-    reaming_page: bool = typer.Option(False, "--reaming-page", help="also time the reaming page (simulator frames delivered, bytes per frame, pose-to-page latency, drawing) with --model or the shipped model"),
+    reaming_page: bool = typer.Option(
+        False,
+        "--reaming-page",
+        help="also time the reaming page (simulator frames delivered, bytes per frame, pose-to-page latency, drawing) with --model or the shipped model",
+    ),
 ) -> None:
     """Time mesh generation and the explicit solver (and the trainer pages); print one JSON object."""
     if browser_only:

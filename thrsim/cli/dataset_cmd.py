@@ -27,7 +27,11 @@ from thrsim.errors import SimulationError, ThrsimInputError
 
 __doc__ = f"{__doc__}\n{DASK_SECURITY}"
 
-app = command_group("Generate the training dataset (an orientation sweep of the FEM solver, resumable), summarise one with `info DIR`, or reduce it to a learning pack with `pack DIR --out FILE`.", name="dataset", no_args_is_help=False)
+app = command_group(
+    "Generate the training dataset (an orientation sweep of the FEM solver, resumable), summarise one with `info DIR`, or reduce it to a learning pack with `pack DIR --out FILE`.",
+    name="dataset",
+    no_args_is_help=False,
+)
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
 _SWEEP = SweepConfig()  # the sweep's defaults, defined once in thrsim.config
@@ -38,19 +42,56 @@ _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without 
 def dataset(
     ctx: typer.Context,
     out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
-    inclinations: str = typer.Option(format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"),
-    anteversions: str = typer.Option(format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"),
-    frames: int = typer.Option(_SWEEP.frames, "--frames", help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second)", metavar="N"),
-    forces: str = typer.Option(format_list(_SWEEP.forces_n), "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"),
-    extra_forces: str = typer.Option(format_list(_SWEEP.extra_forces_n), "--extra-forces", help="further push forces in N, run on the subset below only ('none' for none)", metavar="LIST"),
-    extra_force_anteversions: str = typer.Option(format_list(_SWEEP.extra_force_anteversions_deg), "--extra-force-anteversions", help="anteversions (every inclination) that get the extra forces", metavar="LIST"),
-    element_sizes: Optional[str] = typer.Option(None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"),
+    inclinations: str = typer.Option(
+        format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"
+    ),
+    anteversions: str = typer.Option(
+        format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"
+    ),
+    frames: int = typer.Option(
+        _SWEEP.frames, "--frames", help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second)", metavar="N"
+    ),
+    forces: str = typer.Option(
+        format_list(_SWEEP.forces_n), "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"
+    ),
+    extra_forces: str = typer.Option(
+        format_list(_SWEEP.extra_forces_n),
+        "--extra-forces",
+        help="further push forces in N, run on the subset below only ('none' for none)",
+        metavar="LIST",
+    ),
+    extra_force_anteversions: str = typer.Option(
+        format_list(_SWEEP.extra_force_anteversions_deg),
+        "--extra-force-anteversions",
+        help="anteversions (every inclination) that get the extra forces",
+        metavar="LIST",
+    ),
+    element_sizes: Optional[str] = typer.Option(
+        None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"
+    ),
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
-    scheduler: Optional[str] = typer.Option(None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"),
+    scheduler: Optional[str] = typer.Option(
+        None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"
+    ),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
-    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f", metavar="FILE"),
-    threads: Optional[int] = typer.Option(None, "--threads", help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)", metavar="N"),
-    solver: str = typer.Option("fem", "--solver", hidden=True, help=f"one of thrsim's own: {', '.join(_SOLVER_CHOICES)} (synthetic: the pipeline tests' stand-in, not physics)"),
+    config: Optional[Path] = typer.Option(
+        None,
+        "--config",
+        help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f",
+        metavar="FILE",
+    ),
+    threads: Optional[int] = typer.Option(
+        None,
+        "--threads",
+        help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)",
+        metavar="N",
+    ),
+    solver: str = typer.Option(
+        "fem",
+        "--solver",
+        hidden=True,
+        help=f"one of thrsim's own: {', '.join(_SOLVER_CHOICES)} (synthetic: the pipeline tests' stand-in, not physics)",
+    ),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -92,8 +133,7 @@ def dataset(
 
         check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
         rows = [
-            {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)}
-            for c in plan.cases
+            {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)} for c in plan.cases
         ]
         payload = {"cases": len(plan.cases), "requested": plan.requested, "notes": plan.notes, "plan": rows}
         if as_json:
@@ -151,8 +191,16 @@ def dataset(
 
     try:
         result = run_sweep(
-            out, plan, solver=solver, workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout,
-            threads=threads, on_event=on_event, on_start=on_start, template_overrides=template_overrides,
+            out,
+            plan,
+            solver=solver,
+            workers=workers,
+            scheduler=scheduler,
+            connect_timeout_s=connect_timeout,
+            threads=threads,
+            on_event=on_event,
+            on_start=on_start,
+            template_overrides=template_overrides,
         )
     finally:
         if progress is not None:
@@ -171,7 +219,9 @@ def dataset(
 @app.command("info")
 def info(
     directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
-    plot: Optional[Path] = typer.Option(None, "--plot", help="write the α histograms of removed vs remaining elements (Figure 44) to this PNG", metavar="PNG"),
+    plot: Optional[Path] = typer.Option(
+        None, "--plot", help="write the α histograms of removed vs remaining elements (Figure 44) to this PNG", metavar="PNG"
+    ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Summarise a dataset: cases, frames, splits, removed fraction per frame, PEEQ/von Mises ranges."""
@@ -209,7 +259,12 @@ def info(
 @app.command("pack")
 def pack(
     directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
-    out: Path = typer.Option(..., "--out", help="learning pack to write: one FILE.h5, or a FOLDER of files of at most --shard-mb each (an existing pack of the same dataset keeps its cases and gains these)", metavar="FILE.h5|FOLDER"),
+    out: Path = typer.Option(
+        ...,
+        "--out",
+        help="learning pack to write: one FILE.h5, or a FOLDER of files of at most --shard-mb each (an existing pack of the same dataset keeps its cases and gains these)",
+        metavar="FILE.h5|FOLDER",
+    ),
     shard_mb: float = typer.Option(15.0, "--shard-mb", min=1.0, help="largest size of one file of a pack folder", metavar="MB"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -220,7 +275,14 @@ def pack(
     if as_json:
         print_json(summary)
         return
-    print_table(f"learning pack {out}", {**summary, "added": ", ".join(summary["added"]) or "none", **({"files": ", ".join(summary["files"])} if "files" in summary else {})})
+    print_table(
+        f"learning pack {out}",
+        {
+            **summary,
+            "added": ", ".join(summary["added"]) or "none",
+            **({"files": ", ".join(summary["files"])} if "files" in summary else {}),
+        },
+    )
 
 
 _SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")

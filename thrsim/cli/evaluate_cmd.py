@@ -18,11 +18,15 @@ def _pct(value) -> str:
 
 
 def evaluate(
-    data: Path = typer.Option(..., "--data", help="dataset directory (its test split unless --split) or one case file", metavar="DIR_OR_CASE"),
+    data: Path = typer.Option(
+        ..., "--data", help="dataset directory (its test split unless --split) or one case file", metavar="DIR_OR_CASE"
+    ),
     model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
     split: str = typer.Option("test", "--split", help="split of a dataset directory to score: test, validation, train or all"),
     start_stride: int = typer.Option(30, "--start-stride", help="frames between the start frames of the rollout windows", metavar="N"),
-    one_step_stride: int = typer.Option(1, "--one-step-stride", help="frames between the start frames of the one-step (t+1) windows", metavar="N"),
+    one_step_stride: int = typer.Option(
+        1, "--one-step-stride", help="frames between the start frames of the one-step (t+1) windows", metavar="N"
+    ),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -45,7 +49,13 @@ def evaluate(
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
     mesh, cases = load_cases(data, splits=splits)
     loaded = load_model(model, expect_mesh=mesh)
-    report = run_evaluation(loaded, cases, start_stride=start_stride, one_step_stride=one_step_stride, on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"))
+    report = run_evaluation(
+        loaded,
+        cases,
+        start_stride=start_stride,
+        one_step_stride=one_step_stride,
+        on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"),
+    )
     report["model"] = {"path": str(loaded.path), "arch": loaded.card.get("arch"), "data_digest": loaded.card["data"]["digest"]}
     report["data"] = {"source": str(data), "split": split if splits else "all"}
     if as_json:
@@ -66,7 +76,12 @@ def print_comparison(report: dict) -> None:
     gammas = sorted({g for g in report if g.replace(".", "", 1).isdigit()}, key=float)
     thesis = report["thesis_table_10_percent"]
     for g in gammas:
-        for name, source in (("GN autonomous", report), ("GN tool-forced", report["tool_forced"]), ("MLP", report["mlp"]), ("geometric", report["geometric"])):
+        for name, source in (
+            ("GN autonomous", report),
+            ("GN tool-forced", report["tool_forced"]),
+            ("MLP", report["mlp"]),
+            ("geometric", report["geometric"]),
+        ):
             row = source.get(g, {})
             cells = []
             for h in horizons:

@@ -22,15 +22,29 @@ def fem(
     force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
     element_size: Optional[float] = typer.Option(None, "--element-size", help="bone mesh element size in mm [default: 0.45]", metavar="MM"),
     side: Optional[str] = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
-    failure_displacement: Optional[float] = typer.Option(None, "--failure-displacement", help="damage u_f in mm (Table 8: 0.5, text: 0.1)", metavar="MM"),
+    failure_displacement: Optional[float] = typer.Option(
+        None, "--failure-displacement", help="damage u_f in mm (Table 8: 0.5, text: 0.1)", metavar="MM"
+    ),
     target_dt: Optional[float] = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
-    contact_factor: Optional[float] = typer.Option(None, "--contact-factor", help="contact penalty factor β (k_i = β·m_i/Δt²) [default: 0.4]"),
-    cutting_energy: Optional[float] = typer.Option(None, "--cutting-energy", help="bone's specific cutting energy in J/mm³ [default: 0.3]", metavar="J_MM3"),
-    effective_mass: Optional[float] = typer.Option(None, "--effective-mass", help="hand-held reamer's effective axial mass in kg [default: 2]", metavar="KG"),
-    axial_damping: Optional[float] = typer.Option(None, "--axial-damping", help="arm and driver damping along the axis in N·s/m", metavar="NS_M"),
+    contact_factor: Optional[float] = typer.Option(
+        None, "--contact-factor", help="contact penalty factor β (k_i = β·m_i/Δt²) [default: 0.4]"
+    ),
+    cutting_energy: Optional[float] = typer.Option(
+        None, "--cutting-energy", help="bone's specific cutting energy in J/mm³ [default: 0.3]", metavar="J_MM3"
+    ),
+    effective_mass: Optional[float] = typer.Option(
+        None, "--effective-mass", help="hand-held reamer's effective axial mass in kg [default: 2]", metavar="KG"
+    ),
+    axial_damping: Optional[float] = typer.Option(
+        None, "--axial-damping", help="arm and driver damping along the axis in N·s/m", metavar="NS_M"
+    ),
     threads: Optional[int] = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
-    config: Optional[Path] = typer.Option(None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"),
-    mesh_file: Optional[Path] = typer.Option(None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"),
+    config: Optional[Path] = typer.Option(
+        None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"
+    ),
+    mesh_file: Optional[Path] = typer.Option(
+        None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"
+    ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Simulate one reaming case (the thesis's settings by default) and write its case file atomically."""

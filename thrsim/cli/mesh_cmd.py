@@ -19,7 +19,9 @@ def mesh(
     side: str = typer.Option("right", "--side", help="hip side: right, or left (mirror across the sagittal plane)"),
     thickness: Optional[float] = typer.Option(None, "--thickness", help="shell thickness in mm (default 2.0)", metavar="MM"),
     half_angle: Optional[float] = typer.Option(None, "--half-angle", help="patch half-angle about the pole in degrees", metavar="DEG"),
-    from_file: Optional[Path] = typer.Option(None, "--from", help="read and validate this mesh instead (.inp C3D4, .msh, .vtu, .h5, ...)", metavar="FILE"),
+    from_file: Optional[Path] = typer.Option(
+        None, "--from", help="read and validate this mesh instead (.inp C3D4, .msh, .vtu, .h5, ...)", metavar="FILE"
+    ),
     units: str = typer.Option("mm", "--units", help="coordinate units of --from/--out exchange files: mm or m (.h5 is always m)"),
     out: Optional[Path] = typer.Option(None, "--out", help=f"write the mesh ({', '.join(WRITABLE_SUFFIXES)})", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
@@ -33,7 +35,11 @@ def mesh(
         raise ThrsimInputError(f"{out}: unsupported output format; use one of {', '.join(WRITABLE_SUFFIXES)}")
 
     if from_file is not None:
-        given = [flag for flag, value in (("--element-size", element_size), ("--thickness", thickness), ("--half-angle", half_angle)) if value is not None]
+        given = [
+            flag
+            for flag, value in (("--element-size", element_size), ("--thickness", thickness), ("--half-angle", half_angle))
+            if value is not None
+        ]
         if given:
             raise ThrsimInputError(f"{', '.join(given)} only apply to a generated mesh, not to --from {from_file}")
         bone = read_mesh(from_file, units=units)  # type: ignore[arg-type]
@@ -65,4 +71,6 @@ def mesh(
     sets = summary.pop("node_sets")
     box = summary.pop("bounding_box_mm")
     print_table("bone mesh", summary | {f"nodes in set {k}": v for k, v in sets.items()})
-    print_table("quality", quality | {"bbox min (mm)": [round(v, 3) for v in box["min"]], "bbox max (mm)": [round(v, 3) for v in box["max"]]})
+    print_table(
+        "quality", quality | {"bbox min (mm)": [round(v, 3) for v in box["min"]], "bbox max (mm)": [round(v, 3) for v in box["max"]]}
+    )

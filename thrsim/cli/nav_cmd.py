@@ -55,7 +55,9 @@ def angles(
     asis_left: Optional[str] = typer.Option(None, "--asis-left", help="left ASIS"),
     pubic_right: Optional[str] = typer.Option(None, "--pubic-right", help="right pubic tubercle"),
     pubic_left: Optional[str] = typer.Option(None, "--pubic-left", help="left pubic tubercle"),
-    landmarks_file: Optional[Path] = typer.Option(None, "--landmarks", help="JSON object of landmark name: [x, y, z]; flags override it", metavar="FILE"),
+    landmarks_file: Optional[Path] = typer.Option(
+        None, "--landmarks", help="JSON object of landmark name: [x, y, z]; flags override it", metavar="FILE"
+    ),
     side: str = typer.Option("right", "--side", help="operated hip: right or left"),
     definition: str = typer.Option("radiographic", "--definition", help="radiographic, operative or anatomic (Murray 1993)"),
     plane: str = typer.Option("standard", "--plane", help="standard (both pubic tubercles) or three_point (ipsilateral one)"),
@@ -105,4 +107,7 @@ def convert(
     if as_json:
         print_json(result)
         return
-    print_table(f"{source} {inclination:g} / {anteversion:g} deg as {target}", {"inclination (deg)": converted[0], "anteversion (deg)": converted[1]})
+    print_table(
+        f"{source} {inclination:g} / {anteversion:g} deg as {target}",
+        {"inclination (deg)": converted[0], "anteversion (deg)": converted[1]},
+    )

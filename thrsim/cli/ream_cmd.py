@@ -11,9 +11,18 @@ from thrsim.cli.output import print_json, print_table
 
 
 def ream(
-    inclination: float = typer.Option(15.0, "--inclination", help="reamer inclination γ in degrees [0, 90], from the patch's axis (the default case's)", metavar="DEG"),
-    anteversion: float = typer.Option(30.0, "--anteversion", help="reamer anteversion θ in degrees [0, 360] (the default case's)", metavar="DEG"),
-    out: Path = typer.Option(Path("runs/ream"), "--out", help="output folder (created, with its parents): ream.pvd, bone_*.vtu, reamer_*.vtu, ream.json", metavar="DIR"),
+    inclination: float = typer.Option(
+        15.0, "--inclination", help="reamer inclination γ in degrees [0, 90], from the patch's axis (the default case's)", metavar="DEG"
+    ),
+    anteversion: float = typer.Option(
+        30.0, "--anteversion", help="reamer anteversion θ in degrees [0, 360] (the default case's)", metavar="DEG"
+    ),
+    out: Path = typer.Option(
+        Path("runs/ream"),
+        "--out",
+        help="output folder (created, with its parents): ream.pvd, bone_*.vtu, reamer_*.vtu, ream.json",
+        metavar="DIR",
+    ),
     force: float = typer.Option(230.0, "--force", help="axial push force in N", metavar="N"),
     frames: int = typer.Option(120, "--frames", help="frames at 60 per second", metavar="N"),
     side: str = typer.Option("right", "--side", help="hip side: right or left"),
@@ -33,4 +42,7 @@ def ream(
     if as_json:
         print_json(summary)
     else:
-        print_table(f"learned reaming written to {out}", {k: summary[k] for k in ("frames", "removed", "removed_volume_mm3", "depth_mm", "ms_per_frame_median")})
+        print_table(
+            f"learned reaming written to {out}",
+            {k: summary[k] for k in ("frames", "removed", "removed_volume_mm3", "depth_mm", "ms_per_frame_median")},
+        )

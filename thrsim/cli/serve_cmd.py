@@ -35,12 +35,22 @@ def serve(
     port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
     igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
-    token: str | None = typer.Option(None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"),
-    sessions: Path = typer.Option(Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"),
+    token: str | None = typer.Option(
+        None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"
+    ),
+    sessions: Path = typer.Option(
+        Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"
+    ),
     side: str = typer.Option("right", "--side", help="operated hip at start: right or left"),
     seed: int | None = typer.Option(None, "--seed", help="random seed of the simulated hand (default: a new one per session)"),
-    model: Path | None = typer.Option(None, "--model", help="the reaming mode's learned-simulator model (default: the shipped model)", metavar="MODEL_DIR"),
-    compile: bool = typer.Option(True, "--compile/--no-compile", help="compile the reaming network in the background (torch.compile; about 10 s, a minute on a first run; faster steps once done)"),
+    model: Path | None = typer.Option(
+        None, "--model", help="the reaming mode's learned-simulator model (default: the shipped model)", metavar="MODEL_DIR"
+    ),
+    compile: bool = typer.Option(
+        True,
+        "--compile/--no-compile",
+        help="compile the reaming network in the background (torch.compile; about 10 s, a minute on a first run; faster steps once done)",
+    ),
 ) -> None:
     """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
     import uvicorn
@@ -53,7 +63,9 @@ def serve(
         if not sessions.parent.is_dir():
             raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
         sessions.mkdir()
-    settings = ServeSettings(host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model, compile=compile)
+    settings = ServeSettings(
+        host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model, compile=compile
+    )
     settings.check()  # refusals are one line, before the ports are taken and the network compiled
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -73,7 +85,11 @@ def serve(
             listener.close()
             raise ThrsimInputError(f"cannot listen for OpenIGTLink on {host}:{igtl_port}: {error.strerror or error}") from None
     if compile:
-        print("thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)", file=sys.stderr, flush=True)
+        print(
+            "thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)",
+            file=sys.stderr,
+            flush=True,
+        )
     app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
     bound_port = listener.getsockname()[1]
     shown_host = f"[{host}]" if ":" in host else host

@@ -77,11 +77,20 @@ async def _serve(config: IgtlConfig, duration: Optional[float], json_log: bool, 
 def track(
     igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port (0: any free port, printed at start)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on"),
-    duration: Optional[float] = typer.Option(None, "--duration", help="stop after this many seconds (default: until SIGINT/SIGTERM)", metavar="S"),
+    duration: Optional[float] = typer.Option(
+        None, "--duration", help="stop after this many seconds (default: until SIGINT/SIGTERM)", metavar="S"
+    ),
     json_log: bool = typer.Option(False, "--json-log", help="log one JSON object per line on stdout instead of rich text"),
     log_interval: float = typer.Option(1.0, "--log-interval", help="seconds between state log lines", metavar="S"),
-    idle_timeout: float = typer.Option(_DEFAULT.idle_timeout_s, "--idle-timeout", help="close a connection that sends nothing for this long", metavar="S"),
-    devices: Optional[List[str]] = typer.Option(None, "--device", help=f"accept TRANSFORMs under this device name too (repeatable; always: {', '.join(_DEFAULT.known_devices)})", metavar="NAME"),
+    idle_timeout: float = typer.Option(
+        _DEFAULT.idle_timeout_s, "--idle-timeout", help="close a connection that sends nothing for this long", metavar="S"
+    ),
+    devices: Optional[List[str]] = typer.Option(
+        None,
+        "--device",
+        help=f"accept TRANSFORMs under this device name too (repeatable; always: {', '.join(_DEFAULT.known_devices)})",
+        metavar="NAME",
+    ),
 ) -> None:
     """Serve tracker poses (TRANSFORM) and force (SENSOR) over OpenIGTLink; reply NavigationState; log state.
 

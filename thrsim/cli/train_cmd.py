@@ -15,16 +15,31 @@ from thrsim.errors import ThrsimInputError
 def train(
     data: Path = typer.Option(..., "--data", help="dataset directory written by `thrsim dataset` (uses its splits)", metavar="DIR"),
     out: Path = typer.Option(..., "--out", help="model directory to write (resumes its checkpoint if interrupted)", metavar="MODEL_DIR"),
-    arch: str = typer.Option("production", "--arch", help="production (sized for an interactive CPU step) or thesis (the thesis's sizes and features)"),
+    arch: str = typer.Option(
+        "production", "--arch", help="production (sized for an interactive CPU step) or thesis (the thesis's sizes and features)"
+    ),
     epochs: Optional[int] = typer.Option(None, "--epochs", help="training epochs (default 30)", metavar="N"),
-    samples_per_epoch: Optional[int] = typer.Option(None, "--samples-per-epoch", help="frame pairs drawn per epoch (default: all)", metavar="N"),
-    max_minutes: Optional[float] = typer.Option(None, "--max-minutes", help="stop after the epoch that crosses this time budget", metavar="MIN"),
+    samples_per_epoch: Optional[int] = typer.Option(
+        None, "--samples-per-epoch", help="frame pairs drawn per epoch (default: all)", metavar="N"
+    ),
+    max_minutes: Optional[float] = typer.Option(
+        None, "--max-minutes", help="stop after the epoch that crosses this time budget", metavar="MIN"
+    ),
     seed: Optional[int] = typer.Option(None, "--seed", help="random seed (default 0)"),
-    settings_file: Optional[Path] = typer.Option(None, "--settings", help="JSON of settings (arch / features / train sections, nested) over the --arch preset", metavar="FILE"),
+    settings_file: Optional[Path] = typer.Option(
+        None, "--settings", help="JSON of settings (arch / features / train sections, nested) over the --arch preset", metavar="FILE"
+    ),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace a finished model in MODEL_DIR"),
-    init_from: Optional[Path] = typer.Option(None, "--init-from", help="start from the networks of this trained model (same architecture and mesh) instead of fresh weights", metavar="MODEL_DIR"),
-    advance_only: bool = typer.Option(False, "--advance-only", help="refit only the reamer regressor of the trained model in MODEL_DIR, on the data it was trained on"),
+    init_from: Optional[Path] = typer.Option(
+        None,
+        "--init-from",
+        help="start from the networks of this trained model (same architecture and mesh) instead of fresh weights",
+        metavar="MODEL_DIR",
+    ),
+    advance_only: bool = typer.Option(
+        False, "--advance-only", help="refit only the reamer regressor of the trained model in MODEL_DIR, on the data it was trained on"
+    ),
     as_json: bool = typer.Option(False, "--json", help="print the model card as one JSON object on stdout"),
 ) -> None:
     """Train the learned simulator on a dataset's training split; write weights, regressor, mesh and card."""
@@ -61,7 +76,16 @@ def train(
 
     torch.set_num_threads(threads)
     # the bar starts once the data are read and checked, so a refused run prints one line only
-    progress = Progress(TextColumn("[bold]epoch {task.fields[epoch]}"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[note]}"), TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, disable=as_json)
+    progress = Progress(
+        TextColumn("[bold]epoch {task.fields[epoch]}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TextColumn("{task.fields[note]}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err_console,
+        disable=as_json,
+    )
     task = progress.add_task("train", total=None, epoch="-", note="", start=False)
 
     started: list[bool] = []
@@ -69,7 +93,9 @@ def train(
     def on_start(info: dict) -> None:
         if not as_json:
             resumed = f", resuming after epoch {info['resumed_at_epoch']}" if info["resumed_at_epoch"] is not None else ""
-            err_console.print(f"{info['train_cases']} training case(s), {info['validation_cases']} validation, {info['pairs']} frame pairs, {info['elements']} elements{resumed}")
+            err_console.print(
+                f"{info['train_cases']} training case(s), {info['validation_cases']} validation, {info['pairs']} frame pairs, {info['elements']} elements{resumed}"
+            )
             progress.start()
             progress.start_task(task)
             started.append(True)
@@ -85,7 +111,17 @@ def train(
             progress.console.print(f"epoch {report.epoch}/{report.epochs}: {note}, {report.seconds:.1f} s")
 
     try:
-        card = train_model(data, out, model_settings, arch, overwrite=overwrite, init_from=init_from, on_start=on_start, on_epoch=on_epoch, on_batch=on_batch)
+        card = train_model(
+            data,
+            out,
+            model_settings,
+            arch,
+            overwrite=overwrite,
+            init_from=init_from,
+            on_start=on_start,
+            on_epoch=on_epoch,
+            on_batch=on_batch,
+        )
     finally:
         if started:
             progress.stop()
@@ -108,4 +144,7 @@ def train(
 
 def _print_advance(card: dict) -> None:
     advance = card["advance"]
-    err_console.print(f"advance regressor ({advance['chosen']} chosen; mm per frame): " + json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "best_params"} for k, v in advance["models"].items()}))
+    err_console.print(
+        f"advance regressor ({advance['chosen']} chosen; mm per frame): "
+        + json.dumps({k: {kk: vv for kk, vv in v.items() if kk != "best_params"} for k, v in advance["models"].items()})
+    )

@@ -29,7 +29,9 @@ def _number(value: float | None) -> str:
 
 def verify(
     slow: bool = typer.Option(False, "--slow", help="include the slow checks (a short reaming case)"),
-    only: Optional[List[str]] = typer.Option(None, "--only", help="run only this check family or figure (repeatable, or comma-separated)", metavar="NAME"),
+    only: Optional[List[str]] = typer.Option(
+        None, "--only", help="run only this check family or figure (repeatable, or comma-separated)", metavar="NAME"
+    ),
     list_checks: bool = typer.Option(False, "--list", help="list the checks and their figures, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -40,7 +42,13 @@ def verify(
     if list_checks:
         checks = registry()
         if as_json:
-            print_json({"checks": [{"name": c.name, "description": c.description, "slow": c.slow, "figures": list(c.figures)} for c in checks.values()]})
+            print_json(
+                {
+                    "checks": [
+                        {"name": c.name, "description": c.description, "slow": c.slow, "figures": list(c.figures)} for c in checks.values()
+                    ]
+                }
+            )
         else:
             table = Table(title="verification checks")
             for column in ("check", "slow", "figures", "description"):
@@ -77,7 +85,9 @@ def verify(
         table = Table(title="thrsim verification")
         for column, justify in (("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
                                 ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center")):  # fmt: skip
-            table.add_column(column, justify=justify, no_wrap=column != "check", overflow="fold", min_width=24 if column == "check" else None)
+            table.add_column(
+                column, justify=justify, no_wrap=column != "check", overflow="fold", min_width=24 if column == "check" else None
+            )
         for r in results:
             mark = "[green]pass[/green]" if r.passed else "[bold red]FAIL[/bold red]"
             table.add_row(r.name + (" (slow)" if r.slow else ""), _number(r.value), _number(r.reference), _number(r.error),

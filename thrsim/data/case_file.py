@@ -263,7 +263,9 @@ def read_case(path: str | os.PathLike) -> Case:
                 energy_names=_energy_names(g["energy"]),
                 **{name: g[name][()] if name in g else None for name in (*OPTIONAL_PER_FRAME, *OPTIONAL_PER_ELEMENT)},
             )
-            return Case(path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=decode_attrs(f.attrs))
+            return Case(
+                path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=decode_attrs(f.attrs)
+            )
         except KeyError as error:
             raise ThrsimInputError(f"{path}: missing dataset ({error})") from None
 
@@ -443,7 +445,9 @@ def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, .
     energy = g["energy"]
     names = _energy_names(energy)
     if energy.ndim != 2 or energy.shape != (n_frames, len(names)):
-        raise ThrsimInputError(f"{path}: /frames/energy has shape {energy.shape}, expected ({n_frames}, {len(names)}) for names {list(names)}")
+        raise ThrsimInputError(
+            f"{path}: /frames/energy has shape {energy.shape}, expected ({n_frames}, {len(names)}) for names {list(names)}"
+        )
     lacking = [n for n in REQUIRED_ENERGIES if n not in names]
     if lacking:
         raise ThrsimInputError(f"{path}: /frames/energy lacks {', '.join(lacking)} (names {list(names)})")
@@ -517,7 +521,9 @@ def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[
             if not np.isfinite(value).all() or value.min(initial=0.0) < 0 or value.max(initial=0.0) > upper:
                 raise ThrsimInputError(f"{path}: frame {t}: {name} outside [0, {'1' if name == 'damage' else '∞'}) or not finite")
             if t > 0 and (dropped := (status == 1) & (value < prev_damage[name] - 1e-6)).any():
-                raise ThrsimInputError(f"{path}: frame {t}: {name} decreases for {int(dropped.sum())} element(s) (first: element {int(np.flatnonzero(dropped)[0])})")
+                raise ThrsimInputError(
+                    f"{path}: frame {t}: {name} decreases for {int(dropped.sum())} element(s) (first: element {int(np.flatnonzero(dropped)[0])})"
+                )
             prev_damage[name] = value
         removed_per_frame.append(int(n_el - int(status.sum())))
         peeq_max = max(peeq_max, float(peeq.max(initial=0.0)))

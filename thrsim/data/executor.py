@@ -149,7 +149,9 @@ class DaskExecutor:
                 self._client = Client(address, timeout=f"{connect_timeout_s}s", set_as_default=False)
         except (OSError, TimeoutError) as error:
             reason = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-            raise ThrsimInputError(f"cannot reach the Dask scheduler at {address} within {connect_timeout_s:g} s ({reason[:160]})") from None
+            raise ThrsimInputError(
+                f"cannot reach the Dask scheduler at {address} within {connect_timeout_s:g} s ({reason[:160]})"
+            ) from None
         try:
             self._client.wait_for_workers(1, timeout=worker_wait_s)
         except (TimeoutError, OSError):

@@ -335,7 +335,9 @@ class SweepTarget:
     manifest: dict | None  # the folder's manifest, None for a new dataset
 
 
-def check_sweep_target(root: Path, plan: SweepPlan, *, solver: str | Callable = "fem", template_overrides: dict | None = None) -> SweepTarget:
+def check_sweep_target(
+    root: Path, plan: SweepPlan, *, solver: str | Callable = "fem", template_overrides: dict | None = None
+) -> SweepTarget:
     """Every refusal a sweep can meet before it runs, without touching ``root``.
 
     The plan asks one frame count, the solver is known, ``root`` is a dataset of this very
@@ -390,15 +392,32 @@ def run_sweep(
         with _locked(root):
             (root / CASES_DIR).mkdir(exist_ok=True)
             manifest = _open_manifest(read_manifest(root) or target.manifest, target.identity, split)
-            manifest.setdefault("runs", []).append({"started": _now(), "executor": executor.description, "threads_per_case": threads, "cases": len(plan.cases)})
+            manifest.setdefault("runs", []).append(
+                {"started": _now(), "executor": executor.description, "threads_per_case": threads, "cases": len(plan.cases)}
+            )
             _clean_stale(root / CASES_DIR)
-            sweep = _Sweep(root, manifest, SweepResult(root=root, total=len(plan.cases), complete=0, skipped=0, adopted=0, executor=executor.description, notes=list(plan.notes)), on_event)
+            sweep = _Sweep(
+                root,
+                manifest,
+                SweepResult(
+                    root=root,
+                    total=len(plan.cases),
+                    complete=0,
+                    skipped=0,
+                    adopted=0,
+                    executor=executor.description,
+                    notes=list(plan.notes),
+                ),
+                on_event,
+            )
             todo = sweep.take_stock(coverage_order(plan.cases, plan.main_forces_n), split, target.solver)
             if on_start:
                 on_start(sweep.done, sweep.result.total, executor.description)
             sweep.run(executor, todo, target.template, solver, threads)
             sweep.result.wall_s = time.perf_counter() - started
-            manifest["runs"][-1].update(finished=_now(), wall_s=sweep.result.wall_s, generated=sweep.result.complete, failed=len(sweep.result.failed))
+            manifest["runs"][-1].update(
+                finished=_now(), wall_s=sweep.result.wall_s, generated=sweep.result.complete, failed=len(sweep.result.failed)
+            )
             write_manifest(root, manifest)
             _clean_stale(root / CASES_DIR)
             return sweep.result

@@ -15,7 +15,9 @@ from thrsim.geometry.mesh import TetMesh
 from thrsim.physics.reaming import ENERGY_NAMES, ReamingSimulation
 
 
-def run_case(case: ReamingCaseConfig, out: Path | None, progress: Callable[[int, int], None] | None = None, mesh: TetMesh | None = None) -> dict:
+def run_case(
+    case: ReamingCaseConfig, out: Path | None, progress: Callable[[int, int], None] | None = None, mesh: TetMesh | None = None
+) -> dict:
     """Simulate one case, write its case file (when ``out`` is given) and return the JSON summary."""
     simulation = ReamingSimulation(case, mesh)
     log, summary = simulation.run(case.frames, progress)

@@ -126,9 +126,7 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
         "peeq_range": peeq_range if frames_total else None,
         "von_mises_range_pa": vm_range if frames_total else None,
         "element_frames": totals,
-        "alpha_below_threshold_fraction": {
-            k: (below_threshold[k] / totals[k] if totals[k] else None) for k in totals
-        },
+        "alpha_below_threshold_fraction": {k: (below_threshold[k] / totals[k] if totals[k] else None) for k in totals},
         "split_rule": manifest.get("split_rule"),
         "worker_hours": sum(float(e.get("wall_s", 0.0)) for e in complete.values()) / 3600.0,
         "size_mb": sum((root / e["file"]).stat().st_size for k, e in complete.items() if k not in missing) / 1e6,

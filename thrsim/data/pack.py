@@ -186,7 +186,12 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
 
 
 def _same_mesh(a: TetMesh, b: TetMesh) -> bool:
-    return a.nodes.shape == b.nodes.shape and a.tets.shape == b.tets.shape and np.array_equal(a.nodes, b.nodes) and np.array_equal(a.tets, b.tets)
+    return (
+        a.nodes.shape == b.nodes.shape
+        and a.tets.shape == b.tets.shape
+        and np.array_equal(a.nodes, b.nodes)
+        and np.array_equal(a.tets, b.tets)
+    )
 
 
 def _check_same_source(existing: h5py.File, attrs: dict[str, Any], out: Path) -> None:
@@ -197,7 +202,9 @@ def _check_same_source(existing: h5py.File, attrs: dict[str, Any], out: Path) ->
             raise ThrsimInputError(f"{out}: an existing pack of another dataset or format ({key} differs); give another --out")
 
 
-def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: LabelConfig | None = None, shard_mb: float = SHARD_MB) -> dict[str, Any]:
+def write_pack(
+    dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: LabelConfig | None = None, shard_mb: float = SHARD_MB
+) -> dict[str, Any]:
     """Pack every complete case of ``dataset_dir`` into ``out``, keeping the cases ``out`` already holds.
 
     ``out`` ending in ``.h5`` is one file; otherwise a folder of pack files (``part-000.h5``, …),
@@ -251,7 +258,14 @@ def write_pack(dataset_dir: str | os.PathLike, out: str | os.PathLike, labels: L
             shards.append(target)
         _write_pack_file(target, [entry], attrs, labels)
         added.append(entry["case_id"])
-    return {"pack": str(out), "files": [p.name for p in shards], "cases": len(held) + len(added), "added": sorted(added), "kept": len(held), "bytes": sum(p.stat().st_size for p in shards)}
+    return {
+        "pack": str(out),
+        "files": [p.name for p in shards],
+        "cases": len(held) + len(added),
+        "added": sorted(added),
+        "kept": len(held),
+        "bytes": sum(p.stat().st_size for p in shards),
+    }
 
 
 def _estimated_bytes(shard: Path, entry: dict) -> float:
@@ -291,11 +305,20 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
                 _write_case_group(cases.create_group(entry["case_id"]), reader, entry, labels)
                 added.append(entry["case_id"])
         write_mesh_group(f.create_group("mesh"), mesh)
-        f.attrs.update({**attrs, "thrsim_version": __version__, "versions": _json_attr(package_versions()), "updated": datetime.now(timezone.utc).isoformat(timespec="seconds")})
+        f.attrs.update(
+            {
+                **attrs,
+                "thrsim_version": __version__,
+                "versions": _json_attr(package_versions()),
+                "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            }
+        )
     return kept, added
 
 
-def read_pack(path: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[PackedCase]]:
+def read_pack(
+    path: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None
+) -> tuple[TetMesh, list[PackedCase]]:
     """The mesh and the cases (optionally some splits only) of a learning pack (one file or a folder of them)."""
     path = Path(path)
     if not is_pack(path):
@@ -320,7 +343,9 @@ def read_pack(path: str | os.PathLike, splits: tuple[str, ...] | None = None, la
     return mesh, [out[case_id] for case_id in sorted(out)]
 
 
-def _read_pack_file(path: Path, f: h5py.File, splits: tuple[str, ...] | None, labels: LabelConfig | None) -> tuple[TetMesh, list[PackedCase]]:
+def _read_pack_file(
+    path: Path, f: h5py.File, splits: tuple[str, ...] | None, labels: LabelConfig | None
+) -> tuple[TetMesh, list[PackedCase]]:
     version = int(f.attrs.get("version", -1))
     if version != PACK_VERSION:
         raise ThrsimInputError(f"{path}: learning pack version {version}; this thrsim reads version {PACK_VERSION}")

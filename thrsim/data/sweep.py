@@ -223,7 +223,9 @@ def plan_sweep(
     grid = [(float(g), float(t)) for g in sorted(set(inclinations)) for t in sorted(set(anteversions))]
     subset_keys = {_key(a) for a in extra_force_anteversions}
     wanted: list[tuple[float, float, float]] = [(g, t, f) for f in main_forces for g, t in grid]
-    wanted += [(g, t, f) for f in extra_forces_n if _key(f) not in {_key(m) for m in main_forces} for g, t in grid if _key(t) in subset_keys]
+    wanted += [
+        (g, t, f) for f in extra_forces_n if _key(f) not in {_key(m) for m in main_forces} for g, t in grid if _key(t) in subset_keys
+    ]
 
     cases: dict[str, CaseSpec] = {}
     aliases: dict[str, list[float]] = {}

@@ -21,9 +21,7 @@ from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import signed_volumes
 
 # local corner index c = i + 2j + 4k for the offsets (i, j, k) of the unit cube
-_KUHN = np.array(
-    [[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]], dtype=np.int64
-)
+_KUHN = np.array([[0, 1, 3, 7], [0, 3, 2, 7], [0, 2, 6, 7], [0, 6, 4, 7], [0, 4, 5, 7], [0, 5, 1, 7]], dtype=np.int64)
 _FIVE_EVEN = np.array([[0, 1, 2, 4], [1, 3, 2, 7], [1, 4, 5, 7], [2, 6, 4, 7], [1, 2, 4, 7]], dtype=np.int64)
 # the mirror pattern (x → 1 − x) for odd cells: corner c ↦ c ^ 1
 _FIVE_ODD = _FIVE_EVEN ^ 1

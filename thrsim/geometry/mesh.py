@@ -83,9 +83,7 @@ class TetMesh:
             raise ThrsimInputError(f"{source}: {report.degenerate} zero-volume (degenerate) element(s)")
         if report.inverted:
             first = int(np.flatnonzero(self.volumes < 0)[0])
-            raise ThrsimInputError(
-                f"{source}: {report.inverted} inverted element(s) with negative volume (first: element {first})"
-            )
+            raise ThrsimInputError(f"{source}: {report.inverted} inverted element(s) with negative volume (first: element {first})")
         for name, ids in {"fixed_nodes": self.fixed_nodes, **self.node_sets}.items():
             if len(ids) and (ids.min() < 0 or ids.max() >= self.n_nodes):
                 raise ThrsimInputError(f"{source}: node set {name!r} refers to nodes that do not exist")

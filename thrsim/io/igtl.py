@@ -273,5 +273,8 @@ def unpack_status(content: bytes) -> tuple[int, str, str]:
     if len(content) < 30:
         raise IgtlProtocolError("STATUS content shorter than 30 bytes")
     code, _subcode, name = struct.unpack_from(">Hq20s", content)
-    return code, name.split(b"\0", 1)[0].decode("ascii", errors="replace"), content[30:].split(b"\0", 1)[0].decode("utf-8", errors="replace")
-
+    return (
+        code,
+        name.split(b"\0", 1)[0].decode("ascii", errors="replace"),
+        content[30:].split(b"\0", 1)[0].decode("utf-8", errors="replace"),
+    )

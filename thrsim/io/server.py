@@ -110,7 +110,9 @@ class _Connection:
         flushes what it can)."""
         if not self.writer.is_closing():
             with contextlib.suppress(Exception):
-                self.writer.write(igtl.encode_message(igtl.Message("STATUS", "", igtl.pack_status(code, name, text[:200]), version=self.version)))
+                self.writer.write(
+                    igtl.encode_message(igtl.Message("STATUS", "", igtl.pack_status(code, name, text[:200]), version=self.version))
+                )
         self.close()
 
     def offer_to_simulator(self, pose: np.ndarray, force_n: float | None) -> None:
@@ -254,7 +256,10 @@ class NavigationServer:
         if header.body_size > self.config.max_body_bytes:
             self.stats["oversize"] += 1
             await connection.send_status(
-                igtl.STATUS_OVERFLOW, "BodyTooLarge", f"body of {header.body_size} bytes exceeds {self.config.max_body_bytes}", header.device_name
+                igtl.STATUS_OVERFLOW,
+                "BodyTooLarge",
+                f"body of {header.body_size} bytes exceeds {self.config.max_body_bytes}",
+                header.device_name,
             )
             return False
         body = await asyncio.wait_for(reader.readexactly(header.body_size), timeout)

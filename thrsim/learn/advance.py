@@ -49,13 +49,15 @@ def case_samples(case) -> tuple[np.ndarray, np.ndarray]:
     """(X, y) of one case: one row per frame t ≥ 0 with a successor; y = advance t → t+1 in mm."""
     t = np.arange(case.frames - 1)
     depth = (case.positions - case.positions[0]) @ case.axis
-    rows = np.column_stack([
-        depth[t] * 1e3,
-        np.full(len(t), case.inclination_deg),
-        np.full(len(t), case.anteversion_deg),
-        np.full(len(t), case.force_n),
-        case.force_n * case.frame_dt_s * t,
-    ])
+    rows = np.column_stack(
+        [
+            depth[t] * 1e3,
+            np.full(len(t), case.inclination_deg),
+            np.full(len(t), case.anteversion_deg),
+            np.full(len(t), case.force_n),
+            case.force_n * case.frame_dt_s * t,
+        ]
+    )
     return rows, case.advances() * 1e3
 
 
@@ -145,7 +147,12 @@ def export(kind: str, estimator, target_range: tuple[float, float], *, reference
     scaler, model = estimator.named_steps["scale"], estimator.named_steps["model"]
     arrays = {"mean": scaler.mean_, "scale": scaler.scale_}
     if kind == "svr":
-        arrays.update(support_vectors=model.support_vectors_, dual_coef=model.dual_coef_[0], intercept=np.array(model.intercept_[0]), gamma=np.array(model._gamma))
+        arrays.update(
+            support_vectors=model.support_vectors_,
+            dual_coef=model.dual_coef_[0],
+            intercept=np.array(model.intercept_[0]),
+            gamma=np.array(model._gamma),
+        )
     else:
         arrays.update(coef=np.asarray(model.coef_, dtype=np.float64).reshape(-1), intercept=np.array(float(np.ravel(model.intercept_)[0])))
     return ArrayRegressor(kind, {**arrays, **bounds})
@@ -163,7 +170,10 @@ def _candidates(seed: int, trees: int = 100) -> dict:
 
     return {
         # depth ≤ 10 bounds the stored forest to 100 × 2,047 nodes (≤ 6 MB) whatever the data size
-        "random_forest": (RandomForestRegressor(n_estimators=trees, random_state=seed, n_jobs=1), {"max_depth": [6, 10], "min_samples_leaf": [1, 5]}),
+        "random_forest": (
+            RandomForestRegressor(n_estimators=trees, random_state=seed, n_jobs=1),
+            {"max_depth": [6, 10], "min_samples_leaf": [1, 5]},
+        ),
         "svr": (scaled(SVR(kernel="rbf")), {"model__C": [0.1, 1.0, 10.0], "model__epsilon": [0.005, 0.05]}),
         "ridge": (scaled(Ridge()), {"model__alpha": [0.1, 1.0, 10.0]}),
         "linear": (scaled(LinearRegression()), {}),
@@ -183,7 +193,9 @@ def _mse_of_advance(estimator, X: np.ndarray, y_scaled: np.ndarray) -> float:
     return -float(np.mean(((estimator.predict(X) - y_scaled) * _push_scale(X)) ** 2))
 
 
-def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0, trees: int = 100) -> tuple[ArrayRegressor, dict]:
+def fit_advance(
+    X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0, trees: int = 100
+) -> tuple[ArrayRegressor, dict]:
     """Grid-search the four kinds on the advance scaled to the reference push, keep the lowest
     cross-validated MSE of the advance; (regressor, error table)."""
     from sklearn.model_selection import GridSearchCV, GroupKFold, KFold
@@ -198,10 +210,20 @@ def fit_advance(X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.nda
         search = GridSearchCV(estimator, grid or {}, cv=folds, scoring=_mse_of_advance, n_jobs=1)
         search.fit(X, y_scaled, groups=groups if n_groups >= 2 else None)
         exported[kind] = export(kind, search.best_estimator_, target_range, reference_force_n=REFERENCE_FORCE_N)
-        row = {"cv_mse_mm2": float(-search.best_score_), "best_params": {k.replace("model__", ""): v for k, v in search.best_params_.items()}}
+        row = {
+            "cv_mse_mm2": float(-search.best_score_),
+            "best_params": {k.replace("model__", ""): v for k, v in search.best_params_.items()},
+        }
         if held_X is not None and len(held_y):
             error = exported[kind].predict(held_X) - held_y
-            row.update(held_out_mse_mm2=float(np.mean(error**2)), held_out_mae_mm=float(np.mean(np.abs(error))), held_out_samples=int(len(held_y)))
+            row.update(
+                held_out_mse_mm2=float(np.mean(error**2)), held_out_mae_mm=float(np.mean(np.abs(error))), held_out_samples=int(len(held_y))
+            )
         table[kind] = row
     chosen = min(table, key=lambda k: table[k]["cv_mse_mm2"])
-    return exported[chosen], {"chosen": chosen, "features": list(FEATURES), "target": f"advance along D per frame, mm, learned × {REFERENCE_FORCE_N:g} N / push and scaled back", "models": table}
+    return exported[chosen], {
+        "chosen": chosen,
+        "features": list(FEATURES),
+        "target": f"advance along D per frame, mm, learned × {REFERENCE_FORCE_N:g} N / push and scaled back",
+        "models": table,
+    }

@@ -52,12 +52,26 @@ def untrained_model(mesh: TetMesh, settings: ModelSettings, teeth_radius_m: floa
     labels = LabelConfig()
     gn, mlp = LearnedSimulator(settings, "gn", labels.removed_threshold), LearnedSimulator(settings, "mlp", labels.removed_threshold)
     width = len(FEATURES)
-    advance = ArrayRegressor("linear", {"mean": np.zeros(width), "scale": np.ones(width), "coef": np.zeros(width), "intercept": np.array(FEED_M * 1e3), "target_range": np.array([0.0, 1.0]), "n_features": np.array(width)})
+    advance = ArrayRegressor(
+        "linear",
+        {
+            "mean": np.zeros(width),
+            "scale": np.ones(width),
+            "coef": np.zeros(width),
+            "intercept": np.array(FEED_M * 1e3),
+            "target_range": np.array([0.0, 1.0]),
+            "n_features": np.array(width),
+        },
+    )
     card = {"labels": labels.model_dump(), "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": omega_rad_s}, "arch": "untrained"}
-    return LoadedModel(path=None, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))
+    return LoadedModel(
+        path=None, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh)
+    )
 
 
-def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0, compile: bool = False) -> dict:
+def time_production(
+    model: LoadedModel, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0, compile: bool = False
+) -> dict:
     started = time.perf_counter()
     simulator = ReamingSimulator(model=model, threads=1, compile=compile)  # as the server runs it
     compile_s = time.perf_counter() - started
@@ -69,7 +83,9 @@ def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15
     times, regions, feed_times = [], [], []
     for k in range(1, frames + 1):
         started = time.perf_counter()
-        feed.advance_m(simulator.alpha, centre + (k - 1) * FEED_M * axis, centre, axis, inclination_deg, anteversion_deg, 230.0, 230.0 * k / 60.0)
+        feed.advance_m(
+            simulator.alpha, centre + (k - 1) * FEED_M * axis, centre, axis, inclination_deg, anteversion_deg, 230.0, 230.0 * k / 60.0
+        )
         feed_times.append(time.perf_counter() - started)
         state = simulator.step(axis, 230.0, centre + k * FEED_M * axis)
         times.append(state.seconds + feed_times[-1])
@@ -88,7 +104,9 @@ def time_production(model: LoadedModel, frames: int, inclination_deg: float = 15
     }
 
 
-def time_thesis_way(mesh: TetMesh, frames: int, teeth_radius_m: float = 22.9e-3, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
+def time_thesis_way(
+    mesh: TetMesh, frames: int, teeth_radius_m: float = 22.9e-3, inclination_deg: float = 15.0, anteversion_deg: float = 30.0
+) -> dict:
     """Algorithm 1: rebuild the graph input from the mesh every frame, run the thesis's GN on all of it."""
     settings = preset("thesis")
     model = untrained_model(mesh, settings, teeth_radius_m)
@@ -100,7 +118,12 @@ def time_thesis_way(mesh: TetMesh, frames: int, teeth_radius_m: float = 22.9e-3,
         t0 = time.perf_counter()
         adjacency = face_adjacency(mesh.tets)
         pairs = adjacency.pairs
-        sub = Subgraph(nodes=np.arange(mesh.n_tets), n_region=mesh.n_tets, senders=np.concatenate([pairs[:, 0], pairs[:, 1]]), receivers=np.concatenate([pairs[:, 1], pairs[:, 0]]))
+        sub = Subgraph(
+            nodes=np.arange(mesh.n_tets),
+            n_region=mesh.n_tets,
+            senders=np.concatenate([pairs[:, 0], pairs[:, 1]]),
+            receivers=np.concatenate([pairs[:, 1], pairs[:, 0]]),
+        )
         graph = model.graph
         graph.centroids = centroids(mesh.nodes, mesh.tets)  # Algorithm 1, line 2: recomputed per frame
         reamer = ReamerState(centre + k * FEED_M * axis, axis, 230.0, FEED_M, 136.0, teeth_radius_m)
@@ -123,7 +146,13 @@ def time_thesis_way(mesh: TetMesh, frames: int, teeth_radius_m: float = 22.9e-3,
     }
 
 
-def run_learned_benchmarks(model: LoadedModel | None = None, frames: int = 20, thesis_frames: int = 3, larger: bool = True, solver_seconds_per_frame: float | None = None) -> dict:
+def run_learned_benchmarks(
+    model: LoadedModel | None = None,
+    frames: int = 20,
+    thesis_frames: int = 3,
+    larger: bool = True,
+    solver_seconds_per_frame: float | None = None,
+) -> dict:
     from thrsim.geometry.bone_patch import generate_bone_patch
 
     if model is None:
@@ -133,15 +162,22 @@ def run_learned_benchmarks(model: LoadedModel | None = None, frames: int = 20, t
     result["production_compiled"] = time_production(compiled_model, frames, compile=True)
     result["thesis_way"] = time_thesis_way(model.mesh, thesis_frames, model.teeth_radius_m)
     for key in ("production", "production_compiled"):
-        result[f"speedup_vs_thesis_way{key[len('production'):]}"] = result["thesis_way"]["ms_per_frame_median"] / result[key]["ms_per_frame_median"]
+        result[f"speedup_vs_thesis_way{key[len('production') :]}"] = (
+            result["thesis_way"]["ms_per_frame_median"] / result[key]["ms_per_frame_median"]
+        )
     if solver_seconds_per_frame is not None:
         result["solver_ms_per_frame"] = solver_seconds_per_frame * 1e3
         result["speedup_vs_solver"] = solver_seconds_per_frame * 1e3 / result["production"]["ms_per_frame_median"]
     if larger:
         bone = BonePatchConfig()
         result["larger_mesh"] = {}
-        for name, config in (("thicker", BonePatchConfig(thickness_mm=4 * bone.thickness_mm)), ("wider", BonePatchConfig(half_angle_deg=_four_times_area(bone.half_angle_deg)))):
-            big = replace(model, path=None, mesh=(mesh := generate_bone_patch(config)), graph=StaticGraph(mesh))  # the same networks: they act on local features
+        for name, config in (
+            ("thicker", BonePatchConfig(thickness_mm=4 * bone.thickness_mm)),
+            ("wider", BonePatchConfig(half_angle_deg=_four_times_area(bone.half_angle_deg))),
+        ):
+            big = replace(
+                model, path=None, mesh=(mesh := generate_bone_patch(config)), graph=StaticGraph(mesh)
+            )  # the same networks: they act on local features
             row = {**time_production(big, frames), "thickness_mm": config.thickness_mm, "half_angle_deg": config.half_angle_deg}
             row["element_ratio"] = big.mesh.n_tets / model.mesh.n_tets
             row["cost_ratio"] = row["ms_per_frame_median"] / result["production"]["ms_per_frame_median"]

@@ -55,10 +55,14 @@ def require_damage(cases: list[CaseArrays], remedy: str) -> None:
     """Refuse, in one line, cases that do not record damage, for a model that reads it."""
     undamaged = [case.case_id for case in cases if case.damage is None]
     if undamaged:
-        raise ThrsimInputError(f"{len(undamaged)} case(s) do not record damage (e.g. {undamaged[0]}; solver before 0.4.0), which this model reads: {remedy}")
+        raise ThrsimInputError(
+            f"{len(undamaged)} case(s) do not record damage (e.g. {undamaged[0]}; solver before 0.4.0), which this model reads: {remedy}"
+        )
 
 
-def _case_arrays(case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis, damage: np.ndarray | None) -> CaseArrays:
+def _case_arrays(
+    case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis, damage: np.ndarray | None
+) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
     config = attrs.get("config") if isinstance(attrs.get("config"), dict) else {}
     reamer = {**ReamerConfig().model_dump(), **config.get("reamer", {})}
@@ -87,15 +91,21 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
     case = read_case(path)
     frames = case.frames
     alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
-    return case.mesh, _case_arrays(case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis, frames.damage)
+    return case.mesh, _case_arrays(
+        case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis, frames.damage
+    )
 
 
 def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
     mesh, packed = read_pack(path, splits, labels)
-    return mesh, [_case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage) for p in packed]
+    return mesh, [
+        _case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage) for p in packed
+    ]
 
 
-def load_cases(source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None) -> tuple[TetMesh, list[CaseArrays]]:
+def load_cases(
+    source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None
+) -> tuple[TetMesh, list[CaseArrays]]:
     """The mesh and the cases of a dataset directory or learning pack (optionally some splits only) or of one case file."""
     from thrsim.data.generate import load_dataset
 

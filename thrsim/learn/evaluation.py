@@ -43,7 +43,9 @@ def gamma_key(inclination_deg: float) -> str:
     return f"{inclination_deg:g}"
 
 
-def windows(frames: int, start_stride: int, one_step_stride: int = 1, horizons: tuple[int, ...] = HORIZONS) -> list[tuple[int, list[str], int]]:
+def windows(
+    frames: int, start_stride: int, one_step_stride: int = 1, horizons: tuple[int, ...] = HORIZONS
+) -> list[tuple[int, list[str], int]]:
     """(start, horizon keys, frames to roll out) for every start frame of a case of ``frames``
     frames: the full windows every ``start_stride`` frames, one-step windows (key "1" alone)
     every ``one_step_stride`` frames between them."""
@@ -110,7 +112,11 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     report = _report(counts, errors, cases)
     # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
     report["by_force"] = {
-        f: {"removed_volume_error_mean": _summary([abs(v) for v in e["volume_error"]]), "removed_volume_mm3_mean": _summary(e["removed_volume_mm3"]), "windows": len(e["removed_volume_mm3"])}
+        f: {
+            "removed_volume_error_mean": _summary([abs(v) for v in e["volume_error"]]),
+            "removed_volume_mm3_mean": _summary(e["removed_volume_mm3"]),
+            "windows": len(e["removed_volume_mm3"]),
+        }
         for f, e in sorted(by_force.items(), key=lambda item: float(item[0]))
     }
     return report
@@ -141,6 +147,19 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
     report["tool_forced"] = scores("tool_forced")
     report["mlp"] = scores("mlp")
     report["geometric"] = scores("geometric")
-    report["cases"] = [{"case_id": c.case_id, "inclination_deg": c.inclination_deg, "anteversion_deg": c.anteversion_deg, "force_n": c.force_n, "frames": c.frames, "end_reason": c.end_reason, "split": c.split} for c in cases]
-    report["thesis_table_10_percent"] = {g: {h: dict(zip(("precision", "recall", "f1"), v)) for h, v in row.items()} for g, row in THESIS_TABLE_10.items()}
+    report["cases"] = [
+        {
+            "case_id": c.case_id,
+            "inclination_deg": c.inclination_deg,
+            "anteversion_deg": c.anteversion_deg,
+            "force_n": c.force_n,
+            "frames": c.frames,
+            "end_reason": c.end_reason,
+            "split": c.split,
+        }
+        for c in cases
+    ]
+    report["thesis_table_10_percent"] = {
+        g: {h: dict(zip(("precision", "recall", "f1"), v)) for h, v in row.items()} for g, row in THESIS_TABLE_10.items()
+    }
     return report

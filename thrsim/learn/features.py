@@ -59,7 +59,17 @@ class GraphBatch:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
 
 
-def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reamer: ReamerState, feature_set: FeatureSet, threshold: float, active_all: np.ndarray, damage_sub: np.ndarray | None = None, corners: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def frame_arrays(
+    graph: StaticGraph,
+    sub: Subgraph,
+    alpha_sub: np.ndarray,
+    reamer: ReamerState,
+    feature_set: FeatureSet,
+    threshold: float,
+    active_all: np.ndarray,
+    damage_sub: np.ndarray | None = None,
+    corners: bool = False,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``,
     ``damage_sub``, when given, D there (the last node column); ``corners`` adds the corner
     distances (``FeatureSettings.corners``) before it.
@@ -82,10 +92,22 @@ def frame_arrays(graph: StaticGraph, sub: Subgraph, alpha_sub: np.ndarray, reame
     # instead of some twenty NumPy passes over the region (about 2 ms → 0.3 ms a frame)
     nodes = np.empty((len(sub.nodes), WIDTHS["full"][0] + CORNER_COLUMNS * int(corners) + int(damage_sub is not None)), dtype=np.float32)
     _full_node_features(
-        sub.nodes, graph.centroids, graph.radius, graph.corners, graph.neighbours, alpha_sub, np.ascontiguousarray(active_all, dtype=np.bool_),
-        np.ascontiguousarray(reamer.centre, dtype=np.float64), np.ascontiguousarray(reamer.axis, dtype=np.float64),
-        reamer.teeth_radius_m, reamer.omega_rad_s, reamer.advance_m, threshold, corners,
-        _NO_DAMAGE if damage_sub is None else np.asarray(damage_sub, dtype=np.float64), nodes,
+        sub.nodes,
+        graph.centroids,
+        graph.radius,
+        graph.corners,
+        graph.neighbours,
+        alpha_sub,
+        np.ascontiguousarray(active_all, dtype=np.bool_),
+        np.ascontiguousarray(reamer.centre, dtype=np.float64),
+        np.ascontiguousarray(reamer.axis, dtype=np.float64),
+        reamer.teeth_radius_m,
+        reamer.omega_rad_s,
+        reamer.advance_m,
+        threshold,
+        corners,
+        _NO_DAMAGE if damage_sub is None else np.asarray(damage_sub, dtype=np.float64),
+        nodes,
     )
     edges = np.empty((len(sub.senders), WIDTHS["full"][1]), dtype=np.float32)
     _full_edge_features(sub.nodes, sub.senders, sub.receivers, graph.centroids, active, edges)
@@ -96,7 +118,24 @@ _NO_DAMAGE = np.empty(0, dtype=np.float64)
 
 
 @njit(cache=True)
-def _full_node_features(ids, centroids, radius, corners, neighbours, alpha_sub, active_all, centre, axis, teeth_radius, omega, advance, threshold, with_corners, damage_sub, out):
+def _full_node_features(
+    ids,
+    centroids,
+    radius,
+    corners,
+    neighbours,
+    alpha_sub,
+    active_all,
+    centre,
+    axis,
+    teeth_radius,
+    omega,
+    advance,
+    threshold,
+    with_corners,
+    damage_sub,
+    out,
+):
     """The "full" node table (see :func:`frame_arrays`): relative centroid, its axial and radial
     parts, signed distance to the teeth's sphere, cutting speed, cosine to the shell normal,
     distance from the acetabular centre, α, active flag, open faces; then, with corners, the four
@@ -167,7 +206,9 @@ def _full_edge_features(ids, senders, receivers, centroids, active_sub, out):
         out[e, 5] = np.sqrt(length_sq)
 
 
-def batch(parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]], damage: list[np.ndarray] | None = None) -> GraphBatch:
+def batch(
+    parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]], damage: list[np.ndarray] | None = None
+) -> GraphBatch:
     """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
     ``damage``, for models with damage, D on each part's nodes."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))

@@ -101,8 +101,13 @@ class LearnedSimulator(nn.Module):
     def normalised_inputs(self, batch: GraphBatch) -> tuple:
         """The network's arguments: normalised features and the graph's index tensors."""
         return (
-            self.node_norm(batch.nodes), self.edge_norm(batch.edges), self.global_norm(batch.globals_),
-            batch.senders, batch.receivers, batch.node_graph, batch.edge_graph,
+            self.node_norm(batch.nodes),
+            self.edge_norm(batch.edges),
+            self.global_norm(batch.globals_),
+            batch.senders,
+            batch.receivers,
+            batch.node_graph,
+            batch.edge_graph,
         )
 
     def outputs(self, batch: GraphBatch) -> Outputs:
@@ -145,7 +150,11 @@ class LearnedSimulator(nn.Module):
         mask = self.trainable_mask(batch)
         out = self.outputs(batch)
         alpha = torch.where(mask, torch.sigmoid(out.alpha), batch.alpha)
-        hazard = torch.zeros_like(alpha) if out.removal is None else torch.where(mask, nn.functional.softplus(out.removal), torch.zeros_like(alpha))
+        hazard = (
+            torch.zeros_like(alpha)
+            if out.removal is None
+            else torch.where(mask, nn.functional.softplus(out.removal), torch.zeros_like(alpha))
+        )
         damage = None
         if out.damage is not None:
             damage = torch.where(mask, torch.maximum(torch.sigmoid(out.damage), batch.damage), batch.damage)

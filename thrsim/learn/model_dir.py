@@ -199,4 +199,6 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
         load_network_tensors(gn, mlp, tensors)
     except RuntimeError as error:
         raise ThrsimInputError(f"{path}: weights do not fit the card's architecture ({str(error).splitlines()[0]})") from None
-    return LoadedModel(path=path, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh))
+    return LoadedModel(
+        path=path, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh)
+    )

@@ -153,8 +153,14 @@ class GraphNetwork(nn.Module):
                 lat_g = lat_g + d_g if self.arch.global_block else lat_g
             else:
                 lat_n, lat_e, new_g = core(
-                    torch.cat([enc_n, lat_n], 1), torch.cat([enc_e, lat_e], 1), torch.cat([enc_g, lat_g], 1),
-                    senders, receivers, node_graph, edge_graph, n_graphs,
+                    torch.cat([enc_n, lat_n], 1),
+                    torch.cat([enc_e, lat_e], 1),
+                    torch.cat([enc_g, lat_g], 1),
+                    senders,
+                    receivers,
+                    node_graph,
+                    edge_graph,
+                    n_graphs,
                 )
                 lat_g = new_g if self.arch.global_block else lat_g
         return self.output(self.node_decoder(lat_n))

@@ -80,7 +80,15 @@ def train_model(
     resumed = trainer.load_checkpoint(checkpoint)
     previous_seconds = sum(h["seconds"] for h in trainer.history)
     if on_start is not None:
-        on_start({"train_cases": len(train), "validation_cases": len(validation), "pairs": len(trainer.samples), "elements": mesh.n_tets, "resumed_at_epoch": trainer.epoch if resumed else None})
+        on_start(
+            {
+                "train_cases": len(train),
+                "validation_cases": len(validation),
+                "pairs": len(trainer.samples),
+                "elements": mesh.n_tets,
+                "resumed_at_epoch": trainer.epoch if resumed else None,
+            }
+        )
     trainer.run(checkpoint, on_epoch, on_batch)
     started = time.perf_counter()
     advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees)
@@ -111,7 +119,9 @@ def train_model(
             "threads": torch.get_num_threads(),
             "device": "cpu",
             "history": history,
-            "init_from": None if init is None else {
+            "init_from": None
+            if init is None
+            else {
                 "source": str(init_from),
                 "weights_digest": trainer.init_digest,
                 "data_digest": init.card["data"]["digest"],

@@ -104,7 +104,12 @@ def ream(
             "removed_per_frame": [int(s.removed.sum()) for s in states],
             "ms_per_frame_median": float(np.median(step_ms)),
             "ms_per_frame_max": float(np.max(step_ms)),
-            "model": {"path": str(simulator.model.path), "arch": simulator.model.card.get("arch"), "data_digest": simulator.model.card["data"]["digest"], "created_utc": simulator.model.card.get("created_utc")},
+            "model": {
+                "path": str(simulator.model.path),
+                "arch": simulator.model.card.get("arch"),
+                "data_digest": simulator.model.card["data"]["digest"],
+                "created_utc": simulator.model.card.get("created_utc"),
+            },
             "series": "ream.pvd",
             "versions": package_versions(),
         }

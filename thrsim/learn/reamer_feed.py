@@ -29,7 +29,9 @@ from thrsim.learn.graph import attached_nodes
 SUPPORT_NODES = 20
 
 
-def advance_to_support(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, teeth_radius_m: float, support_nodes: int = SUPPORT_NODES) -> float:
+def advance_to_support(
+    points: np.ndarray, centre: np.ndarray, axis: np.ndarray, teeth_radius_m: float, support_nodes: int = SUPPORT_NODES
+) -> float:
     """Smallest advance s ≥ 0 along ``axis`` after which ``support_nodes`` of ``points`` lie in the
     teeth's dome (|p − c − s·D| ≤ R and (p − c − s·D)·D ≥ 0); inf when fewer can ever get there.
 
@@ -50,7 +52,9 @@ def advance_to_support(points: np.ndarray, centre: np.ndarray, axis: np.ndarray,
 class ReamerFeed:
     """The advance of one autonomous frame: regressor, then rest on the bone (see the module)."""
 
-    def __init__(self, regressor: ArrayRegressor, mesh: TetMesh, teeth_radius_m: float, threshold: float, support_nodes: int = SUPPORT_NODES):
+    def __init__(
+        self, regressor: ArrayRegressor, mesh: TetMesh, teeth_radius_m: float, threshold: float, support_nodes: int = SUPPORT_NODES
+    ):
         self.regressor = regressor
         self.tets, self.nodes = np.asarray(mesh.tets), np.asarray(mesh.nodes)
         self.teeth_radius_m = teeth_radius_m
@@ -58,7 +62,17 @@ class ReamerFeed:
         self.support_nodes = support_nodes
         self.last_rested = False
 
-    def advance_m(self, alpha: np.ndarray, centre: np.ndarray, start: np.ndarray, axis: np.ndarray, inclination_deg: float, anteversion_deg: float, force_n: float, impulse_n_s: float) -> float:
+    def advance_m(
+        self,
+        alpha: np.ndarray,
+        centre: np.ndarray,
+        start: np.ndarray,
+        axis: np.ndarray,
+        inclination_deg: float,
+        anteversion_deg: float,
+        force_n: float,
+        impulse_n_s: float,
+    ) -> float:
         """Advance along ``axis`` (m) for the next frame, from the bone state ``alpha``, the reamer
         centre and the push impulse since the reamer was placed at ``start``."""
         row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, force_n, impulse_n_s)

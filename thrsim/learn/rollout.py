@@ -58,7 +58,9 @@ class LearnedStep:
         self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
 
-    def inputs(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> tuple[Subgraph, GraphBatch | None]:
+    def inputs(
+        self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float
+    ) -> tuple[Subgraph, GraphBatch | None]:
         """The region's subgraph and the network's inputs for it (None for an empty region: nothing to run)."""
         graph = self.graph
         active = state.alpha >= self.model.threshold
@@ -68,13 +70,24 @@ class LearnedStep:
             sub = graph.subgraph(graph.region(active, centre, self.reach_m, self.features.front_hops), self.features.halo_hops)
         if sub.n_region == 0:
             return sub, None
-        reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), float(force_n), float(advance_m), float(omega_rad_s), self.teeth_radius_m)
+        reamer = ReamerState(
+            np.asarray(centre, dtype=np.float64),
+            np.asarray(axis, dtype=np.float64),
+            float(force_n),
+            float(advance_m),
+            float(omega_rad_s),
+            self.teeth_radius_m,
+        )
         alpha_sub = state.alpha[sub.nodes]
         damage_sub = state.damage[sub.nodes] if self.features.damage else None
-        arrays = frame_arrays(graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub, self.features.corners)
+        arrays = frame_arrays(
+            graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub, self.features.corners
+        )
         return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
 
-    def __call__(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> BoneState:
+    def __call__(
+        self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float
+    ) -> BoneState:
         out = state.copy()
         sub, inputs = self.inputs(state, centre, axis, force_n, advance_m, omega_rad_s)
         self.last = StepInfo(sub.n_region, len(sub.nodes))
@@ -99,7 +112,9 @@ class GeometricStep:
         self.graph = graph
         self.teeth_radius_m = teeth_radius_m
 
-    def __call__(self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float) -> BoneState:
+    def __call__(
+        self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float
+    ) -> BoneState:
         rel = self.graph.centroids - centre
         inside = (np.einsum("ij,ij->i", rel, rel) < self.teeth_radius_m**2) & (rel @ axis >= 0.0)
         out = state.copy()
@@ -121,7 +136,13 @@ def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerF
             new_centre = case.positions[start + k]
         else:
             impulse = case.force_n * case.frame_dt_s * (start + k - 1)
-            new_centre = centre + feed.advance_m(state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse) * case.axis
+            new_centre = (
+                centre
+                + feed.advance_m(
+                    state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse
+                )
+                * case.axis
+            )
         moved = float((new_centre - centre) @ case.axis)
         state = step(state, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
         removed = state.alpha < threshold

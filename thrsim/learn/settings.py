@@ -102,9 +102,13 @@ class TrainSettings(_Frozen):
     validation_horizon: int = Field(30, ge=1, description="frames of the validation rollouts run after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
     advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
-    pushforward_steps: int = Field(0, ge=0, description="longest rollout of the network itself that makes a training input (0: ground-truth inputs only)")
+    pushforward_steps: int = Field(
+        0, ge=0, description="longest rollout of the network itself that makes a training input (0: ground-truth inputs only)"
+    )
     pushforward_fraction: float = Field(0.5, ge=0, le=1, description="share of frame pairs whose input is pushed forward")
-    pushforward_from_epoch: int = Field(5, ge=0, description="first epoch with pushed-forward inputs (the network must first learn one step)")
+    pushforward_from_epoch: int = Field(
+        5, ge=0, description="first epoch with pushed-forward inputs (the network must first learn one step)"
+    )
 
 
 class ModelSettings(_Frozen):

@@ -124,7 +124,14 @@ class ReamingSimulator:
     >>> state = sim.step((0.26, 0.15, -0.95), 230.0)  # doctest: +SKIP
     """
 
-    def __init__(self, model_dir: str | os.PathLike | None = None, *, model: LoadedModel | None = None, threads: int | None = None, compile: bool = False):
+    def __init__(
+        self,
+        model_dir: str | os.PathLike | None = None,
+        *,
+        model: LoadedModel | None = None,
+        threads: int | None = None,
+        compile: bool = False,
+    ):
         """``threads``: PyTorch's threads and NumPy's BLAS threads, for the whole process. A step's
         NumPy work is small (thousands of rows), where OpenBLAS's threads cost more than they
         save, much more on a loaded machine: a boolean mask times the volumes took 1.6 ms with
@@ -236,7 +243,10 @@ class ReamingSimulator:
             if self._centre is None:
                 self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
             gamma, theta = angles_of(axis)
-            new_centre = self._centre + self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s) * axis
+            new_centre = (
+                self._centre
+                + self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s) * axis
+            )
         advance = float((new_centre - self._centre) @ axis)
         before = self.removed
         self.bone = self._step(self.bone, new_centre, axis, force, advance, self.model.omega_rad_s)

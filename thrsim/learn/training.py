@@ -63,7 +63,16 @@ class EpochReport:
 class Trainer:
     """Holds the data, both networks and their optimisers; ``run`` trains epoch by epoch."""
 
-    def __init__(self, graph: StaticGraph, train: list[CaseArrays], validation: list[CaseArrays], settings: ModelSettings, teeth_radius_m: float, threshold: float, init: LoadedModel | None = None):
+    def __init__(
+        self,
+        graph: StaticGraph,
+        train: list[CaseArrays],
+        validation: list[CaseArrays],
+        settings: ModelSettings,
+        teeth_radius_m: float,
+        threshold: float,
+        init: LoadedModel | None = None,
+    ):
         if not train:
             raise ThrsimInputError("no training cases")
         self.graph, self.train_cases, self.validation = graph, train, validation
@@ -158,7 +167,17 @@ class Trainer:
         damage_in = None if not with_damage else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
         reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
-        arrays = frame_arrays(graph, sub, alpha_in, reamer, self.settings.features.feature_set, self.threshold, active_t, damage_in, self.settings.features.corners)
+        arrays = frame_arrays(
+            graph,
+            sub,
+            alpha_in,
+            reamer,
+            self.settings.features.feature_set,
+            self.threshold,
+            active_t,
+            damage_in,
+            self.settings.features.corners,
+        )
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
         return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
 
@@ -229,7 +248,11 @@ class Trainer:
 
     # checkpoints -------------------------------------------------------------------------
     def identity(self) -> str:
-        identity = {"settings": self.settings.model_dump(mode="json"), "cases": [c.case_id for c in self.train_cases], "mesh": self.graph.digest}
+        identity = {
+            "settings": self.settings.model_dump(mode="json"),
+            "cases": [c.case_id for c in self.train_cases],
+            "mesh": self.graph.digest,
+        }
         if self.init_digest is not None:
             identity["init"] = self.init_digest
         return config_hash(identity)
@@ -274,7 +297,12 @@ class Trainer:
         self.history = list(progress["history"])
         return True
 
-    def run(self, checkpoint_dir: Path | None, on_epoch: Callable[[EpochReport], None] | None = None, on_batch: Callable[[int, int], None] | None = None) -> float:
+    def run(
+        self,
+        checkpoint_dir: Path | None,
+        on_epoch: Callable[[EpochReport], None] | None = None,
+        on_batch: Callable[[int, int], None] | None = None,
+    ) -> float:
         """Train up to the configured epochs (or the time budget); return training seconds this run."""
         started = time.perf_counter()
         budget = self.settings.train.max_minutes

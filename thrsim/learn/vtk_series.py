@@ -26,7 +26,9 @@ def dome(radius_m: float, rings: int = 12, segments: int = 32) -> tuple[np.ndarr
         polar = 0.5 * math.pi * i / rings
         for j in range(segments):
             azimuth = 2 * math.pi * j / segments
-            points.append([radius_m * math.sin(polar) * math.cos(azimuth), radius_m * math.sin(polar) * math.sin(azimuth), radius_m * math.cos(polar)])
+            points.append(
+                [radius_m * math.sin(polar) * math.cos(azimuth), radius_m * math.sin(polar) * math.sin(azimuth), radius_m * math.cos(polar)]
+            )
     triangles = [[0, 1 + j, 1 + (j + 1) % segments] for j in range(segments)]
     for i in range(rings - 1):
         a, b = 1 + i * segments, 1 + (i + 1) * segments
@@ -36,9 +38,22 @@ def dome(radius_m: float, rings: int = 12, segments: int = 32) -> tuple[np.ndarr
     return np.array(points), np.array(triangles, dtype=np.int64)
 
 
-def write_frame(folder: Path, frame: int, mesh: TetMesh, alpha: np.ndarray, removed: np.ndarray, centre_m: np.ndarray, axis: np.ndarray, teeth_radius_m: float) -> tuple[str, str]:
+def write_frame(
+    folder: Path,
+    frame: int,
+    mesh: TetMesh,
+    alpha: np.ndarray,
+    removed: np.ndarray,
+    centre_m: np.ndarray,
+    axis: np.ndarray,
+    teeth_radius_m: float,
+) -> tuple[str, str]:
     bone_name, reamer_name = f"bone_{frame:04d}.vtu", f"reamer_{frame:04d}.vtu"
-    bone = meshio.Mesh(mesh.nodes * 1e3, [("tetra", mesh.tets)], cell_data={"alpha": [np.asarray(alpha, dtype=np.float32)], "removed": [np.asarray(removed, dtype=np.uint8)]})
+    bone = meshio.Mesh(
+        mesh.nodes * 1e3,
+        [("tetra", mesh.tets)],
+        cell_data={"alpha": [np.asarray(alpha, dtype=np.float32)], "removed": [np.asarray(removed, dtype=np.uint8)]},
+    )
     meshio.write(folder / bone_name, bone, file_format="vtu")
     points, triangles = dome(teeth_radius_m)
     placed = (points @ frame_rotation(axis).T + centre_m) * 1e3

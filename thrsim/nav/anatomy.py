@@ -150,9 +150,7 @@ def angles_from_local(local_axis: np.ndarray, definition: str = "radiographic") 
     _check_choice(definition, DEFINITIONS, "definition")
     lat, ant, inf = (float(np.clip(c, -1.0, 1.0)) for c in local_axis)
     if lat < 0.0:
-        raise ThrsimInputError(
-            "axis points medially (into the pelvis); give the cup axis pointing out of the acetabulum"
-        )
+        raise ThrsimInputError("axis points medially (into the pelvis); give the cup axis pointing out of the acetabulum")
     if definition == "radiographic":
         inclination, anteversion = math.atan2(lat, inf), math.asin(ant)
     elif definition == "operative":

@@ -73,7 +73,9 @@ def calibrate_frames(
     count = head.shape[0]
     if count < min_samples:
         raise CalibrationRefused(f"too few samples: {count} < {min_samples}")
-    estimates = np.array([check_pose(h, f"headset pose {i}") @ invert(check_pose(t, f"tracker pose {i}")) for i, (h, t) in enumerate(zip(head, tracker))])
+    estimates = np.array(
+        [check_pose(h, f"headset pose {i}") @ invert(check_pose(t, f"tracker pose {i}")) for i, (h, t) in enumerate(zip(head, tracker))]
+    )
 
     rotations = Rotation.from_matrix(estimates[:, :3, :3])
     translations = estimates[:, :3, 3]
@@ -88,7 +90,9 @@ def calibrate_frames(
     inliers = _gate(angle_off, gate_sigmas, 1e-6) & _gate(shift_off, gate_sigmas, 1e-6)
     used = int(inliers.sum())
     if used < max(min_samples, min_inlier_fraction * count):
-        raise CalibrationRefused(f"too inconsistent: only {used} of {count} frames agree (need {min_inlier_fraction:.0%} and at least {min_samples})")
+        raise CalibrationRefused(
+            f"too inconsistent: only {used} of {count} frames agree (need {min_inlier_fraction:.0%} and at least {min_samples})"
+        )
 
     rotation = rotations[inliers].mean()
     translation = translations[inliers].mean(axis=0)

@@ -46,9 +46,7 @@ def _rim_right() -> dict[str, np.ndarray]:
     inclination = math.radians(_NATIVE_INCLINATION_DEG)
     anteversion = math.radians(_NATIVE_ANTEVERSION_DEG)
     # (lat, ant, inf) = (+x, +y, −z) for the right hip.
-    axis = np.array(
-        [math.cos(anteversion) * math.sin(inclination), math.sin(anteversion), -math.cos(anteversion) * math.cos(inclination)]
-    )
+    axis = np.array([math.cos(anteversion) * math.sin(inclination), math.sin(anteversion), -math.cos(anteversion) * math.cos(inclination)])
     first = np.cross(axis, [0.0, 1.0, 0.0])
     first /= np.linalg.norm(first)
     second = np.cross(axis, first)

@@ -85,7 +85,6 @@ from thrsim.config import STICK_FRACTION
 from thrsim import portable_math as pm
 
 
-
 class ReamerTeeth(NamedTuple):
     """Rigid reamer geometry in its own frame (m, rad)."""
 

@@ -39,7 +39,9 @@ def jc_yield_stress(peeq: float, peeq_rate: float, a: float, b: float, n: float,
 
 
 @njit(cache=True)
-def jc_radial_return(q_trial: float, peeq: float, dt: float, shear_modulus: float, a: float, b: float, n: float, c: float, rate0: float) -> float:
+def jc_radial_return(
+    q_trial: float, peeq: float, dt: float, shear_modulus: float, a: float, b: float, n: float, c: float, rate0: float
+) -> float:
     """Plastic strain increment Δεᵖ ≥ 0 that returns a trial von Mises stress to the JC surface.
 
     Solves g(Δ) = q_trial − 3GΔ − σ_y(εᵖ + Δ, Δ/dt) = 0, strictly decreasing in Δ. The root can
@@ -87,7 +89,9 @@ def jc_fracture_strain(triaxiality: float, peeq_rate: float, d1: float, d2: floa
 
 
 @njit(cache=True, inline="always")
-def damage_initiation_increment(dpeeq: float, triaxiality: float, peeq_rate: float, d1: float, d2: float, d3: float, d4: float, rate0: float) -> float:
+def damage_initiation_increment(
+    dpeeq: float, triaxiality: float, peeq_rate: float, d1: float, d2: float, d3: float, d4: float, rate0: float
+) -> float:
     """Increment of the initiation criterion ω; ≥ 1 means initiated (instantly when ε_f ≤ 0)."""
     if dpeeq <= 0.0:
         return 0.0

@@ -218,7 +218,12 @@ class ReamingSimulation:
             else None
         )
         self.solid = ExplicitSolid(
-            self.mesh, case.material, case.hardening, case.damage, case.solver.target_dt_s, case.solver.safety_factor,
+            self.mesh,
+            case.material,
+            case.hardening,
+            case.damage,
+            case.solver.target_dt_s,
+            case.solver.safety_factor,
             support_stiffness=springs,
         )
         self.reamer = build_reamer(case.reamer)
@@ -333,7 +338,17 @@ class ReamingSimulation:
         }
         terms["external_work"] = terms["push_work"] + terms["gravity_work"] + terms["spin_work"]
         terms["contact_work"] = float(ledger[CONTACT_ON_BONE])
-        stored = ("kinetic", "internal", "viscous_dissipation", "debris", "reamer_kinetic", "arm_damping", "contact_damping", "friction", "penalty")
+        stored = (
+            "kinetic",
+            "internal",
+            "viscous_dissipation",
+            "debris",
+            "reamer_kinetic",
+            "arm_damping",
+            "contact_damping",
+            "friction",
+            "penalty",
+        )
         terms["balance_error"] = terms["external_work"] - sum(terms[name] for name in stored)
         return terms
 
@@ -466,7 +481,9 @@ class ReamingSimulation:
         return summary
 
 
-def steady_reaming_statistics(records: dict[str, np.ndarray], first_contact_frame: int | None, frame_dt_s: float, volume: np.ndarray) -> dict:
+def steady_reaming_statistics(
+    records: dict[str, np.ndarray], first_contact_frame: int | None, frame_dt_s: float, volume: np.ndarray
+) -> dict:
     """Within-frame excursion, contact fraction, feed and removal rates over the frames after seating.
 
     Steady frames are those from ``SEATING_FRAMES`` after first contact to the end; the rates

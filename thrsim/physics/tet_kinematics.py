@@ -68,7 +68,9 @@ class MassScaling:
         }
 
 
-def mass_scaling(nodes: np.ndarray, tets: np.ndarray, density: float, p_wave_modulus: float, target_dt_s: float | None, safety: float) -> MassScaling:
+def mass_scaling(
+    nodes: np.ndarray, tets: np.ndarray, density: float, p_wave_modulus: float, target_dt_s: float | None, safety: float
+) -> MassScaling:
     """Densities that let the whole mesh run at ``target_dt_s`` (None: no scaling)."""
     altitude = minimum_altitudes(nodes, tets)
     wave_speed = np.sqrt(p_wave_modulus / density)

@@ -56,7 +56,9 @@ def dome(centre_mm: np.ndarray, axis: np.ndarray, radius_mm: float, rings: int =
     polar = np.linspace(0.0, 0.5 * np.pi, rings + 1)
     azimuth = np.linspace(0.0, 2.0 * np.pi, segments + 1)
     p, a = np.meshgrid(polar, azimuth, indexing="ij")
-    grid = centre_mm + radius_mm * (np.sin(p)[..., None] * (np.cos(a)[..., None] * e1 + np.sin(a)[..., None] * e2) + np.cos(p)[..., None] * axis)
+    grid = centre_mm + radius_mm * (
+        np.sin(p)[..., None] * (np.cos(a)[..., None] * e1 + np.sin(a)[..., None] * e2) + np.cos(p)[..., None] * axis
+    )
     quads = np.stack([grid[:-1, :-1], grid[1:, :-1], grid[1:, 1:], grid[:-1, 1:]], axis=2)
     return np.concatenate([quads[:, :, [0, 1, 2]], quads[:, :, [0, 2, 3]]]).reshape(-1, 3, 3)
 
@@ -79,11 +81,15 @@ class BoneRenderer:
         self._colour_map = ctx.texture((256, 1), 3, colour_lookup().tobytes())
         self._colour_map.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self._faces_program = ctx.program(vertex_shader=shaders.FACES_VERTEX, fragment_shader=shaders.FRAGMENT)
-        self._thesis_program = ctx.program(vertex_shader=shaders.THESIS_VERTEX, geometry_shader=shaders.THESIS_GEOMETRY, fragment_shader=shaders.FRAGMENT)
+        self._thesis_program = ctx.program(
+            vertex_shader=shaders.THESIS_VERTEX, geometry_shader=shaders.THESIS_GEOMETRY, fragment_shader=shaders.FRAGMENT
+        )
         self._reamer_program = ctx.program(vertex_shader=shaders.REAMER_VERTEX, fragment_shader=shaders.REAMER_FRAGMENT)
         self._node_buffer = ctx.buffer(self._nodes_mm.tobytes())
         self._tet_buffer = ctx.buffer(self._tets.tobytes())
-        self._tet_array = ctx.vertex_array(self._thesis_program, [(self._node_buffer, "3f", "in_position")], index_buffer=self._tet_buffer, index_element_size=4)
+        self._tet_array = ctx.vertex_array(
+            self._thesis_program, [(self._node_buffer, "3f", "in_position")], index_buffer=self._tet_buffer, index_element_size=4
+        )
         rows = -(-mesh.n_tets // _ALPHA_TEXTURE_WIDTH)
         self._alpha_texture = ctx.texture((_ALPHA_TEXTURE_WIDTH, rows), 1, dtype="f4")
         self._alpha_texels = np.zeros(_ALPHA_TEXTURE_WIDTH * rows, dtype=np.float32)
@@ -99,7 +105,9 @@ class BoneRenderer:
         direction = np.array([0.0, 0.0, -1.0]) if axis is None else np.asarray(axis, dtype=np.float64)
         return framing_camera(self._nodes_mm, direction)
 
-    def image(self, alpha: np.ndarray, camera: Camera | None = None, method: Method = "faces", reamer: ReamerView | None = None) -> np.ndarray:
+    def image(
+        self, alpha: np.ndarray, camera: Camera | None = None, method: Method = "faces", reamer: ReamerView | None = None
+    ) -> np.ndarray:
         """(height, width, 3) uint8 picture of the elements with α ≥ threshold."""
         alpha = np.asarray(alpha, dtype=np.float32).reshape(-1)
         if alpha.shape != (self.mesh.n_tets,):

@@ -98,7 +98,9 @@ def _orientation(record: NavigationRecord, dt: np.ndarray) -> Section:
     criteria.append(
         Criterion(
             "confirmed cup orientation",
-            "not confirmed" if last is None else f"{last['inclination_deg']:.1f}° / {last['anteversion_deg']:.1f}° ({last['distance_deg']:.1f}° from the zone)",
+            "not confirmed"
+            if last is None
+            else f"{last['inclination_deg']:.1f}° / {last['anteversion_deg']:.1f}° ({last['distance_deg']:.1f}° from the zone)",
             f"inside the zone: 20, within {margin:g}°: 10",
             0.0 if last is None else 20.0 if last["inside"] else 10.0 if last["distance_deg"] <= margin else 0.0,
             20,
@@ -176,7 +178,10 @@ def _dropouts(record: NavigationRecord, dt: np.ndarray) -> Section:
         lost = (codes != tracked) & (codes != missing)
         episodes = int(np.sum(lost[1:] & ~lost[:-1]) + (lost[0] if lost.size else 0))
         by_cause = {states[c]: float(dt[codes == c].sum()) for c in np.unique(codes[lost])}
-        rows.append([tool, f"{dt[codes == tracked].sum():.1f} s", episodes] + [f"{by_cause.get(c, 0.0):.1f} s" for c in ("outside_volume", "angle", "occluded", "stale")])
+        rows.append(
+            [tool, f"{dt[codes == tracked].sum():.1f} s", episodes]
+            + [f"{by_cause.get(c, 0.0):.1f} s" for c in ("outside_volume", "angle", "occluded", "stale")]
+        )
         for cause, colour in _DROPOUT_COLOURS.items():
             mask = codes == states.index(cause)
             spans = _spans(record.time, dt, mask)

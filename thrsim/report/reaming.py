@@ -94,10 +94,30 @@ def _course(record: ReamingRecord) -> Section:
     rate = record.removed_volume_mm3[-1] / (frames * FRAME_S) if frames else 0.0
     body = figure_png(figure) + table(
         ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
-        [[f"{frames * FRAME_S:.1f} s", f"{record.removed_volume_mm3[-1]:.1f} mm³" if frames else "0 mm³", f"{record.depth_mm[-1]:.2f} mm" if frames else "0 mm",
-          f"{rate:.0f} mm³/s", "—" if math.isnan(in_range) else f"{100 * in_range:.0f} %", record.behind_frames]],
+        [
+            [
+                f"{frames * FRAME_S:.1f} s",
+                f"{record.removed_volume_mm3[-1]:.1f} mm³" if frames else "0 mm³",
+                f"{record.depth_mm[-1]:.2f} mm" if frames else "0 mm",
+                f"{rate:.0f} mm³/s",
+                "—" if math.isnan(in_range) else f"{100 * in_range:.0f} %",
+                record.behind_frames,
+            ]
+        ],
     )
-    criteria = [] if not frames else [Criterion("push force", f"{100 * in_range:.0f} % of reaming time in {low:g}–{high:g} N", "≥ 90 %: 1; ≥ 60 %: 0.5", 1.0 if in_range >= 0.9 else 0.5 if in_range >= 0.6 else 0.0, 1.0)]
+    criteria = (
+        []
+        if not frames
+        else [
+            Criterion(
+                "push force",
+                f"{100 * in_range:.0f} % of reaming time in {low:g}–{high:g} N",
+                "≥ 90 %: 1; ≥ 60 %: 0.5",
+                1.0 if in_range >= 0.9 else 0.5 if in_range >= 0.6 else 0.0,
+                1.0,
+            )
+        ]
+    )
     return Section("Reaming: removal, depth and push", body, criteria)
 
 
@@ -112,7 +132,15 @@ def _cavity(record: ReamingRecord) -> Section:
     figure.colorbar(image, ax=axes[0], label="reamed below the articular surface (mm)")
     axes[0].set_title(f"Final cavity depth (plan {found['planned_depth_mm']:.2f} mm)")
     classes = np.ma.masked_less(found["classes"].T, 0)
-    axes[1].imshow(classes, origin="lower", extent=found["extent_mm"], cmap=ListedColormap(_CLASS_COLOURS), vmin=-0.5, vmax=len(CLASSES) - 0.5, interpolation="nearest")
+    axes[1].imshow(
+        classes,
+        origin="lower",
+        extent=found["extent_mm"],
+        cmap=ListedColormap(_CLASS_COLOURS),
+        vmin=-0.5,
+        vmax=len(CLASSES) - 0.5,
+        interpolation="nearest",
+    )
     handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in _CLASS_COLOURS]
     axes[1].legend(handles, [f"{n} ({100 * fractions[n]:.0f} %)" for n in CLASSES], fontsize=8, loc="upper right")
     axes[1].set_title("Against the planned hemisphere")
@@ -148,7 +176,19 @@ def _orientation_while_cutting(record: ReamingRecord) -> Section:
         [[len(record.frame), int(measured.sum()), "—" if math.isnan(share) else f"{100 * share:.0f} %",
           f"{np.nanmax(record.angles[:, 2]):.1f}°" if measured.any() else "—"]],
     )  # fmt: skip
-    criteria = [] if math.isnan(share) else [Criterion("safe zone while cutting", f"{100 * share:.0f} % of reaming frames", "≥ 90 %: 2; ≥ 70 %: 1", 2.0 if share >= 0.9 else 1.0 if share >= 0.7 else 0.0, 2.0)]
+    criteria = (
+        []
+        if math.isnan(share)
+        else [
+            Criterion(
+                "safe zone while cutting",
+                f"{100 * share:.0f} % of reaming frames",
+                "≥ 90 %: 2; ≥ 70 %: 1",
+                2.0 if share >= 0.9 else 1.0 if share >= 0.7 else 0.0,
+                2.0,
+            )
+        ]
+    )
     return Section("Reaming: orientation while cutting", body, criteria)
 
 

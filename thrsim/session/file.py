@@ -105,7 +105,10 @@ class InputLog:
         """(kind, time, payload) in lived order: kind is control, pose, force or tick."""
         matrices = self.pose_matrix.numpy(float).reshape(-1, 4, 4)
         merged = [(s, "control", t, json.loads(m)) for s, t, m in self.controls]
-        merged += [(s, "pose", t, (self.devices[d], matrices[k])) for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data))]
+        merged += [
+            (s, "pose", t, (self.devices[d], matrices[k]))
+            for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data))
+        ]
         merged += [(s, "force", t, f) for s, t, f in zip(self.force_seq.data, self.force_time.data, self.force_newton.data)]
         merged += [(s, "tick", t, None) for s, t in zip(self.tick_seq.data, self.tick_time.data)]
         for _, kind, time_s, payload in sorted(merged, key=lambda item: item[0]):
@@ -166,7 +169,11 @@ def write_session(
             )
             _write_table(
                 group.create_group("forces"),
-                {"seq": inputs.force_seq.numpy(np.int64), "time": inputs.force_time.numpy(float), "newton": inputs.force_newton.numpy(float)},
+                {
+                    "seq": inputs.force_seq.numpy(np.int64),
+                    "time": inputs.force_time.numpy(float),
+                    "newton": inputs.force_newton.numpy(float),
+                },
             )
             _write_table(group.create_group("ticks"), {"seq": inputs.tick_seq.numpy(np.int64), "time": inputs.tick_time.numpy(float)})
             for mode, writer in mode_writers.items():
@@ -211,11 +218,15 @@ def read_session(path: str | Path) -> SessionFile:
         inputs = InputLog()
         inputs.controls = list(zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"]))
         poses = raw["poses"]
-        for seq, time_s, device, matrix in zip(poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4)):
+        for seq, time_s, device, matrix in zip(
+            poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4)
+        ):
             inputs._seq = seq - 1
             inputs.pose(time_s, device, matrix)
         forces, ticks = raw["forces"], raw["ticks"]
-        inputs.force_seq, inputs.force_time, inputs.force_newton = (_Column(t, 1, forces[k].tolist()) for t, k in (("q", "seq"), ("d", "time"), ("d", "newton")))
+        inputs.force_seq, inputs.force_time, inputs.force_newton = (
+            _Column(t, 1, forces[k].tolist()) for t, k in (("q", "seq"), ("d", "time"), ("d", "newton"))
+        )
         inputs.tick_seq, inputs.tick_time = _Column("q", 1, ticks["seq"].tolist()), _Column("d", 1, ticks["time"].tolist())
     except (KeyError, ValueError, TypeError) as error:
         raise ThrsimInputError(f"{path}: session file lacks or garbles an inputs table ({error})") from None

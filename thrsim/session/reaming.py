@@ -95,7 +95,9 @@ def read_reaming(group: dict) -> ReamingRecord:
             final_alpha=np.asarray(group["final_alpha"], dtype=np.float32),
             behind_frames=int(attrs["behind_frames"]),
             navigation=read_navigation(group["navigation"]),
-            cavity={} if "centroids_m" not in group["cavity"] else {
+            cavity={}
+            if "centroids_m" not in group["cavity"]
+            else {
                 "centroids_m": np.asarray(group["cavity"]["centroids_m"], dtype=float),
                 "outer": np.asarray(group["cavity"]["outer"], dtype=bool),
                 **{k: float(group["cavity"]["attrs"][k]) for k in ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")},

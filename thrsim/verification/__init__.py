@@ -65,7 +65,9 @@ def select(names: Iterable[str] | None = None, include_slow: bool = False) -> li
     return [(checks[n], figures) for n, figures in chosen.items()]
 
 
-def run_checks(names: Iterable[str] | None = None, include_slow: bool = False, progress: Callable[[Check], None] | None = None) -> list[CheckResult]:
+def run_checks(
+    names: Iterable[str] | None = None, include_slow: bool = False, progress: Callable[[Check], None] | None = None
+) -> list[CheckResult]:
     """Run the selected checks; a check that raises becomes one failed record carrying the error."""
     results: list[CheckResult] = []
     for check, figures in select(names, include_slow):

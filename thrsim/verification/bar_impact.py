@@ -65,7 +65,15 @@ class BarImpact:
         return probes
 
 
-def run_thrsim_bar(problem: BarImpact, material: BoneMaterial, hardening: JohnsonCookHardening, dt_factor: float = 1.0, dt_s: float | None = None, bulk_viscosity: float = 0.0, record_history: bool = True) -> dict:
+def run_thrsim_bar(
+    problem: BarImpact,
+    material: BoneMaterial,
+    hardening: JohnsonCookHardening,
+    dt_factor: float = 1.0,
+    dt_s: float | None = None,
+    bulk_viscosity: float = 0.0,
+    record_history: bool = True,
+) -> dict:
     """Run the bar in thrsim; the end-time displacement is u_N and the stress/PEEQ those of u_N
     (one extra element pass: the solver's stress lags its displacement by one step)."""
     started = time.perf_counter()
@@ -110,6 +118,7 @@ def run_thrsim_bar(problem: BarImpact, material: BoneMaterial, hardening: Johnso
 
 # ------------------------------------------------------------------------------ CalculiX
 
+
 def ccx_available() -> str | None:
     return shutil.which("ccx")
 
@@ -122,7 +131,9 @@ def tabulated_flow_curve(hardening: JohnsonCookHardening, points: int = 80, peeq
     return np.column_stack([sigma, peeq])
 
 
-def write_ccx_input(path: Path, problem: BarImpact, mesh: TetMesh, material: BoneMaterial, hardening: JohnsonCookHardening, frequency: int) -> None:
+def write_ccx_input(
+    path: Path, problem: BarImpact, mesh: TetMesh, material: BoneMaterial, hardening: JohnsonCookHardening, frequency: int
+) -> None:
     """The CalculiX deck: nodes, C3D4 elements, sets, material, initial velocity, wall, explicit step.
 
     Numbers are written with 12 significant digits: ccx rejects longer fields (20 characters).
@@ -144,9 +155,22 @@ def write_ccx_input(path: Path, problem: BarImpact, mesh: TetMesh, material: Bon
     lines += [f"{s:.12g}, {p:.12g}" for s, p in tabulated_flow_curve(hardening)]
     lines += ["*SOLID SECTION, ELSET=EALL, MATERIAL=BONE", "*INITIAL CONDITIONS, TYPE=VELOCITY"]
     lines += [f"{int(n) + 1}, 1, {-problem.velocity_m_s:.12g}" for n in moving]
-    lines += ["*BOUNDARY", "WALL, 1, 3", "*STEP, INC=10000000", "*DYNAMIC, EXPLICIT", f"{problem.end_time_s / 100:.12g}, {problem.end_time_s:.12g}"]
+    lines += [
+        "*BOUNDARY",
+        "WALL, 1, 3",
+        "*STEP, INC=10000000",
+        "*DYNAMIC, EXPLICIT",
+        f"{problem.end_time_s / 100:.12g}, {problem.end_time_s:.12g}",
+    ]
     # FREQUENCY is global to a step's print requests; the step's last increment is always printed
-    lines += [f"*NODE PRINT, NSET=NALL, FREQUENCY={frequency}", "U", f"*EL PRINT, ELSET=EALL, FREQUENCY={frequency}", "S, PEEQ", "*END STEP", ""]
+    lines += [
+        f"*NODE PRINT, NSET=NALL, FREQUENCY={frequency}",
+        "U",
+        f"*EL PRINT, ELSET=EALL, FREQUENCY={frequency}",
+        "S, PEEQ",
+        "*END STEP",
+        "",
+    ]
     path.write_text("\n".join(lines))
 
 
@@ -177,7 +201,14 @@ def parse_ccx_dat(path: Path) -> dict[float, dict[str, dict[int, list[float]]]]:
     return out
 
 
-def run_ccx_bar(problem: BarImpact, material: BoneMaterial, hardening: JohnsonCookHardening, timeout_s: float = 120.0, workdir: Path | None = None, outputs: int = 10) -> dict:
+def run_ccx_bar(
+    problem: BarImpact,
+    material: BoneMaterial,
+    hardening: JohnsonCookHardening,
+    timeout_s: float = 120.0,
+    workdir: Path | None = None,
+    outputs: int = 10,
+) -> dict:
     """Write the deck, run ccx in a temporary directory with a timeout, parse the .dat output."""
     executable = ccx_available()
     if executable is None:

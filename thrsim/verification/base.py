@@ -58,7 +58,18 @@ def relative_error(value: float, reference: float) -> float:
     return abs(value - reference) / scale if scale > 0 else abs(value - reference)
 
 
-def result(name: str, figure: str, value: float, reference: float | None, tolerance: float, *, error: float | None = None, units: str = "", details: dict | None = None, seconds: float = 0.0) -> CheckResult:
+def result(
+    name: str,
+    figure: str,
+    value: float,
+    reference: float | None,
+    tolerance: float,
+    *,
+    error: float | None = None,
+    units: str = "",
+    details: dict | None = None,
+    seconds: float = 0.0,
+) -> CheckResult:
     """A record whose error defaults to the relative error of value against reference."""
     if error is None:
         error = relative_error(value, reference) if reference is not None else abs(value)

@@ -120,4 +120,11 @@ def _detached_bookkeeping(material: BoneMaterial) -> dict:
             "mass_error": float(mass_error), "momentum_error": float(momentum_error)}  # fmt: skip
 
 
-CHECKS = [Check("deletion-bookkeeping", "mass and momentum balance across element deletion; irreversibility", deletion_bookkeeping, ("deletion-mass-balance", "deletion-momentum-balance", "deletion-irreversible"))]
+CHECKS = [
+    Check(
+        "deletion-bookkeeping",
+        "mass and momentum balance across element deletion; irreversibility",
+        deletion_bookkeeping,
+        ("deletion-mass-balance", "deletion-momentum-balance", "deletion-irreversible"),
+    )
+]

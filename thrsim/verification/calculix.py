@@ -37,7 +37,9 @@ def calculix_cross_check() -> list[CheckResult]:
         steps = int(math.ceil(problem.end_time_s / ccx["dt_s"] - 1e-9))
         with numba_threads(1):
             # warm the kernels outside the timing (Numba's on-disk cache still has a load cost)
-            run_thrsim_bar(BarImpact(end_time_s=problem.end_time_s / 50), material, hardening, dt_s=problem.end_time_s / steps, record_history=False)
+            run_thrsim_bar(
+                BarImpact(end_time_s=problem.end_time_s / 50), material, hardening, dt_s=problem.end_time_s / steps, record_history=False
+            )
             thr = run_thrsim_bar(problem, material, hardening, dt_s=problem.end_time_s / steps)
     mesh = thr["mesh"]
     v0 = problem.velocity_m_s
@@ -90,4 +92,11 @@ def calculix_cross_check() -> list[CheckResult]:
     ]  # fmt: skip
 
 
-CHECKS = [Check("calculix", "cross-check of an elastic-plastic bar impact against CalculiX (C3D4, explicit)", calculix_cross_check, ("calculix-displacement-field", "calculix-probe-history", "calculix-wall-stress", "calculix-wall-peeq"))]
+CHECKS = [
+    Check(
+        "calculix",
+        "cross-check of an elastic-plastic bar impact against CalculiX (C3D4, explicit)",
+        calculix_cross_check,
+        ("calculix-displacement-field", "calculix-probe-history", "calculix-wall-stress", "calculix-wall-peeq"),
+    )
+]

@@ -147,6 +147,16 @@ def dt_convergence() -> list[CheckResult]:
 
 
 CHECKS = [
-    Check("energy-conservation", "energy conservation of an undamped elastic free vibration", free_vibration, ("energy-free-vibration", "energy-balance-bar-impact")),
-    Check("dt-convergence", "time-step convergence of an elastic-plastic bar impact (Δt, Δt/2, Δt/4)", dt_convergence, ("dt-convergence-plastic-dissipation", "dt-convergence-mid-length-displacement")),
+    Check(
+        "energy-conservation",
+        "energy conservation of an undamped elastic free vibration",
+        free_vibration,
+        ("energy-free-vibration", "energy-balance-bar-impact"),
+    ),
+    Check(
+        "dt-convergence",
+        "time-step convergence of an elastic-plastic bar impact (Δt, Δt/2, Δt/4)",
+        dt_convergence,
+        ("dt-convergence-plastic-dissipation", "dt-convergence-mid-length-displacement"),
+    ),
 ]

@@ -192,6 +192,16 @@ def damage_single_element() -> list[CheckResult]:
 
 
 CHECKS = [
-    Check("jc-uniaxial", "JC uniaxial flow curve to εᵖ = 2 at three strain rates vs closed form", jc_uniaxial, tuple(f"jc-uniaxial-rate-{_rate_label(r)}" for r in JC_RATES_S)),
-    Check("damage-single-element", "single-element damage initiation, softening and deletion vs closed form", damage_single_element, ("damage-shear-deletion-strain", "damage-shear-peak-stress", "damage-tension-deletion-strain", "damage-tension-peak-stress")),
+    Check(
+        "jc-uniaxial",
+        "JC uniaxial flow curve to εᵖ = 2 at three strain rates vs closed form",
+        jc_uniaxial,
+        tuple(f"jc-uniaxial-rate-{_rate_label(r)}" for r in JC_RATES_S),
+    ),
+    Check(
+        "damage-single-element",
+        "single-element damage initiation, softening and deletion vs closed form",
+        damage_single_element,
+        ("damage-shear-deletion-strain", "damage-shear-peak-stress", "damage-tension-deletion-strain", "damage-tension-peak-stress"),
+    ),
 ]

@@ -57,4 +57,6 @@ def patch_test() -> list[CheckResult]:
     ]  # fmt: skip
 
 
-CHECKS = [Check("patch-test", "constant-strain patch test on a distorted tet mesh", patch_test, ("patch-test-residual", "patch-test-stress"))]
+CHECKS = [
+    Check("patch-test", "constant-strain patch test on a distorted tet mesh", patch_test, ("patch-test-residual", "patch-test-stress"))
+]

@@ -63,7 +63,10 @@ def reaming_energy_balance() -> list[CheckResult]:
         summary = _run(case, generate_bone_patch(case.bone))
     external = summary["external_work_j"]
     error = summary["energy_balance_error"]
-    details = {key: summary.get(key) for key in ("elements", "frames", "removed", "external_work_j", "balance_by_part_j", "max_kinetic_to_internal")}
+    details = {
+        key: summary.get(key)
+        for key in ("elements", "frames", "removed", "external_work_j", "balance_by_part_j", "max_kinetic_to_internal")
+    }
     record = result(
         "reaming-energy-balance-error", f"|energy balance error| ÷ external work over {ENERGY_FRAMES} frames of the default case",
         value=error, reference=None, tolerance=ENERGY_TOLERANCE, details=details, seconds=watch.seconds,

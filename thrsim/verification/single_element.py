@@ -29,7 +29,9 @@ REFERENCE_TET = np.array([[0.0, 0.0, 0.0], [1.1e-3, 0.1e-3, 0.0], [0.2e-3, 0.9e-
 class SingleTet:
     """State of one element and a way to try or commit a strain increment."""
 
-    def __init__(self, material: BoneMaterial, hardening: JohnsonCookHardening, damage: JohnsonCookDamage, nodes: np.ndarray = REFERENCE_TET) -> None:
+    def __init__(
+        self, material: BoneMaterial, hardening: JohnsonCookHardening, damage: JohnsonCookDamage, nodes: np.ndarray = REFERENCE_TET
+    ) -> None:
         self.nodes = np.asarray(nodes, dtype=float)
         self.tets = np.array([[0, 1, 2, 3]], dtype=np.int64)
         self.grads = shape_gradients(self.nodes, self.tets)

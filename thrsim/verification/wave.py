@@ -25,11 +25,24 @@ SPEED_TOLERANCE = 1e-2
 JUMP_TOLERANCE = 5e-3
 
 
-def constrained_column(material: BoneMaterial, hardening, damage, v0: float, end_time: float | None, bulk_viscosity: float, target_dt_s: float | None = None, length: float = LENGTH_M, cell: float = CELL_M, record: bool = True):
+def constrained_column(
+    material: BoneMaterial,
+    hardening,
+    damage,
+    v0: float,
+    end_time: float | None,
+    bulk_viscosity: float,
+    target_dt_s: float | None = None,
+    length: float = LENGTH_M,
+    cell: float = CELL_M,
+    record: bool = True,
+):
     """Run the column; returns the solid, the element centroids' x and σ_xx history (steps, E)."""
     n = int(round(length / cell))
     mesh = box_mesh((n, 1, 1), (length, cell, cell))
-    solid = ExplicitSolid(mesh, material, hardening, damage, target_dt_s=target_dt_s, held_nodes=np.zeros(0, dtype=np.int64), bulk_viscosity=bulk_viscosity)
+    solid = ExplicitSolid(
+        mesh, material, hardening, damage, target_dt_s=target_dt_s, held_nodes=np.zeros(0, dtype=np.int64), bulk_viscosity=bulk_viscosity
+    )
     driven = mesh.node_sets["xmin"]
     c_d = material.dilatational_wave_speed_m_s
     end_time = end_time if end_time is not None else 0.8 * length / c_d
@@ -79,7 +92,9 @@ def column_wave() -> list[CheckResult]:
         behind = (x > 0.1 * LENGTH_M) & (x < 0.5 * LENGTH_M)
         jump = float(history[-1, behind].mean())
         ripple = float((history[-1, behind].max() - history[-1, behind].min()) / abs(jump_ref))
-        viscous, xv, _, hv = constrained_column(material, elastic_hardening(), no_damage(), V0_M_S, None, bulk_viscosity=LINEAR_BULK_VISCOSITY)
+        viscous, xv, _, hv = constrained_column(
+            material, elastic_hardening(), no_damage(), V0_M_S, None, bulk_viscosity=LINEAR_BULK_VISCOSITY
+        )
         jump_viscous = float(hv[-1, behind].mean())
         ripple_viscous = float((hv[-1, behind].max() - hv[-1, behind].min()) / abs(jump_ref))
     details = {
@@ -90,7 +105,11 @@ def column_wave() -> list[CheckResult]:
         "v0_m_s": V0_M_S,
         "stations_m": [x1, x2],
         "plateau_ripple_fraction": ripple,
-        "with_bulk_viscosity_0.06": {"stress_jump_mpa": -jump_viscous / 1e6, "relative_error": abs(jump_viscous - jump_ref) / abs(jump_ref), "plateau_ripple_fraction": ripple_viscous},
+        "with_bulk_viscosity_0.06": {
+            "stress_jump_mpa": -jump_viscous / 1e6,
+            "relative_error": abs(jump_viscous - jump_ref) / abs(jump_ref),
+            "plateau_ripple_fraction": ripple_viscous,
+        },
     }
     return [
         result("column-wave-speed", "front speed between two stations (50 % crossing) vs c_d = √((λ+2μ)/ρ)",
@@ -100,4 +119,11 @@ def column_wave() -> list[CheckResult]:
     ]  # fmt: skip
 
 
-CHECKS = [Check("column-wave", "constrained-column elastic wave: speed and stress jump", column_wave, ("column-wave-speed", "column-wave-stress-jump"))]
+CHECKS = [
+    Check(
+        "column-wave",
+        "constrained-column elastic wave: speed and stress jump",
+        column_wave,
+        ("column-wave-speed", "column-wave-stress-jump"),
+    )
+]

@@ -65,6 +65,66 @@ class BonePatchConfig(_Frozen):
         return math.radians(self.half_angle_deg)
 
 
+class SocketConfig(_Frozen):
+    """The layered anatomical acetabulum (solver 0.5), in the bone frame of the right hip.
+
+    Bone frame: origin at the centre of the native socket's sphere, +z out of the socket along its
+    axis, +y toward the superior dome, +x = y × z (anterior for the right hip; the left hip is the
+    mirror across x = 0). The socket is a hemisphere opening at the plane z = ``rim_height_mm``;
+    the acetabular fossa is a recess of the floor centred ``fossa_polar_deg`` from the pole toward
+    inferior (−y); the medial wall (quadrilateral plate) is a plane normal to the fossa's axis,
+    ``medial_wall_distance_mm`` behind the fossa floor, with a cortical layer on its pelvic face; the
+    subchondral plate is a cortical layer under the articular surface, thicker under the dome. The
+    rest is cancellous. Dimensions and their sources: docs, "The anatomical socket".
+
+    The mesh is fine (``element_size_mm``) wherever a reamer up to ``planned_reamer_max_mm`` can cut
+    (its teeth plus ``fine_margin_mm``) and in the bone behind the fossa out to the medial wall; it
+    grows to ``coarse_element_size_mm`` beyond.
+    """
+
+    socket_diameter_mm: float = Field(46.0, ge=40.0, le=60.0, description="native socket (articular sphere) diameter")
+    planned_reamer_max_mm: float | None = Field(
+        None, gt=0, description="largest reamer the fine mesh is made for; None = socket diameter + 4 mm"
+    )
+    fine_margin_mm: float = Field(1.0, ge=0, description="fine mesh beyond the largest planned reamer's teeth")
+    rim_height_mm: float = Field(0.0, ge=-10.0, le=10.0, description="opening plane's height above the socket centre")
+    bone_stock_mm: float = Field(8.0, gt=0, description="bone beyond the largest planned reamer, to the supported boundary")
+    subchondral_thickness_mm: float = Field(1.5, gt=0, description="subchondral plate thickness, mean over the socket")
+    subchondral_dome_excess_mm: float = Field(1.0, ge=0, description="extra plate thickness under the dome (less opposite)")
+    dome_polar_deg: float = Field(35.0, ge=0, lt=90, description="the dome's direction: this far from the pole toward superior")
+    fossa_depth_mm: float = Field(3.0, gt=0, description="how far the fossa floor lies below the articular sphere")
+    fossa_half_angle_deg: float = Field(30.0, gt=0, lt=60, description="angular radius of the fossa about its centre")
+    fossa_polar_deg: float = Field(25.0, ge=0, lt=60, description="the fossa's centre: this far from the pole toward inferior")
+    medial_wall_distance_mm: float = Field(4.0, gt=0, description="bone from the fossa floor to the medial wall's pelvic face")
+    medial_cortex_thickness_mm: float = Field(1.0, gt=0, description="cortical layer on the medial wall's pelvic face")
+    element_size_mm: float = Field(0.45, gt=0, description="element size where a planned reamer can cut [Table 5]")
+    coarse_element_size_mm: float = Field(3.0, gt=0, description="element size far from the cutting")
+    min_element_size_mm: float = Field(0.045, gt=0, description="minimum element size [Table 5]")
+    side: Side = "right"
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "SocketConfig":
+        if self.min_element_size_mm > self.element_size_mm:
+            raise ValueError("min_element_size_mm must not exceed element_size_mm")
+        if self.coarse_element_size_mm < self.element_size_mm:
+            raise ValueError("coarse_element_size_mm must not be below element_size_mm")
+        if self.subchondral_dome_excess_mm >= self.subchondral_thickness_mm:
+            raise ValueError("subchondral_dome_excess_mm must be below subchondral_thickness_mm (the plate would vanish opposite the dome)")
+        if self.medial_cortex_thickness_mm >= self.medial_wall_distance_mm:
+            raise ValueError("medial_cortex_thickness_mm must be below medial_wall_distance_mm")
+        if self.planned_reamer_max_mm is not None and self.planned_reamer_max_mm < self.socket_diameter_mm - 10.0:
+            raise ValueError("planned_reamer_max_mm is far below the socket diameter")
+        return self
+
+    @property
+    def socket_radius_mm(self) -> float:
+        return 0.5 * self.socket_diameter_mm
+
+    @property
+    def planned_reamer_max_diameter_mm(self) -> float:
+        return self.planned_reamer_max_mm if self.planned_reamer_max_mm is not None else self.socket_diameter_mm + 4.0
+
+
 class BoneMaterial(_Frozen):
     """Elastic constants of cortical bone [Table 7]."""
 
@@ -122,11 +182,26 @@ class JohnsonCookDamage(_Frozen):
     TEXT_U_F_M: ClassVar[float] = 1e-4
 
 
-class ReamerConfig(_Frozen):
-    """Rigid hemispherical reamer head [5.1.2, 5.2.2, 5.3]."""
+#: the thesis's reamer: 56 teeth on a 45 mm head [5.1.2]; other sizes keep its teeth per mm of diameter
+REFERENCE_REAMER_DIAMETER_MM, REFERENCE_TOOTH_COUNT = 45.0, 56
 
-    head_diameter_mm: float = Field(45.0, gt=0)
-    tooth_count: int = Field(56, ge=1)
+
+def teeth_for_diameter(head_diameter_mm: float) -> int:
+    """Tooth count of a reamer of this size: the thesis reamer's teeth per millimetre of diameter.
+
+    Keeping the teeth's spacing along the head keeps the number of teeth that sweep each point of
+    the profile per turn (5–6, :mod:`thrsim.geometry.reamer`) the same at every size, so a size's
+    cutting rate per unit area does not depend on a tooth count chosen for it. The thesis gives
+    30–60 teeth across sizes [5.1.2]; this rule gives 50 at 40 mm and 80 at 64 mm.
+    """
+    return max(1, round(REFERENCE_TOOTH_COUNT * head_diameter_mm / REFERENCE_REAMER_DIAMETER_MM))
+
+
+class ReamerConfig(_Frozen):
+    """Rigid hemispherical reamer head [5.1.2, 5.2.2, 5.3]; any size, its teeth by :func:`teeth_for_diameter` unless given."""
+
+    head_diameter_mm: float = Field(REFERENCE_REAMER_DIAMETER_MM, ge=30.0, le=80.0, description="reamer size (head diameter)")
+    tooth_count: int = Field(REFERENCE_TOOTH_COUNT, ge=1, description="teeth on the head; default: by the size (teeth_for_diameter)")
     tooth_length_mm: float = Field(3.0, gt=0, description="cutting-edge length along the meridian")
     tooth_edge_radius_mm: float = Field(0.25, gt=0, description="radius of the edge's rounded crest")
     tooth_protrusion_mm: float = Field(0.4, gt=0, description="how far the edge stands proud of the head")
@@ -138,6 +213,13 @@ class ReamerConfig(_Frozen):
     youngs_modulus_pa: float = Field(200e9, gt=0)
     poisson_ratio: float = Field(0.3, gt=-1.0, lt=0.5)
     wall_thickness_mm: float | None = Field(None, gt=0, description="hollow head's wall; None = the thesis's simplified solid head")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _teeth_by_size(cls, data):
+        if isinstance(data, dict) and data.get("tooth_count") is None and data.get("head_diameter_mm") is not None:
+            return {**data, "tooth_count": teeth_for_diameter(float(data["head_diameter_mm"]))}
+        return data
 
     @model_validator(mode="after")
     def _tooth_range(self) -> "ReamerConfig":

@@ -1,4 +1,4 @@
-"""``thrsim mesh``: generate the default acetabular bone patch, or read and validate a mesh file."""
+"""``thrsim mesh``: generate a bone (the thesis's patch or the layered socket), or read and validate a mesh file."""
 
 from __future__ import annotations
 
@@ -8,13 +8,18 @@ from typing import Optional
 import typer
 
 from thrsim.cli.output import console, print_json, print_table
-from thrsim.config import BonePatchConfig
+from thrsim.config import BonePatchConfig, SocketConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
+from thrsim.geometry.socket import generate_socket
 from thrsim.geometry.mesh_io import WRITABLE_SUFFIXES, read_mesh, write_mesh
 
 
 def mesh(
+    bone_kind: str = typer.Option("patch", "--bone", help="which bone: patch (the thesis's 2 mm shell) or socket (the layered acetabulum)"),
+    socket_diameter: Optional[float] = typer.Option(
+        None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only; default 46)", metavar="MM"
+    ),
     element_size: Optional[float] = typer.Option(None, "--element-size", help="global element size in mm (default 0.45)", metavar="MM"),
     side: str = typer.Option("right", "--side", help="hip side: right, or left (mirror across the sagittal plane)"),
     thickness: Optional[float] = typer.Option(None, "--thickness", help="shell thickness in mm (default 2.0)", metavar="MM"),
@@ -26,7 +31,9 @@ def mesh(
     out: Optional[Path] = typer.Option(None, "--out", help=f"write the mesh ({', '.join(WRITABLE_SUFFIXES)})", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Generate the default bone mesh or validate one read --from a file, and summarise it."""
+    """Generate a bone mesh (the patch, or the layered socket) or validate one read --from a file, and summarise it."""
+    if bone_kind not in ("patch", "socket"):
+        raise ThrsimInputError(f"--bone must be patch or socket, got {bone_kind!r}")
     if units not in ("mm", "m"):
         raise ThrsimInputError(f"--units must be mm or m, got {units!r}")
     if side not in ("right", "left"):
@@ -37,7 +44,12 @@ def mesh(
     if from_file is not None:
         given = [
             flag
-            for flag, value in (("--element-size", element_size), ("--thickness", thickness), ("--half-angle", half_angle))
+            for flag, value in (
+                ("--element-size", element_size),
+                ("--thickness", thickness),
+                ("--half-angle", half_angle),
+                ("--socket-diameter", socket_diameter),
+            )
             if value is not None
         ]
         if given:
@@ -47,20 +59,11 @@ def mesh(
             bone = bone.mirrored(axis=0)
         source = str(from_file)
     else:
-        overrides = {"side": side}
-        for key, value in (("element_size_mm", element_size), ("thickness_mm", thickness), ("half_angle_deg", half_angle)):
-            if value is not None:
-                overrides[key] = value
-        config = BonePatchConfig(**overrides)
-        if as_json:
-            bone = generate_bone_patch(config)
-        else:
-            with console.status("meshing the bone patch with gmsh"):
-                bone = generate_bone_patch(config)
+        bone = _generate(bone_kind, side, element_size, thickness, half_angle, socket_diameter, quiet=as_json)
         bone.validate(source="generated mesh")
-        source = "generated"
+        source = f"generated {bone_kind}"
 
-    summary = {"source": source, "side": side, **bone.summary()}
+    summary = {"source": source, "bone": bone_kind if from_file is None else "file", "side": side, **bone.summary()}
     if out is not None:
         write_mesh(bone, out, units=units, metadata={"source": source, "side": side})  # type: ignore[arg-type]
         summary["out"] = str(out)
@@ -69,8 +72,39 @@ def mesh(
         return
     quality = summary.pop("quality")
     sets = summary.pop("node_sets")
+    materials = summary.pop("materials")
+    summary |= {f"elements of {name}": count for name, count in materials.items()}
     box = summary.pop("bounding_box_mm")
     print_table("bone mesh", summary | {f"nodes in set {k}": v for k, v in sets.items()})
     print_table(
         "quality", quality | {"bbox min (mm)": [round(v, 3) for v in box["min"]], "bbox max (mm)": [round(v, 3) for v in box["max"]]}
     )
+
+
+def _generate(
+    bone_kind: str,
+    side: str,
+    element_size: float | None,
+    thickness: float | None,
+    half_angle: float | None,
+    socket_diameter: float | None,
+    quiet: bool,
+):
+    """The generated bone the options ask for (flags that belong to the other bone refused)."""
+    if bone_kind == "socket":
+        wrong = [flag for flag, value in (("--thickness", thickness), ("--half-angle", half_angle)) if value is not None]
+        if wrong:
+            raise ThrsimInputError(f"{', '.join(wrong)} only apply to --bone patch")
+        settings = {"side": side, "element_size_mm": element_size, "socket_diameter_mm": socket_diameter}
+        config = SocketConfig(**{key: value for key, value in settings.items() if value is not None})
+        generate, what = generate_socket, "the layered socket"
+    else:
+        if socket_diameter is not None:
+            raise ThrsimInputError("--socket-diameter only applies to --bone socket")
+        settings = {"side": side, "element_size_mm": element_size, "thickness_mm": thickness, "half_angle_deg": half_angle}
+        config = BonePatchConfig(**{key: value for key, value in settings.items() if value is not None})
+        generate, what = generate_bone_patch, "the bone patch"
+    if quiet:
+        return generate(config)
+    with console.status(f"meshing {what} with gmsh"):
+        return generate(config)

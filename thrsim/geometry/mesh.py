@@ -14,6 +14,13 @@ from thrsim.geometry.tet_metrics import QualityReport, centroids, quality_report
 #: node-set names used across thrsim: the fixed outer (bottom) face, the reamed articular
 #: face, and the side faces of the patch (cuts through bone that continues in reality)
 OUTER, INNER, SIDE = "outer", "inner", "side"
+#: node sets of the anatomical socket: the reamed cavity face (articular surface and fossa), the
+#: medial wall's pelvic face, the supported boundary (cuts through bone that continues) and the rim
+ARTICULAR, MEDIAL_WALL, SUPPORTED, RIM = "articular", "medial_wall", "supported", "rim"
+#: bone materials by name; a mesh without material tags is all cortical (the thesis's patch)
+CORTICAL, CANCELLOUS = "cortical", "cancellous"
+#: the materials a mesh file's element sets or cell data may name
+MATERIAL_NAMES = (CORTICAL, CANCELLOUS)
 
 
 @dataclass(frozen=True, eq=False)
@@ -22,13 +29,16 @@ class TetMesh:
 
     ``node_sets`` maps a name (``outer``, ``inner``, ``side`` for the generated patch; any
     NSET or physical-group name for a read mesh) to sorted node indices. ``fixed_nodes`` are
-    the nodes held by the encastre boundary condition.
+    the nodes held by the encastre boundary condition. ``material`` (E,) uint8 indexes
+    ``material_names`` per element; None means every element is cortical.
     """
 
     nodes: np.ndarray
     tets: np.ndarray
     node_sets: dict[str, np.ndarray] = field(default_factory=dict)
     fixed_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
+    material: np.ndarray | None = None
+    material_names: tuple[str, ...] = (CORTICAL,)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "nodes", np.ascontiguousarray(self.nodes, dtype=np.float64))
@@ -36,6 +46,19 @@ class TetMesh:
         object.__setattr__(self, "fixed_nodes", np.unique(np.asarray(self.fixed_nodes, dtype=np.int32)))
         sets = {name: np.unique(np.asarray(ids, dtype=np.int32)) for name, ids in self.node_sets.items()}
         object.__setattr__(self, "node_sets", sets)
+        object.__setattr__(self, "material_names", tuple(str(name) for name in self.material_names))
+        if self.material is not None:
+            object.__setattr__(self, "material", np.ascontiguousarray(self.material, dtype=np.uint8))
+
+    @property
+    def element_material(self) -> np.ndarray:
+        """(E,) uint8 index into ``material_names`` (all zeros when the mesh carries no tags)."""
+        return self.material if self.material is not None else np.zeros(self.n_tets, dtype=np.uint8)
+
+    def material_counts(self) -> dict[str, int]:
+        """Elements per material name."""
+        counts = np.bincount(self.element_material, minlength=len(self.material_names))
+        return {name: int(counts[i]) for i, name in enumerate(self.material_names)}
 
     @property
     def n_nodes(self) -> int:
@@ -87,6 +110,13 @@ class TetMesh:
         for name, ids in {"fixed_nodes": self.fixed_nodes, **self.node_sets}.items():
             if len(ids) and (ids.min() < 0 or ids.max() >= self.n_nodes):
                 raise ThrsimInputError(f"{source}: node set {name!r} refers to nodes that do not exist")
+        if self.material is not None:
+            if self.material.shape != (self.n_tets,):
+                raise ThrsimInputError(f"{source}: {len(self.material)} material tags for {self.n_tets} elements")
+            if len(self.material) and int(self.material.max()) >= len(self.material_names):
+                raise ThrsimInputError(
+                    f"{source}: material tag {int(self.material.max())} has no name (names: {', '.join(self.material_names)})"
+                )
         self.adjacency  # raises on non-manifold faces
         return report
 
@@ -97,7 +127,14 @@ class TetMesh:
         """
         nodes = self.nodes.copy()
         nodes[:, axis] *= -1.0
-        return TetMesh(nodes=nodes, tets=self.tets[:, [0, 2, 1, 3]], node_sets=self.node_sets, fixed_nodes=self.fixed_nodes)
+        return TetMesh(
+            nodes=nodes,
+            tets=self.tets[:, [0, 2, 1, 3]],
+            node_sets=self.node_sets,
+            fixed_nodes=self.fixed_nodes,
+            material=self.material,
+            material_names=self.material_names,
+        )
 
     def summary(self) -> dict:
         """Counts and measures the CLI reports (elements, nodes, edges, volume_mm3, ...)."""
@@ -112,6 +149,7 @@ class TetMesh:
             "min_volume_mm3": float(self.volumes.min() * 1e9),
             "fixed_nodes": int(len(self.fixed_nodes)),
             "node_sets": {name: int(len(ids)) for name, ids in sorted(self.node_sets.items())},
+            "materials": self.material_counts(),
             "bounding_box_mm": {"min": (lo * 1e3).tolist(), "max": (hi * 1e3).tolist()},
             "quality": {
                 "inverted": report.inverted,

@@ -19,7 +19,7 @@ import numpy as np
 
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.mesh import MATERIAL_NAMES, TetMesh
 from thrsim.provenance import package_versions
 
 Units = Literal["mm", "m"]
@@ -33,7 +33,9 @@ def read_mesh(path: str | Path, units: Units = "mm") -> TetMesh:
 
     Only linear tets are accepted (quadratic tets keep their corner nodes); lower-dimensional
     cells (boundary triangles, lines) are ignored. Node sets come from ABAQUS NSETs or Gmsh
-    physical groups; a set named ``fixed`` becomes the fixed nodes. The mesh is validated.
+    physical groups; a set named ``fixed`` becomes the fixed nodes. Element materials come from
+    ABAQUS ELSETs, Gmsh volume physical groups or ``material_<name>`` cell data named after a bone
+    material (``cortical``, ``cancellous``). The mesh is validated.
     """
     path = Path(path)
     if not path.exists():
@@ -76,7 +78,41 @@ def _read_meshio(path: Path, units: Units) -> TetMesh:
     fixed_names = [name for name in node_sets if name.lower() == FIXED_SET]
     fixed_parts = [node_sets.pop(name) for name in fixed_names]
     fixed = np.unique(np.concatenate(fixed_parts)) if fixed_parts else np.zeros(0, dtype=np.int64)
-    return TetMesh(nodes=nodes * UNIT_SCALE[units], tets=tets, node_sets=node_sets, fixed_nodes=fixed)
+    material, names = _materials(raw, blocks)
+    return TetMesh(
+        nodes=nodes * UNIT_SCALE[units], tets=tets, node_sets=node_sets, fixed_nodes=fixed, material=material, material_names=names
+    )
+
+
+def _materials(raw, tet_blocks) -> tuple[np.ndarray | None, tuple[str, ...]]:
+    """Per-tet material tags from element sets, volume physical groups or flag cell data named after
+    a bone material; (None, default names) when the file names none."""
+    tet_index = [i for i, block in enumerate(raw.cells) if block.type in ("tetra", "tetra10")]
+    members: dict[str, np.ndarray] = {}
+    for name, per_block in (raw.cell_sets or {}).items():
+        if name in MATERIAL_NAMES:
+            members[name] = np.concatenate([_block_flags(raw, i, per_block[i]) for i in tet_index])
+    for key, per_block in raw.cell_data.items():
+        if key.startswith("material_") and key[9:] in MATERIAL_NAMES:
+            members[key[9:]] = np.concatenate([np.asarray(per_block[i]).ravel() > 0 for i in tet_index])
+    physical = raw.cell_data.get("gmsh:physical")
+    for name, (tag, dim) in (raw.field_data or {}).items():
+        if name in MATERIAL_NAMES and int(dim) == 3 and physical is not None:
+            members[name] = np.concatenate([np.asarray(physical[i]).ravel() == int(tag) for i in tet_index])
+    if not members:
+        return None, TetMesh.__dataclass_fields__["material_names"].default
+    names = tuple(name for name in MATERIAL_NAMES if name in members)
+    material = np.full(sum(len(block.data) for block in tet_blocks), 255, dtype=np.uint8)
+    for index, name in enumerate(names):
+        material[members[name]] = index
+    return material, names
+
+
+def _block_flags(raw, block: int, ids) -> np.ndarray:
+    flags = np.zeros(len(raw.cells[block].data), dtype=bool)
+    if ids is not None and len(ids):
+        flags[np.asarray(ids, dtype=np.int64)] = True
+    return flags
 
 
 def _gmsh_physical_node_sets(raw) -> dict[str, np.ndarray]:
@@ -116,13 +152,25 @@ def write_mesh_group(group: h5py.Group, mesh: TetMesh) -> None:
     sets = group.create_group("node_sets")
     for name, ids in mesh.node_sets.items():
         sets.create_dataset(name, data=ids.astype(np.int32))
+    if mesh.material is not None:
+        tags = group.create_dataset("material", data=mesh.material.astype(np.uint8))
+        tags.attrs["names"] = json.dumps(list(mesh.material_names))
 
 
 def read_mesh_group(group: h5py.Group) -> TetMesh:
     """The mesh of a ``/mesh`` group written by :func:`write_mesh_group` (KeyError if a dataset is missing)."""
     sets = {name: group["node_sets"][name][()] for name in group.get("node_sets", {})}
     fixed = group["fixed_nodes"][()] if "fixed_nodes" in group else np.zeros(0, dtype=np.int32)
-    return TetMesh(nodes=group["nodes"][()], tets=group["tets"][()], node_sets=sets, fixed_nodes=fixed)
+    material, names = None, TetMesh.__dataclass_fields__["material_names"].default
+    if "material" in group:
+        material = group["material"][()]
+        try:
+            names = tuple(json.loads(group["material"].attrs["names"]))
+        except (KeyError, TypeError, ValueError):
+            raise ThrsimInputError("/mesh/material has no readable 'names' attribute (a JSON list of material names)") from None
+    return TetMesh(
+        nodes=group["nodes"][()], tets=group["tets"][()], node_sets=sets, fixed_nodes=fixed, material=material, material_names=names
+    )
 
 
 def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: dict | None = None) -> Path:
@@ -151,18 +199,26 @@ def _write_meshio(mesh: TetMesh, path: Path, suffix: str, units: Units) -> None:
     sets[FIXED_SET] = mesh.fixed_nodes
     points = mesh.nodes / UNIT_SCALE[units]
     cells = [("tetra", mesh.tets.astype(np.int64))]
+    material = mesh.element_material
     if suffix == ".inp":
-        out = meshio.Mesh(points, cells, point_sets={name: ids.astype(np.int64) for name, ids in sets.items()})
+        elsets = {name: [np.flatnonzero(material == i)] for i, name in enumerate(mesh.material_names)} if mesh.material is not None else {}
+        out = meshio.Mesh(points, cells, point_sets={name: ids.astype(np.int64) for name, ids in sets.items()}, cell_sets=elsets)
         meshio.write(path, out, file_format="abaqus")
     elif suffix == ".msh":
         # meshio's ASCII gmsh writer prints values with repr(): Python ints, not NumPy scalars
         flags = {f"set_{name}": _flag(mesh.n_nodes, ids).astype(object) for name, ids in sets.items()}
-        tags = {key: [np.ones(mesh.n_tets, dtype=np.int32)] for key in ("gmsh:physical", "gmsh:geometrical")}
-        out = meshio.Mesh(points, cells, point_data=flags, cell_data=tags)
+        physical = (material.astype(np.int32) + 1) if mesh.material is not None else np.ones(mesh.n_tets, dtype=np.int32)
+        tags = {key: [physical] for key in ("gmsh:physical", "gmsh:geometrical")}
+        names = {name: np.array([i + 1, 3]) for i, name in enumerate(mesh.material_names)} if mesh.material is not None else {}
+        out = meshio.Mesh(points, cells, point_data=flags, cell_data=tags, field_data=names)
         meshio.write(path, out, file_format="gmsh22", binary=False)
     else:
         flags = {f"set_{name}": _flag(mesh.n_nodes, ids) for name, ids in sets.items()}
-        meshio.write(path, meshio.Mesh(points, cells, point_data=flags), file_format="vtu")
+        cell_data = {}
+        if mesh.material is not None:
+            cell_data = {"material": [material.astype(np.int32)]}
+            cell_data |= {f"material_{name}": [(material == i).astype(np.int32)] for i, name in enumerate(mesh.material_names)}
+        meshio.write(path, meshio.Mesh(points, cells, point_data=flags, cell_data=cell_data), file_format="vtu")
 
 
 def _flag(n: int, ids: np.ndarray) -> np.ndarray:

@@ -197,6 +197,35 @@ def teeth_for_diameter(head_diameter_mm: float) -> int:
     return max(1, round(REFERENCE_TOOTH_COUNT * head_diameter_mm / REFERENCE_REAMER_DIAMETER_MM))
 
 
+class CancellousBone(_Frozen):
+    """Cancellous (trabecular) bone behind the socket's subchondral plate: one material of the socket.
+
+    Defaults: normal acetabular cancellous bone, apparent density 0.5 g/cm³. Elastic modulus from
+    the pelvic trabecular bone modulus–density law E ≈ 2017·ρ^2.46 MPa (Dalstra et al., J Biomech Eng
+    1993); yield at the ≈ 0.75 % compressive yield strain that trabecular bone shares across densities
+    (Morgan & Keaveny, J Biomech 2003), so A = 0.0075·E; hardening B/A and n as the thesis's cortical
+    bone (Table 4), rate sensitivity as cortical; damage as cortical (initiation at yield). Its specific
+    cutting energy is a fifth of the cortical default (drilling and cutting studies find cancellous
+    bone several times easier to cut). Confidence: moderate for E and the yield strain (ranges of
+    ±50 % between sites and donors), low for the cutting energy (calibrated in the docs' "Calibration").
+    """
+
+    material: BoneMaterial = Field(default_factory=lambda: BoneMaterial(density_kg_m3=500.0, youngs_modulus_pa=367e6, poisson_ratio=0.2))
+    hardening: JohnsonCookHardening = Field(default_factory=lambda: JohnsonCookHardening(a_pa=2.75e6, b_pa=5.6e6))
+    damage: JohnsonCookDamage = Field(default_factory=JohnsonCookDamage)
+    specific_cutting_energy_j_m3: float = Field(1e8, gt=0, description="u_c of the cutting law in cancellous bone")
+
+
+#: osteoporotic cancellous bone: apparent density 0.25 g/cm³, the same laws as :class:`CancellousBone`
+OSTEOPOROTIC_CANCELLOUS = CancellousBone(
+    material=BoneMaterial(density_kg_m3=250.0, youngs_modulus_pa=67e6, poisson_ratio=0.2),
+    hardening=JohnsonCookHardening(a_pa=0.5e6, b_pa=1.0e6),
+    specific_cutting_energy_j_m3=3e7,
+)
+#: cancellous bone by the name the command line and case files use
+CANCELLOUS_PRESETS = {"normal": CancellousBone(), "osteoporotic": OSTEOPOROTIC_CANCELLOUS}
+
+
 class ReamerConfig(_Frozen):
     """Rigid hemispherical reamer head [5.1.2, 5.2.2, 5.3]; any size, its teeth by :func:`teeth_for_diameter` unless given."""
 
@@ -446,7 +475,10 @@ class ReamingCaseConfig(_Frozen):
     force_n: float = Field(230.0, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
     frames: int = Field(120, ge=1)
     frame_rate_hz: float = Field(60.0, gt=0)
+    bone_kind: Literal["patch", "socket"] = Field("patch", description="the thesis's patch, or the layered socket")
     bone: BonePatchConfig = BonePatchConfig()
+    socket: SocketConfig = SocketConfig()
+    cancellous: CancellousBone = CancellousBone()
     material: BoneMaterial = BoneMaterial()
     hardening: JohnsonCookHardening = JohnsonCookHardening()
     damage: JohnsonCookDamage = JohnsonCookDamage()

@@ -21,7 +21,7 @@ def _one_node(mass: float, position: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> So
     """The arrays the contact kernel reads, for a single free node."""
     one, node3 = np.zeros(1), np.zeros((1, 3))
     return SolidArrays(
-        tets=np.zeros((0, 4), dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
+        tets=np.zeros((0, 4), dtype=np.int64), material=np.zeros(0, dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
         bulk_viscosity=np.zeros(0), element_mass=np.zeros(0), offsets=np.zeros(2, dtype=np.int64),
         entries=np.zeros(0, dtype=np.int64), support_stiffness=one.copy(), held=np.zeros(1, dtype=np.bool_),
         active=np.zeros(0, dtype=np.uint8), accounted=np.zeros(0, dtype=np.bool_), stress=np.zeros((0, 6)),
@@ -38,7 +38,7 @@ def _contact(mass: float, depth: float, dt: float, penalty_factor: float, veloci
     where a spin ω about +z moves the surface along +y at ω·R."""
     teeth = ReamerTeeth(HEAD_RADIUS, HEAD_RADIUS, 1e-4, np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
     pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, omega)
-    law = ContactLaw(penalty_factor, 0.0, friction, dt, 5e8)
+    law = ContactLaw(penalty_factor, 0.0, friction, dt, np.array([5e8]))
     out = ContactArrays.zeros(1)
     touching = reamer_contact(np.array([[HEAD_RADIUS - depth, 0.0, 0.0]]), _one_node(mass, None, velocity), pose, teeth, law, out)
     return touching, out
@@ -81,14 +81,14 @@ def _tooth_cut(polar_deg: float, volume: float, friction: float = 0.3, cutting_e
     nodes = np.array([direction * (edge_axis + edge - depth), [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
     mass, dt = 6e-4, 4e-6
     solid = _one_node(mass, None)._replace(
-        tets=np.array([[0, 1, 2, 3]], dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
+        tets=np.array([[0, 1, 2, 3]], dtype=np.int64), material=np.zeros(1, dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
         offsets=np.array([0, 1, 2, 3, 4], dtype=np.int64), entries=np.arange(4, dtype=np.int64),
         nodal_mass=np.full(4, mass), inverse_mass=np.full(4, 1 / mass), velocity=np.zeros((4, 3)),
         displacement=np.zeros((4, 3)), cutting_damage=np.zeros(4),
     )  # fmt: skip
     pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, 100.0)
     out = ContactArrays.zeros(4)
-    assert reamer_contact(nodes, solid, pose, teeth, ContactLaw(0.4, 0.0, friction, dt, cutting_energy), out) == 1
+    assert reamer_contact(nodes, solid, pose, teeth, ContactLaw(0.4, 0.0, friction, dt, np.array([cutting_energy])), out) == 1
     return out, 100.0 * nodes[0, 0], dt
 
 
@@ -130,7 +130,7 @@ def test_below_its_edge_a_tooth_pushes_sideways_and_the_head_outward():
     position = outward * (head - 5e-6) * math.cos(2e-4 / head) + np.array([0.0, 2e-4, 0.0])
     pose = ReamerPose(np.zeros(3), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]), np.array([0, 0, 1.0]), 0.0, 0.0)
     out = ContactArrays.zeros(1)
-    assert reamer_contact(position[None, :], _one_node(6e-4, None), pose, teeth, ContactLaw(0.4, 0.0, 0.3, 4e-6, 5e8), out) == 1
+    assert reamer_contact(position[None, :], _one_node(6e-4, None), pose, teeth, ContactLaw(0.4, 0.0, 0.3, 4e-6, np.array([5e8])), out) == 1
     normal_force = out.normal_force[0]
     radial = position / np.linalg.norm(position)
     assert normal_force @ radial > 0  # the head pushes out

@@ -16,11 +16,15 @@ stepping). Kernels are Numba; the two per-step kernels are:
 State is owned by :class:`ExplicitSolid`; contact and loads are the caller's (the reaming case
 adds the reamer's contact forces as external forces every step). Stress is stored undamaged
 (effective, σ̄) in Voigt order xx, yy, zz, xy, yz, zx; the Cauchy stress is (1 − D)·σ̄.
+
+Each element belongs to one material (a :class:`Tissue`: elastic constants, JC hardening and
+damage), by the mesh's per-element tags: the socket's cortical and cancellous bone.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
@@ -29,6 +33,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
+from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import minimum_altitudes
 from thrsim.physics.material import characteristic_length, damage_initiation_increment, jc_radial_return
@@ -46,6 +51,7 @@ class SolidArrays(NamedTuple):
     """
 
     tets: np.ndarray  # (E, 4) int64
+    material: np.ndarray  # (E,) int64 row of the element's material in MaterialConstants
     grads: np.ndarray  # (E, 4, 3) ∂N/∂x
     volume: np.ndarray  # (E,)
     char_length: np.ndarray  # (E,) damage length L_e
@@ -77,22 +83,53 @@ class SolidArrays(NamedTuple):
     debris: np.ndarray  # (7,) what deleted elements took: mass, momentum (3), kinetic, count, elastic
 
 
+class Tissue(NamedTuple):
+    """One bone material: elastic constants, Johnson–Cook hardening and damage."""
+
+    material: BoneMaterial
+    hardening: JohnsonCookHardening
+    damage: JohnsonCookDamage
+
+
 class MaterialConstants(NamedTuple):
-    """The step and the material's scalars, SI."""
+    """The step, and each material's scalars (SI) as arrays indexed by material row."""
 
     dt: float
-    lam: float
-    mu: float
-    a: float
-    b: float
-    n: float
-    c: float
-    rate0: float
-    d1: float
-    d2: float
-    d3: float
-    d4: float
-    u_f: float
+    lam: np.ndarray
+    mu: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    n: np.ndarray
+    c: np.ndarray
+    rate0: np.ndarray
+    d1: np.ndarray
+    d2: np.ndarray
+    d3: np.ndarray
+    d4: np.ndarray
+    u_f: np.ndarray
+
+    @classmethod
+    def of(cls, dt: float, tissues: Sequence[Tissue]) -> "MaterialConstants":
+        """The constants table of ``tissues`` (row k = tissue k) at step ``dt``."""
+
+        def column(value) -> np.ndarray:
+            return np.array([value(t) for t in tissues], dtype=np.float64)
+
+        return cls(
+            dt=float(dt),
+            lam=column(lambda t: t.material.lame_lambda_pa),
+            mu=column(lambda t: t.material.shear_modulus_pa),
+            a=column(lambda t: t.hardening.a_pa),
+            b=column(lambda t: t.hardening.b_pa),
+            n=column(lambda t: t.hardening.n),
+            c=column(lambda t: t.hardening.c),
+            rate0=column(lambda t: t.hardening.reference_strain_rate_s),
+            d1=column(lambda t: t.damage.d1),
+            d2=column(lambda t: t.damage.d2),
+            d3=column(lambda t: t.damage.d3),
+            d4=column(lambda t: t.damage.d4),
+            u_f=column(lambda t: t.damage.displacement_at_failure_m),
+        )
 
 
 @njit(parallel=True, cache=True)
@@ -104,13 +141,25 @@ def element_update(s, m):
     """
     n_elements = len(s.volume)
     deleted = 0
-    lam, mu, dt = m.lam, m.mu, m.dt
-    poisson = lam / (2.0 * (lam + mu))
-    youngs = mu * (3.0 * lam + 2.0 * mu) / (lam + mu)
+    dt = m.dt
+    # the material table's columns, taken out of the tuple like the arrays below
+    lam_of = m.lam
+    mu_of = m.mu
+    a_of = m.a
+    b_of = m.b
+    n_of = m.n
+    c_of = m.c
+    rate0_of = m.rate0
+    d1_of = m.d1
+    d2_of = m.d2
+    d3_of = m.d3
+    d4_of = m.d4
+    u_f_of = m.u_f
     # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
     # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
     # array bound by a multiple assignment (a, b = t.a, t.b)
     tets = s.tets
+    material = s.material
     grads = s.grads
     volume = s.volume
     char_length = s.char_length
@@ -130,6 +179,11 @@ def element_update(s, m):
     for e in prange(n_elements):
         if active[e] == 0:
             continue
+        row = material[e]
+        lam = lam_of[row]
+        mu = mu_of[row]
+        poisson = lam / (2.0 * (lam + mu))
+        youngs = mu * (3.0 * lam + 2.0 * mu) / (lam + mu)
         # strain increment dε = sym(Σ_a du_a ⊗ ∇N_a)
         h00 = h01 = h02 = h10 = h11 = h12 = h20 = h21 = h22 = 0.0
         for k in range(4):
@@ -159,7 +213,7 @@ def element_update(s, m):
         pressure = (sxx + syy + szz) / 3.0
         dxx, dyy, dzz = sxx - pressure, syy - pressure, szz - pressure
         q_trial = math.sqrt(1.5 * (dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (sxy * sxy + syz * syz + szx * szx)))
-        dpeeq = jc_radial_return(q_trial, peeq[e], dt, mu, m.a, m.b, m.n, m.c, m.rate0) if q_trial > 0.0 else 0.0
+        dpeeq = jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row]) if q_trial > 0.0 else 0.0
         if dpeeq > 0.0:
             factor = 1.0 - 3.0 * mu * dpeeq / q_trial
             dxx *= factor
@@ -173,9 +227,11 @@ def element_update(s, m):
             peeq[e] += dpeeq
             plastic_work[e] += (1.0 - damage[e]) * q_new * dpeeq * volume[e]
             if initiation[e] < 1.0:
-                initiation[e] += damage_initiation_increment(dpeeq, pressure / q_new, dpeeq / dt, m.d1, m.d2, m.d3, m.d4, m.rate0)
+                initiation[e] += damage_initiation_increment(
+                    dpeeq, pressure / q_new, dpeeq / dt, d1_of[row], d2_of[row], d3_of[row], d4_of[row], rate0_of[row]
+                )
             else:
-                grown = min(1.0, damage[e] + char_length[e] * dpeeq / m.u_f) - damage[e]
+                grown = min(1.0, damage[e] + char_length[e] * dpeeq / u_f_of[row]) - damage[e]
                 damage[e] += grown
                 # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V
                 damage_work[e] += grown * strain_energy_density(sxx, syy, szz, sxy, syz, szx, youngs, poisson) * volume[e]
@@ -320,7 +376,9 @@ def von_mises(stress: np.ndarray) -> np.ndarray:
 class ExplicitSolid:
     """A damaging JC solid on a tet mesh, advanced by central differences at a fixed step.
 
-    ``target_dt_s`` sets the step reached by per-element mass scaling (None: the unscaled
+    ``material``, ``hardening`` and ``damage`` are the cortical bone's (every element of a mesh
+    without material tags); ``other_tissues`` maps the mesh's other material names (``cancellous``)
+    to theirs. ``target_dt_s`` sets the step reached by per-element mass scaling (None: the unscaled
     Courant step). ``held`` nodes default to the mesh's fixed nodes.
     """
 
@@ -335,23 +393,30 @@ class ExplicitSolid:
         held_nodes: np.ndarray | None = None,
         bulk_viscosity: float = LINEAR_BULK_VISCOSITY,
         support_stiffness: np.ndarray | None = None,
+        other_tissues: dict[str, Tissue] | None = None,
     ) -> None:
         self.mesh = mesh
         self.material, self.hardening, self.damage_law = material, hardening, damage
+        self.tissues = tissues_of(mesh, Tissue(material, hardening, damage), other_tissues or {})
         nodes, tets = mesh.nodes, mesh.tets
         self.tets = tets.astype(np.int64)
+        self.element_material = mesh.element_material.astype(np.int64)
         self.grads = shape_gradients(nodes, self.tets)
         self.volume = np.abs(mesh.volumes)
         self.char_length = characteristic_length(self.volume)
-        self.lam, self.mu = material.lame_lambda_pa, material.shear_modulus_pa
+        constants_of = MaterialConstants.of(0.0, self.tissues)
+        self.lam, self.mu = constants_of.lam[self.element_material], constants_of.mu[self.element_material]
         p_wave = self.lam + 2.0 * self.mu
-        self.scaling: MassScaling = mass_scaling(nodes, self.tets, material.density_kg_m3, p_wave, target_dt_s, safety)
+        density = np.array([t.material.density_kg_m3 for t in self.tissues])[self.element_material]
+        self.youngs_modulus = np.array([t.material.youngs_modulus_pa for t in self.tissues])[self.element_material]
+        self.poisson_ratio = np.array([t.material.poisson_ratio for t in self.tissues])[self.element_material]
+        self.scaling: MassScaling = mass_scaling(nodes, self.tets, density, p_wave, target_dt_s, safety)
         self.dt = float(target_dt_s) if target_dt_s is not None else self.scaling.stable_dt_s
         if self.dt > self.scaling.stable_dt_s * (1 + 1e-9):
             raise ValueError(f"time step {self.dt:.3g} s exceeds the stable step {self.scaling.stable_dt_s:.3g} s")
         rho = self.scaling.element_density
         self.element_mass = rho * self.volume
-        self.physical_element_mass = material.density_kg_m3 * self.volume
+        self.physical_element_mass = density * self.volume
         # ABAQUS linear bulk viscosity b1·ρ·c_d·L with the density actually used and L the
         # Courant length (smallest altitude): with the longer damage length L_e the damping of
         # the highest mode grows past what the 0.9 safety factor absorbs and the step diverges
@@ -386,13 +451,9 @@ class ExplicitSolid:
         self.debris = np.zeros(7)
         self.detached_count = 0
         self._accounted = np.zeros(n_el, dtype=np.bool_)
-        j, d = hardening, damage
-        self.constants = MaterialConstants(
-            dt=self.dt, lam=self.lam, mu=self.mu, a=j.a_pa, b=j.b_pa, n=j.n, c=j.c, rate0=j.reference_strain_rate_s,
-            d1=d.d1, d2=d.d2, d3=d.d3, d4=d.d4, u_f=d.displacement_at_failure_m,
-        )  # fmt: skip
+        self.constants = MaterialConstants.of(self.dt, self.tissues)
         self.arrays = SolidArrays(
-            tets=self.tets, grads=self.grads, volume=self.volume, char_length=self.char_length,
+            tets=self.tets, material=self.element_material, grads=self.grads, volume=self.volume, char_length=self.char_length,
             bulk_viscosity=self.bulk_viscosity_coefficient, element_mass=self.element_mass,
             offsets=self.offsets, entries=self.entries, support_stiffness=self.support_stiffness, held=self.held,
             active=self.active, accounted=self._accounted, stress=self.stress, peeq=self.peeq, damage=self.damage,
@@ -476,7 +537,7 @@ class ExplicitSolid:
 
     def element_elastic_energy(self) -> np.ndarray:
         """(1 − D)·½ σ̄:C⁻¹:σ̄·V of each element (J), 0 for deleted ones."""
-        e, nu = self.material.youngs_modulus_pa, self.material.poisson_ratio
+        e, nu = self.youngs_modulus, self.poisson_ratio
         st = self.stress
         contracted = (st[:, :3] ** 2).sum(axis=1) + 2.0 * (st[:, 3:] ** 2).sum(axis=1)
         density = ((1 + nu) * contracted - nu * st[:, :3].sum(axis=1) ** 2) / (2.0 * e)
@@ -497,3 +558,12 @@ class ExplicitSolid:
     def internal_energy(self) -> float:
         """Elastic strain energy + plastic dissipation + damage dissipation (ABAQUS's ALLIE)."""
         return self.elastic_energy() + self.plastic_dissipation() + self.damage_dissipation()
+
+
+def tissues_of(mesh: TetMesh, cortical: Tissue, others: dict[str, Tissue]) -> list[Tissue]:
+    """The tissue of each of the mesh's material names, in its tag order; an unknown name is refused."""
+    known = {"cortical": cortical, **others}
+    missing = [name for name in mesh.material_names if name not in known]
+    if missing:
+        raise ThrsimInputError(f"the mesh names material(s) {', '.join(missing)} that have no constants (known: {', '.join(known)})")
+    return [known[name] for name in mesh.material_names]

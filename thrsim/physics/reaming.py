@@ -61,11 +61,12 @@ from thrsim.config import ReamingCaseConfig
 from thrsim import portable_math as pm
 from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.geometry.mesh import SIDE, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
 from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
-from thrsim.physics.explicit import ExplicitSolid, solid_step
+from thrsim.geometry.socket import generate_socket
+from thrsim.physics.explicit import ExplicitSolid, Tissue, solid_step, tissues_of
 from thrsim.physics.support import foundation_stiffness
 
 INITIAL_GAP_M = 5e-5
@@ -210,21 +211,16 @@ class ReamingSimulation:
         if case.solver.threads:
             numba.set_num_threads(min(case.solver.threads, numba.config.NUMBA_NUM_THREADS))
         self.case = case
-        self.mesh = mesh if mesh is not None else generate_bone_patch(case.bone)
+        self.mesh = mesh if mesh is not None else bone_mesh(case)
         side = self.mesh.node_sets.get(SIDE)
         springs = (
             foundation_stiffness(self.mesh, side, case.material.youngs_modulus_pa, case.bone.element_size_mm * 1e-3)
             if case.bone.support_side_faces and side is not None
             else None
         )
+        cortical, others = case_tissues(case)
         self.solid = ExplicitSolid(
-            self.mesh,
-            case.material,
-            case.hardening,
-            case.damage,
-            case.solver.target_dt_s,
-            case.solver.safety_factor,
-            support_stiffness=springs,
+            self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others
         )
         self.reamer = build_reamer(case.reamer)
         self.axis = np.array(case.orientation.reamer_axis)
@@ -238,7 +234,7 @@ class ReamingSimulation:
         )  # fmt: skip
         self.contact_law = ContactLaw(
             case.contact.penalty_factor, case.contact.damping_ratio, case.contact.friction, self.solid.dt,
-            case.contact.specific_cutting_energy_j_m3,
+            cutting_energies(case, self.mesh),
         )  # fmt: skip
         # the kernels share the force and cutting arrays: contact writes them, the solid step reads them
         scratch = ContactArrays.zeros(self.mesh.n_nodes)
@@ -479,6 +475,27 @@ class ReamingSimulation:
             **self.solid.scaling.as_dict(),
         }
         return summary
+
+
+def bone_mesh(case: ReamingCaseConfig) -> TetMesh:
+    """The bone the case reams: the thesis's patch or the layered socket."""
+    return generate_socket(case.socket) if case.bone_kind == "socket" else generate_bone_patch(case.bone)
+
+
+def case_tissues(case: ReamingCaseConfig) -> tuple[Tissue, dict[str, Tissue]]:
+    """The cortical tissue and the others by material name, from the case's settings."""
+    cancellous = case.cancellous
+    return Tissue(case.material, case.hardening, case.damage), {
+        CANCELLOUS: Tissue(cancellous.material, cancellous.hardening, cancellous.damage)
+    }
+
+
+def cutting_energies(case: ReamingCaseConfig, mesh: TetMesh) -> np.ndarray:
+    """The cutting law's specific energy u_c (J/m³) of each of the mesh's materials, in its tag order."""
+    by_name = {CORTICAL: case.contact.specific_cutting_energy_j_m3, CANCELLOUS: case.cancellous.specific_cutting_energy_j_m3}
+    cortical, others = case_tissues(case)
+    tissues_of(mesh, cortical, others)  # refuses a material name with no constants
+    return np.array([by_name[name] for name in mesh.material_names], dtype=np.float64)
 
 
 def steady_reaming_statistics(

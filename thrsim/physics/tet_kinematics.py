@@ -69,13 +69,19 @@ class MassScaling:
 
 
 def mass_scaling(
-    nodes: np.ndarray, tets: np.ndarray, density: float, p_wave_modulus: float, target_dt_s: float | None, safety: float
+    nodes: np.ndarray,
+    tets: np.ndarray,
+    density: float | np.ndarray,
+    p_wave_modulus: float | np.ndarray,
+    target_dt_s: float | None,
+    safety: float,
 ) -> MassScaling:
-    """Densities that let the whole mesh run at ``target_dt_s`` (None: no scaling)."""
+    """Densities that let the whole mesh run at ``target_dt_s`` (None: no scaling); density and the
+    P-wave modulus λ + 2μ per element or one for all."""
     altitude = minimum_altitudes(nodes, tets)
     wave_speed = np.sqrt(p_wave_modulus / density)
     unscaled = safety * float((altitude / wave_speed).min())
-    rho = np.full(len(tets), float(density))
+    rho = np.broadcast_to(np.asarray(density, dtype=np.float64), (len(tets),)).copy()
     if target_dt_s is not None:
         required = p_wave_modulus * (target_dt_s / (safety * altitude)) ** 2
         rho = np.maximum(rho, required)
@@ -86,7 +92,7 @@ def mass_scaling(
         stable_dt_s=stable,
         unscaled_dt_s=unscaled,
         scaled_fraction=float(np.mean(rho > density)),
-        mass_increase=float((rho * volume).sum() / (density * volume.sum())),
+        mass_increase=float((rho * volume).sum() / (np.asarray(density) * volume).sum()),
     )
 
 

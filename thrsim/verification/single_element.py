@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
-from thrsim.physics.explicit import MaterialConstants, SolidArrays, element_update
+from thrsim.physics.explicit import MaterialConstants, SolidArrays, Tissue, element_update
 from thrsim.geometry.tet_metrics import signed_volumes
 from thrsim.physics.material import characteristic_length
 from thrsim.physics.tet_kinematics import shape_gradients
@@ -55,10 +55,9 @@ class SingleTet:
         state = self._state() if commit else tuple(a.copy() for a in self._state())
         stress, peeq, damage, initiation, work, active = state
         du = self.nodes @ np.asarray(deps, dtype=float).T  # Δu_a = Δε·X_a (Δε symmetric)
-        j, d = self.hardening, self.damage_law
         one, nodes4 = np.zeros(1), np.zeros((4, 3))
         arrays = SolidArrays(
-            tets=self.tets, grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
+            tets=self.tets, material=np.zeros(1, dtype=np.int64), grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
             element_mass=one.copy(), offsets=np.zeros(5, dtype=np.int64), entries=np.zeros(4, dtype=np.int64),
             support_stiffness=np.zeros(4), held=np.zeros(4, dtype=np.bool_), active=active,
             accounted=np.zeros(1, dtype=np.bool_), stress=stress, peeq=peeq, damage=damage, initiation=initiation,
@@ -67,10 +66,7 @@ class SingleTet:
             velocity=nodes4.copy(), displacement=nodes4.copy(), du=du, external_force=nodes4.copy(),
             cutting_damage=np.zeros(4), debris=np.zeros(7),
         )  # fmt: skip
-        constants = MaterialConstants(
-            dt=dt, lam=self.lam, mu=self.mu, a=j.a_pa, b=j.b_pa, n=j.n, c=j.c, rate0=j.reference_strain_rate_s,
-            d1=d.d1, d2=d.d2, d3=d.d3, d4=d.d4, u_f=d.displacement_at_failure_m,
-        )  # fmt: skip
+        constants = MaterialConstants.of(dt, [Tissue(self.material, self.hardening, self.damage_law)])
         element_update(arrays, constants)
         if commit:
             self.strain = self.strain + deps

@@ -108,7 +108,7 @@ class JohnsonCookDamage(_Frozen):
     ``displacement_at_failure_m`` (u_f): Table 8 lists 5e-4 m, the text [5.2.1] 1e-4 m. The
     default, 4.5e-4 m, was calibrated with solver 0.2.0; since 0.3.0 the teeth's cutting law
     (:class:`ContactConfig`, ``specific_cutting_energy_j_m3``) sets the pace of the default case
-    and this damage adds to it (README, "Calibration").
+    and this damage adds to it (docs/benchmarks.md, "Calibration").
     """
 
     d1: float = -0.09

@@ -58,6 +58,19 @@ def test_the_pages_the_project_promises_are_there():
         assert page.is_file() and f"::: thrsim.{package}" in page.read_text(), page
 
 
+def test_every_package_and_top_level_module_has_its_api_reference():
+    """A package added to thrsim gets its page, a top-level module its entry: the API reference
+    cannot silently leave code out (each page documents its package's submodules itself)."""
+    package = REPO_ROOT / "thrsim"
+    pages = set(_nav_pages(CONFIG["nav"]))
+    for sub in sorted(p for p in package.iterdir() if (p / "__init__.py").is_file()):
+        page = f"api/{sub.name}.md"
+        assert page in pages and f"::: thrsim.{sub.name}" in (DOCS / page).read_text(), page
+    top = (DOCS / "api" / "thrsim.md").read_text()
+    for module in sorted(p.stem for p in package.glob("*.py") if p.stem not in ("__init__", "__main__")):
+        assert f"::: thrsim.{module}\n" in top + "\n", module
+
+
 def test_the_site_is_material_with_mkdocstrings_and_its_hook():
     assert CONFIG["theme"]["name"] == "material"
     plugins = [next(iter(p)) if isinstance(p, dict) else p for p in CONFIG["plugins"]]
@@ -87,7 +100,8 @@ def test_the_command_reference_covers_every_command_and_option():
     from thrsim.cli import app
 
     hook = _hook()
-    assert hook.MARKER in (DOCS / "commands.md").read_text()
+    page = (DOCS / "commands.md").read_text()
+    assert hook.MARKER in page and hook.END_MARKER in page
     reference = hook.command_reference()
     group = typer.main.get_command(app)
     for name, command in group.commands.items():

@@ -1,7 +1,8 @@
 """MkDocs hook: the command reference is generated from the ``thrsim`` command itself.
 
-``docs/commands.md`` holds the marker ``<!-- thrsim: command reference -->``; at build time it is
-replaced by every command and subcommand of this checkout's ``thrsim`` (its usage line, its help
+``docs/commands.md`` holds the markers ``<!-- thrsim: command reference -->`` and
+``<!-- /thrsim: command reference -->``; at build time what lies between them (a note for
+readers of the plain Markdown file) is replaced by every command and subcommand of this checkout's ``thrsim`` (its usage line, its help
 text and each option with the help and default that ``thrsim CMD --help`` prints). So the page
 cannot fall behind the code: a new command or option appears on the next build, and a page
 without the marker fails the build.
@@ -13,6 +14,7 @@ import sys
 from pathlib import Path
 
 MARKER = "<!-- thrsim: command reference -->"
+END_MARKER = "<!-- /thrsim: command reference -->"
 PAGE = "commands.md"
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -67,6 +69,8 @@ def command_reference() -> str:
 def on_page_markdown(markdown: str, page, config, files) -> str:
     if page.file.src_uri != PAGE:
         return markdown
-    if MARKER not in markdown:
-        raise ValueError(f"{PAGE} lost its marker {MARKER!r}: the command reference would not be generated")
-    return markdown.replace(MARKER, command_reference())
+    if MARKER not in markdown or END_MARKER not in markdown.split(MARKER, 1)[1]:
+        raise ValueError(f"{PAGE} lost its markers {MARKER!r} … {END_MARKER!r}: the command reference would not be generated")
+    before, rest = markdown.split(MARKER, 1)
+    after = rest.split(END_MARKER, 1)[1]
+    return before + command_reference() + after

@@ -6,7 +6,7 @@ import re
 
 from checkout_cli import REPO_ROOT
 
-DOCUMENTS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "thrsim").rglob("*.py"))]
+DOCUMENTS = [REPO_ROOT / "README.md", *sorted((REPO_ROOT / "docs").rglob("*.md")), *sorted((REPO_ROOT / "thrsim").rglob("*.py"))]
 
 
 def test_no_document_starts_a_dask_scheduler_on_every_interface():

@@ -151,7 +151,7 @@ class BoneMaterial(_Frozen):
 
 
 class JohnsonCookHardening(_Frozen):
-    """σ_y = [A + B εᵖⁿ][1 + C ln(ε̇ᵖ/ε̇₀)]; thermal softening off [Table 4]."""
+    """``σ_y = [A + B εᵖⁿ][1 + C ln(ε̇ᵖ/ε̇₀)]``; thermal softening off [Table 4]."""
 
     a_pa: float = Field(50e6, gt=0)
     b_pa: float = Field(101e6, ge=0)
@@ -162,13 +162,13 @@ class JohnsonCookHardening(_Frozen):
 
 
 class JohnsonCookDamage(_Frozen):
-    """ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)] initiation, linear evolution in u = L_e Δεᵖ.
+    """``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]`` initiation, linear evolution in u = L_e Δεᵖ.
 
     With the thesis constants ε_f < 0 for every triaxiality η: damage initiates at first yield.
     ``displacement_at_failure_m`` (u_f): Table 8 lists 5e-4 m, the text [5.2.1] 1e-4 m. The
     default, 4.5e-4 m, was calibrated with solver 0.2.0; since 0.3.0 the teeth's cutting law
     (:class:`ContactConfig`, ``specific_cutting_energy_j_m3``) sets the pace of the default case
-    and this damage adds to it (README, "Calibration").
+    and this damage adds to it (docs/benchmarks.md, "Calibration").
     """
 
     d1: float = -0.09

@@ -10,8 +10,11 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import err_console, print_json, print_table
-from thrsim.config import load_case_config
+from thrsim.config import ContactConfig, load_case_config
 from thrsim.errors import ThrsimInputError
+
+# the help shows the configuration's defaults, not copies of them that can fall behind
+_CONTACT = ContactConfig()
 
 
 def fem(
@@ -27,10 +30,13 @@ def fem(
     ),
     target_dt: Optional[float] = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
     contact_factor: Optional[float] = typer.Option(
-        None, "--contact-factor", help="contact penalty factor β (k_i = β·m_i/Δt²) [default: 0.4]"
+        None, "--contact-factor", help=f"contact penalty factor β (k_i = β·m_i/Δt²) [default: {_CONTACT.penalty_factor:g}]"
     ),
     cutting_energy: Optional[float] = typer.Option(
-        None, "--cutting-energy", help="bone's specific cutting energy in J/mm³ [default: 0.3]", metavar="J_MM3"
+        None,
+        "--cutting-energy",
+        help=f"bone's specific cutting energy in J/mm³ [default: {_CONTACT.specific_cutting_energy_j_m3 / 1e9:g}]",
+        metavar="J_MM3",
     ),
     effective_mass: Optional[float] = typer.Option(
         None, "--effective-mass", help="hand-held reamer's effective axial mass in kg [default: 2]", metavar="KG"

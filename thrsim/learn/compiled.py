@@ -3,7 +3,7 @@
 Eager PyTorch runs each message-passing step as a chain of separate kernels (gathers, a
 matrix product, ReLU, LayerNorm, the residual add, ``index_add_``), each one a pass over the
 region's ~8,000 edges or ~3,000 nodes; at a latent width of 32 those passes, not the arithmetic,
-set the time. Inductor fuses each chain into one C++ loop. On the 2-core CPU of the README the
+set the time. Inductor fuses each chain into one C++ loop. On the 2-core CPU of docs/benchmarks.md the
 learned step at γ 15° went from 14.4 to 8.6 ms per frame with the same removed elements.
 
 Shapes are symbolic (``dynamic=True``): the region changes size every frame and must not trigger

@@ -3,7 +3,7 @@
 Hardening (thermal softening off) [Table 4]:
     σ_y(εᵖ, ε̇ᵖ) = [A + B εᵖⁿ] · [1 + C ln(ε̇ᵖ/ε̇₀)]   (rate term only for ε̇ᵖ > ε̇₀, as in ABAQUS)
 
-Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)].
+Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with ``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]``.
 With the thesis constants ε_f < 0 for every triaxiality η, which has no meaning as a strain to
 fracture: it is read as "initiate at first yield" (a brittle material), explicitly, and never
 used as a divisor. Evolution is linear in the equivalent plastic displacement accumulated after

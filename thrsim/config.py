@@ -352,6 +352,15 @@ class IgtlConfig(_Frozen):
         return names
 
 
+class SessionEndLimit(_Frozen):
+    """How often the trainer's viewers may end sessions, all modes together: each end writes a session
+    file and starts a fresh session, so a page repeating ``end_session`` must not fill the disk. A
+    token bucket: ``burst`` ends at once, then one more every ``refill_s``."""
+
+    burst: int = Field(5, ge=1)
+    refill_s: float = Field(10.0, gt=0, description="one more end allowed this often")
+
+
 class SolverConfig(_Frozen):
     """Explicit central-difference settings of the ground-truth solver."""
 

@@ -27,6 +27,7 @@ from websockets.sync.client import connect
 
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.app.server import ServeSettings, create_app
+from thrsim.config import SessionEndLimit
 from thrsim.session import read_session
 
 
@@ -139,6 +140,30 @@ def test_on_loopback_only_loopback_host_names_are_answered(served):
     assert handshake_status(served, evil, origin=f"http://{evil}") == 403  # matching Host and Origin: still refused
     assert handshake_status(served, f"localhost:{served.port}", origin=f"http://localhost:{served.port}") == 101
     assert handshake_status(served, f"localhost:{served.port}", origin="http://evil.example") == 403
+
+
+def test_ending_sessions_is_rate_limited(tmp_path):
+    served = ServedTrainer(tmp_path)
+    burst = SessionEndLimit().burst
+    try:
+        with connect(ws_url(served), open_timeout=10) as ws:
+            next_of_type(ws, "hello")
+            for _ in range(100):
+                ws.send(json.dumps({"type": "end_session"}))
+            replies = []
+            while len(replies) < 100:
+                message = ws.recv(timeout=10)
+                if isinstance(message, str) and json.loads(message)["type"] in ("session_saved", "error"):
+                    replies.append(json.loads(message))
+            saved = [m for m in replies if m["type"] == "session_saved"]
+            refused = [m["message"] for m in replies if m["type"] == "error"]
+            assert burst <= len(saved) <= burst + 1 and len(saved) + len(refused) == 100  # one more if the bucket refilled meanwhile
+            assert all(m.startswith("session not saved: sessions were ended too often") for m in refused)
+            ws.send(json.dumps({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}))
+            assert next_of_type(ws, "ack")["message"] == "reamer steered"  # the session goes on
+    finally:
+        assert served.stop() == 0
+    assert len(list(tmp_path.glob("*.h5"))) == len(saved) + 1  # and the one saved at shutdown
 
 
 @pytest.mark.parametrize("source", ["environment", "file"])

@@ -20,6 +20,8 @@ Access (who may talk):
   token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
   a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``).
 * Origin: WebSocket handshakes from another site's page (a foreign ``Origin``) are refused.
+* Sessions: viewers may end sessions (each writes a file and starts a fresh session) at the rate
+  of :class:`~thrsim.config.SessionEndLimit`, all modes together.
 * OpenIGTLink: the listener is on loopback unless ``igtl_host`` says otherwise, and serves peers
   in loopback and the ``igtl_allow`` networks only (:class:`~thrsim.config.IgtlConfig`).
 """
@@ -32,6 +34,7 @@ import hmac
 import ipaddress
 import json
 import logging
+import math
 import re
 import secrets
 import threading
@@ -49,7 +52,7 @@ from starlette.concurrency import run_in_threadpool
 
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession
 from thrsim.app.modes import MODES, Mode
-from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig
+from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.session import NavigationSession
 
@@ -112,6 +115,7 @@ class ServeSettings:
     allowed_hosts: tuple[str, ...] = ()  # host names the page may be opened by off loopback (besides addresses)
     igtl_host: str | None = None  # the OpenIGTLink listener's address (None: loopback)
     igtl_allow: tuple[str, ...] = ()  # networks beyond loopback whose trackers are served
+    session_ends: SessionEndLimit = SessionEndLimit()
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -249,6 +253,8 @@ class TrainerHub:
         self.saved: list[Path] = []
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
+        self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
+        self.ends_counted_at = clock()
 
     def _start(self, mode: Mode) -> LiveSession:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
@@ -298,6 +304,21 @@ class TrainerHub:
         for name, text in texts.items():
             for viewer in self.viewers[name]:
                 viewer.offer(text)
+
+    def end_asked(self, name: str) -> Path:
+        """A viewer's end of the mode's session, within :class:`~thrsim.config.SessionEndLimit`;
+        ThrsimInputError, the session going on, when ends come faster."""
+        limit = self.settings.session_ends
+        now = self.clock()
+        self.ends_left = min(limit.burst, self.ends_left + (now - self.ends_counted_at) / limit.refill_s)
+        self.ends_counted_at = now
+        if self.ends_left < 1:
+            wait_s = (1 - self.ends_left) * limit.refill_s
+            raise ThrsimInputError(
+                f"sessions were ended too often (at most {limit.burst} at once, then one every {limit.refill_s:g} s); this one goes on, end it again in {math.ceil(wait_s)} s"
+            )
+        self.ends_left -= 1
+        return self.end(name)
 
     def end(self, name: str) -> Path:
         """Save the mode's session and start a fresh one."""
@@ -516,7 +537,7 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
         return [("one", {"type": "error", "message": f"control failed: {error}"})]
     if control.type == "end_session":
         try:
-            path = hub.end(mode_name)
+            path = hub.end_asked(mode_name)
         except (ThrsimInputError, OSError) as error:
             return [("one", {"type": "error", "message": f"session not saved: {error}"})]
         saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}

@@ -158,7 +158,7 @@ def test_ending_sessions_is_rate_limited(tmp_path):
             saved = [m for m in replies if m["type"] == "session_saved"]
             refused = [m["message"] for m in replies if m["type"] == "error"]
             assert burst <= len(saved) <= burst + 1 and len(saved) + len(refused) == 100  # one more if the bucket refilled meanwhile
-            assert all(m.startswith("session not saved: sessions were ended too often") for m in refused)
+            assert all(m.startswith("session not saved: sessions ended too often") for m in refused)
             ws.send(json.dumps({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}))
             assert next_of_type(ws, "ack")["message"] == "reamer steered"  # the session goes on
     finally:

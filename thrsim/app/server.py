@@ -315,7 +315,8 @@ class TrainerHub:
         if self.ends_left < 1:
             wait_s = (1 - self.ends_left) * limit.refill_s
             raise ThrsimInputError(
-                f"sessions were ended too often (at most {limit.burst} at once, then one every {limit.refill_s:g} s); this one goes on, end it again in {math.ceil(wait_s)} s"
+                f"sessions ended too often ({limit.burst} at once, then one every {limit.refill_s:g} s): "
+                f"this one goes on; end it again in {math.ceil(wait_s)} s"
             )
         self.ends_left -= 1
         return self.end(name)

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, field_validator, model_validator
 
 from thrsim import portable_math as pm
 
@@ -418,18 +418,22 @@ class TrackingVolumeConfig(_Frozen):
         return self
 
 
+LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
 KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 
 class IgtlConfig(_Frozen):
-    """OpenIGTLink listener: where it listens and how much it tolerates from a peer.
+    """OpenIGTLink listener: where it listens, whom it admits and how much it tolerates from a peer.
 
-    Poses are kept per device name: the ``known_devices`` always, and at most
-    ``max_other_devices`` other names (first come), so no client can grow the shared session
-    without bound by inventing names. A connection that sends nothing for ``idle_timeout_s`` is
-    closed; when every one of the ``max_clients`` slots is taken, a new connection takes the slot
-    of one that has sent no well-formed message in the ``reclaim_after_s`` since it connected (otherwise
-    the newcomer is refused): idle sockets cannot lock a tracker out (see :mod:`thrsim.io.server`).
+    Only peers in ``allowed_peers`` (networks; loopback alone by default) are served; a connection
+    from anywhere else is closed at once. Poses are kept per device name: the ``known_devices``
+    always, and at most ``max_other_devices`` other names (first come), so no client can grow the
+    shared session without bound by inventing names. A connection that sends nothing for
+    ``idle_timeout_s`` is closed. A client earns its slot by sending what the trainer uses (a
+    known device's pose, a force): when every one of the ``max_clients`` slots is taken, a
+    newcomer takes the slot of a connection that has earned nothing in the ``reclaim_after_s``
+    since it connected, else of the one whose last useful message is oldest and older than
+    ``idle_timeout_s``; otherwise the newcomer is refused (see :mod:`thrsim.io.server`).
     """
 
     host: str = "127.0.0.1"
@@ -437,13 +441,18 @@ class IgtlConfig(_Frozen):
     max_body_bytes: int = Field(1 << 20, gt=0)
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
-    idle_timeout_s: float = Field(15.0, gt=0, description="a connection that sends no message for this long is closed")
+    idle_timeout_s: float = Field(
+        15.0, gt=0, description="a connection that sends no message for this long is closed; none useful, it gives way when wanted"
+    )
     reclaim_after_s: float = Field(
-        1.0, ge=0, description="when all slots are taken, a connection silent this long since connecting gives its slot to a newcomer"
+        1.0, ge=0, description="when all slots are taken, a connection that sent nothing useful this long since connecting gives way"
     )
     stale_pose_s: float = Field(0.5, gt=0, description="a pose older than this no longer counts as tracked")
     known_devices: tuple[str, ...] = Field(KNOWN_TRACKER_DEVICES, description="TRANSFORM device names always accepted")
     max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")
+    allowed_peers: tuple[IPvAnyNetwork, ...] = Field(
+        LOOPBACK_NETWORKS, validate_default=True, description="networks whose peers are served"
+    )
 
     @field_validator("known_devices")
     @classmethod
@@ -452,6 +461,15 @@ class IgtlConfig(_Frozen):
             if not name or not name.isprintable() or not name.isascii() or len(name) > 20:
                 raise ValueError(f"device name {name!r} must be 1 to 20 printable ASCII characters")
         return names
+
+
+class SessionEndLimit(_Frozen):
+    """How often the trainer's viewers may end sessions, all modes together: each end writes a session
+    file and starts a fresh session, so a page repeating ``end_session`` must not fill the disk. A
+    token bucket: ``burst`` ends at once, then one more every ``refill_s``."""
+
+    burst: int = Field(5, ge=1)
+    refill_s: float = Field(10.0, gt=0, description="one more end allowed this often")
 
 
 class SolverConfig(_Frozen):

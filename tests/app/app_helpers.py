@@ -41,7 +41,7 @@ class ServedTrainer:
     tests/learn/test_learn_simulator.py).
     """
 
-    def __init__(self, sessions: Path, *extra: str, timeout: float = 60.0, compile: bool = False):
+    def __init__(self, sessions: Path, *extra: str, timeout: float = 60.0, compile: bool = False, env: dict[str, str] | None = None):
         self.sessions = sessions
         flags = () if compile else ("--no-compile",)
         self.process = subprocess.Popen(
@@ -65,7 +65,7 @@ class ServedTrainer:
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
-            env=checkout_env(PYTHONUNBUFFERED="1"),
+            env=checkout_env(PYTHONUNBUFFERED="1", **(env or {})),
         )
         self.lines: list[str] = []
         found = threading.Event()

@@ -3,7 +3,9 @@ WebSocket and OpenIGTLink clients; bad input refused with a message; sessions ne
 
 from __future__ import annotations
 
+import asyncio
 import json
+import socket
 import subprocess
 import sys
 import time
@@ -24,6 +26,8 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from thrsim.app.navigation import NavigationTrainer
+from thrsim.app.server import ServeSettings, create_app
+from thrsim.config import SessionEndLimit
 from thrsim.session import read_session
 
 
@@ -115,8 +119,61 @@ def test_ending_a_session_saves_it_and_serves_its_report(served):
     assert session_id in get(served.url + "/api/sessions")[1]
 
 
-def test_token_guards_every_request_and_socket(tmp_path):
-    served = ServedTrainer(tmp_path, "--token", "s3cret-token")
+def handshake_status(served: ServedTrainer, host: str, origin: str | None = None, path: str = "/ws/navigation") -> int:
+    """The HTTP status a WebSocket handshake gets (101: opened) with this Host and Origin, on a raw socket."""
+    lines = [f"GET {path} HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade"]
+    lines += ["Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==", "Sec-WebSocket-Version: 13"] + ([f"Origin: {origin}"] if origin else [])
+    with socket.create_connection(("127.0.0.1", served.port), timeout=10) as sock:
+        sock.sendall(("\r\n".join(lines) + "\r\n\r\n").encode())
+        return int(sock.recv(4096).split(b" ", 2)[1])
+
+
+def test_on_loopback_only_loopback_host_names_are_answered(served):
+    # DNS rebinding: a page of evil.example whose name now resolves to 127.0.0.1 sends Host: evil.example
+    for path in ("/", "/api/sessions", "/api/health", "/sessions/20250101T000000Z-abcdef/file"):
+        for host in ("evil.example", f"evil.example:{served.port}", "127.0.0.1.evil.example", "10.0.0.1"):
+            status, body, _ = get(served.url + path, {"Host": host})
+            assert status == 403 and "not one this trainer answers to" in body, (path, host)
+    for host in ("localhost", f"localhost:{served.port}", f"127.0.0.1:{served.port}", "127.1.2.3", f"[::1]:{served.port}"):
+        assert get(served.url + "/api/health", {"Host": host})[0] == 200, host
+    evil = f"evil.example:{served.port}"
+    assert handshake_status(served, evil, origin=f"http://{evil}") == 403  # matching Host and Origin: still refused
+    assert handshake_status(served, f"localhost:{served.port}", origin=f"http://localhost:{served.port}") == 101
+    assert handshake_status(served, f"localhost:{served.port}", origin="http://evil.example") == 403
+
+
+def test_ending_sessions_is_rate_limited(tmp_path):
+    served = ServedTrainer(tmp_path)
+    burst = SessionEndLimit().burst
+    try:
+        with connect(ws_url(served), open_timeout=10) as ws:
+            next_of_type(ws, "hello")
+            for _ in range(100):
+                ws.send(json.dumps({"type": "end_session"}))
+            replies = []
+            while len(replies) < 100:
+                message = ws.recv(timeout=10)
+                if isinstance(message, str) and json.loads(message)["type"] in ("session_saved", "error"):
+                    replies.append(json.loads(message))
+            saved = [m for m in replies if m["type"] == "session_saved"]
+            refused = [m["message"] for m in replies if m["type"] == "error"]
+            assert burst <= len(saved) <= burst + 1 and len(saved) + len(refused) == 100  # one more if the bucket refilled meanwhile
+            assert all(m.startswith("session not saved: sessions ended too often") for m in refused)
+            ws.send(json.dumps({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}))
+            assert next_of_type(ws, "ack")["message"] == "reamer steered"  # the session goes on
+    finally:
+        assert served.stop() == 0
+    assert len(list(tmp_path.glob("*.h5"))) == len(saved) + 1  # and the one saved at shutdown
+
+
+@pytest.mark.parametrize("source", ["environment", "file"])
+def test_token_guards_every_request_and_socket(tmp_path, source):
+    if source == "file":
+        token_file = tmp_path / "token"
+        token_file.write_text("s3cret-token\n")
+        served = ServedTrainer(tmp_path, "--token-file", str(token_file))
+    else:
+        served = ServedTrainer(tmp_path, env={"THRSIM_TOKEN": "s3cret-token"})
     try:
         assert get(served.url + "/")[0] == 401
         assert get(served.url + "/static/navigation.js")[0] == 401
@@ -125,6 +182,7 @@ def test_token_guards_every_request_and_socket(tmp_path):
         assert status == 200 and "thrsim_token=s3cret-token" in headers.get("set-cookie", "")
         assert get(served.url + "/vendor/three/build/three.module.js", {"Cookie": "thrsim_token=s3cret-token"})[0] == 200
         assert get(served.url + "/api/health", {"Authorization": "Bearer s3cret-token"})[0] == 200
+        assert get(served.url + "/api/health", {"Authorization": "Bearer s3cret-token", "Host": "evil.example"})[0] == 403
         with pytest.raises(InvalidStatus):
             connect(ws_url(served), open_timeout=10)
         with connect(ws_url(served) + "?token=s3cret-token", open_timeout=10) as ws:
@@ -133,6 +191,16 @@ def test_token_guards_every_request_and_socket(tmp_path):
             connect(ws_url(served) + "?token=s3cret-token", open_timeout=10, origin="http://evil.example")
     finally:
         assert served.stop() == 0
+    assert "s3cret-token" not in " ".join(served.process.args)  # not on the command line, where ps shows it
+
+
+def test_a_token_on_the_command_line_is_taken_with_a_warning(tmp_path):
+    served = ServedTrainer(tmp_path, "--token", "s3cret-token")
+    try:
+        assert get(served.url + "/")[0] == 401 and get(served.url + "/?token=s3cret-token")[0] == 200
+    finally:
+        assert served.stop() == 0
+    assert "--token shows the token to every user of this machine (ps)" in served.stderr()
 
 
 def test_stopping_the_server_saves_the_live_session(tmp_path):
@@ -150,6 +218,11 @@ def test_stopping_the_server_saves_the_live_session(tmp_path):
     "args, message",
     [
         (["--host", "0.0.0.0"], "access token"),
+        (["--host", "0.0.0.0", "--token-file", "/nonexistent/token"], "cannot read the access token from /nonexistent/token"),
+        (["--token", "s3cret-token", "--token-file", "/nonexistent/token"], "give the access token once"),
+        (["--igtl-allow", "10.0.0.0/8"], "--igtl-host"),
+        (["--igtl-host", "0.0.0.0"], "--igtl-allow"),
+        (["--igtl-host", "0.0.0.0", "--igtl-allow", "10.0.0.0/33"], "--igtl-allow 10.0.0.0/33: not an address or network"),
         (["--sessions", "/nonexistent/deeper/sessions"], "cannot create sessions folder"),
     ],
 )
@@ -168,3 +241,46 @@ def test_serve_refuses_a_taken_port(served, tmp_path):
     )  # fmt: skip
     assert done.returncode == 2 and "cannot listen" in done.stderr and done.stderr.count("\n") == 1
     assert get(served.url + "/api/health")[0] == 200  # the running trainer is untouched
+
+
+async def asgi_status(app, path: str, headers: dict[str, str]) -> int:
+    """The status of a GET through the app in this process (no socket), with these headers."""
+    scope = {
+        "type": "http", "asgi": {"version": "3.0"}, "http_version": "1.1", "method": "GET", "scheme": "http", "path": path,
+        "raw_path": path.encode(), "root_path": "", "query_string": b"", "server": ("192.168.4.1", 8000), "client": ("192.168.4.9", 50000),
+        "headers": [(name.lower().encode(), value.encode()) for name, value in headers.items()],
+    }  # fmt: skip
+    sent = []
+
+    async def receive() -> dict:
+        return {"type": "http.request", "body": b"", "more_body": False}
+
+    async def send(message: dict) -> None:
+        sent.append(message)
+
+    await app(scope, receive, send)
+    return next(m["status"] for m in sent if m["type"] == "http.response.start")
+
+
+def test_off_loopback_the_openigtlink_listener_stays_on_loopback_unless_told(tmp_path):
+    settings = ServeSettings(
+        host="0.0.0.0", igtl_port=0, token="s3cret-token", sessions_dir=tmp_path, compile=False, allowed_hosts=("Trainer.LAN",)
+    )
+    app = create_app(settings)  # run in this process: nothing listens beyond loopback
+
+    async def served_off_loopback() -> None:
+        async with app.router.lifespan_context(app):
+            assert app.state.hub.igtl_address[0] == "127.0.0.1"
+            bearer = {"Authorization": "Bearer s3cret-token"}
+            assert await asgi_status(app, "/api/health", {**bearer, "Host": "trainer.lan:8000"}) == 200  # a name given with --allow-host
+            assert await asgi_status(app, "/api/health", {**bearer, "Host": "192.168.4.1:8000"}) == 200  # an address
+            assert await asgi_status(app, "/api/health", {**bearer, "Host": "evil.example"}) == 403
+            assert await asgi_status(app, "/api/health", {"Host": "192.168.4.1:8000"}) == 401
+
+    asyncio.run(served_off_loopback())
+    remote = ServeSettings(
+        host="0.0.0.0", token="s3cret-token", sessions_dir=tmp_path, igtl_host="0.0.0.0", igtl_allow=("192.168.4.0/24", "10.1.2.3")
+    )
+    remote.check()
+    assert remote.igtl_config().host == "0.0.0.0"
+    assert [str(n) for n in remote.igtl_config().allowed_peers] == ["127.0.0.0/8", "::1/128", "192.168.4.0/24", "10.1.2.3/32"]

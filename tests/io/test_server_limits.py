@@ -5,13 +5,15 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import socket
+import threading
 import time
 
 import pyigtl
 import pytest
-
 from igtl_helpers import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
+
 from thrsim.config import IgtlConfig
 from thrsim.io import igtl
 from thrsim.io.server import NAVIGATION_STATE
@@ -184,3 +186,118 @@ def test_the_trainers_device_names_are_known_to_the_server():
     from thrsim.app.navigation import DEVICES
 
     assert set(DEVICES) <= set(IgtlConfig().known_devices)
+
+
+class _Squatters:
+    """``count`` connections that each send one message every ``period_s`` that the trainer does not
+    use (a STATUS, or a pose under an invented device name), reconnecting whenever they lose their
+    slot: what a peer holding slots without tracking anything does. Runs in a thread until stopped."""
+
+    def __init__(self, server, count: int, period_s: float):
+        self.server, self.period_s = server, period_s
+        self.messages = [
+            igtl.encode_message(igtl.Message("STATUS", f"Squatter{k}", igtl.pack_status(1, "OK", "here")))
+            if k % 2
+            else transform_message(reamer_pose_mm(), device=f"Squatter{k}")
+            for k in range(count)
+        ]
+        self.sockets = [self._join(message) for message in self.messages]
+        self.reconnections = 0
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._talk, daemon=True)
+        self.thread.start()
+
+    def _join(self, message: bytes) -> socket.socket:
+        sock = self.server.connect()
+        sock.sendall(message)
+        sock.setblocking(False)
+        return sock
+
+    def _talk(self) -> None:
+        while not self.stopping.wait(self.period_s):
+            for k, sock in enumerate(self.sockets):
+                try:
+                    while sock.recv(65536):  # the replies, if any; b"" once the server closed it
+                        pass
+                    closed = True
+                except BlockingIOError:
+                    closed = False
+                except OSError:
+                    closed = True
+                if closed:
+                    sock.close()
+                    self.sockets[k] = self._join(self.messages[k])
+                    self.reconnections += 1
+                else:
+                    with contextlib.suppress(OSError):
+                        sock.sendall(self.messages[k])
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self.thread.join(5)
+        for sock in self.sockets:
+            sock.close()
+
+
+def test_squatters_that_talk_without_tracking_do_not_lock_out_a_tracker(make_server):
+    config = IgtlConfig(port=0)  # the defaults: 32 slots
+    server = make_server(config)
+    squatters = _Squatters(server, config.max_clients, period_s=2.0)
+    try:
+        assert wait_until(lambda: server.server.clients == config.max_clients and server.server.stats["messages"] >= config.max_clients)
+        time.sleep(config.reclaim_after_s)  # every squatter has had its chance to earn its slot
+        started = time.monotonic()
+        with server.connect() as tracker:
+            tracker.sendall(transform_message(reamer_pose_mm()))
+            reply = read_message(tracker)
+            assert reply.type_name == "STRING", status_of(reply)
+            assert time.monotonic() - started < 1.0
+            # the squatters keep talking and reconnecting; a tracker that streams keeps its slot
+            deadline = time.monotonic() + 3 * squatters.period_s
+            while time.monotonic() < deadline:
+                assert served(tracker)
+                time.sleep(0.1)
+        assert squatters.reconnections >= 1 and server.server.clients <= config.max_clients
+    finally:
+        squatters.stop()
+
+
+def test_a_client_that_stopped_tracking_gives_way_to_a_newcomer(make_server):
+    server = make_server(IgtlConfig(port=0, max_clients=2, reclaim_after_s=0.0, idle_timeout_s=1.0))
+    chatter = igtl.encode_message(igtl.Message("STATUS", "Chatter", igtl.pack_status(1, "OK", "still here")))
+    with server.connect() as stopped, server.connect() as streaming:
+        assert served(stopped) and served(streaming)
+        for _ in range(8):  # 1.2 s: talking (so not idle) but tracking nothing, while the other streams
+            stopped.sendall(chatter)
+            assert served(streaming)
+            time.sleep(0.15)
+        with server.connect() as newcomer:
+            assert served(newcomer)
+            assert status_of(read_message(stopped))[:2] == (igtl.STATUS_TIMEOUT, "SlotReclaimed")
+            assert is_closed(stopped)
+            assert served(streaming)
+    assert server.server.stats["reclaimed_slots"] == 1 and server.server.stats["idle_timeouts"] == 0
+
+
+def _closed_without_a_word(sock: socket.socket) -> bool:
+    """The peer closed (or reset, having left what was sent unread) and sent nothing."""
+    sock.settimeout(5)
+    try:
+        return sock.recv(65536) == b""
+    except ConnectionResetError:
+        return True
+
+
+def test_peers_outside_the_allowed_networks_are_closed_at_once(make_server, caplog):
+    server = make_server(IgtlConfig(port=0, allowed_peers=("127.0.0.2/32",)))
+    with caplog.at_level(logging.WARNING, logger="thrsim.io.server"):
+        for _ in range(3):
+            with server.connect() as outsider:  # from 127.0.0.1
+                outsider.sendall(transform_message(reamer_pose_mm()))
+                assert _closed_without_a_word(outsider)
+        assert wait_until(lambda: server.server.stats["refused_peers"] == 3)
+    refusals = [r.getMessage() for r in caplog.records if "refused" in r.getMessage()]
+    assert refusals == ["OpenIGTLink connection from 127.0.0.1 refused: not in the allowed networks"] * 3
+    with socket.create_connection((server.host, server.port), timeout=5, source_address=("127.0.0.2", 0)) as insider:
+        assert served(insider)
+    assert server.server.session.poses.keys() == {"ReamerToReference"} and server.server.stats["transforms"] == 1

@@ -10,10 +10,20 @@ the live sessions through the OpenIGTLink server's session object (its public ``
 hook). A session ends when a viewer asks (or the server stops): it is written atomically to
 ``sessions_dir`` and a fresh one starts at once.
 
-Access: on a loopback address no token is needed unless one is given; on any other address a
-token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
-a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``). WebSocket
-handshakes from another site's page (a foreign ``Origin``) are refused as well.
+Access (who may talk):
+
+* Host: on a loopback address only requests naming a loopback host (``localhost``, 127.0.0.0/8,
+  ``[::1]``; any port) are answered, so a web page cannot reach the trainer by DNS rebinding; off
+  loopback, the host served, an IP address where every interface is served, and the names given
+  in ``allowed_hosts``. Others get 403 (a WebSocket is closed before it opens).
+* Token: on a loopback address no token is needed unless one is given; on any other address a
+  token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
+  a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``).
+* Origin: WebSocket handshakes from another site's page (a foreign ``Origin``) are refused.
+* Sessions: viewers may end sessions (each writes a file and starts a fresh session) at the rate
+  of :class:`~thrsim.config.SessionEndLimit`, all modes together.
+* OpenIGTLink: the listener is on loopback unless ``igtl_host`` says otherwise, and serves peers
+  in loopback and the ``igtl_allow`` networks only (:class:`~thrsim.config.IgtlConfig`).
 """
 
 from __future__ import annotations
@@ -24,6 +34,7 @@ import hmac
 import ipaddress
 import json
 import logging
+import math
 import re
 import secrets
 import threading
@@ -41,7 +52,7 @@ from starlette.concurrency import run_in_threadpool
 
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession
 from thrsim.app.modes import MODES, Mode
-from thrsim.config import IgtlConfig
+from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.session import NavigationSession
 
@@ -49,6 +60,7 @@ log = logging.getLogger(__name__)
 
 TOKEN_COOKIE = "thrsim_token"
 _SESSION_ID = re.compile(r"^[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}$")
+_TOKEN = re.compile(r"[A-Za-z0-9._~-]+")  # URL- and cookie-safe, as secrets.token_urlsafe() makes
 _REPORT_LOCK = threading.Lock()  # matplotlib's pyplot is not safe for two reports at once
 
 
@@ -59,6 +71,32 @@ def is_loopback(host: str) -> bool:
         return ipaddress.ip_address(host).is_loopback
     except ValueError:
         return False
+
+
+def _canonical_host(name: str) -> str:
+    """A host name in lower case without a final dot, or an IP address in its compressed form."""
+    try:
+        return ipaddress.ip_address(name).compressed
+    except ValueError:
+        return name.rstrip(".").lower()
+
+
+def host_of(header: str) -> str:
+    """The host a ``Host`` header names (``name``, ``name:port``, ``[v6]`` or ``[v6]:port``), canonical."""
+    if header.startswith("["):
+        return _canonical_host(header[1:].partition("]")[0])
+    name, colon, port = header.rpartition(":")
+    return _canonical_host(name if colon and port.isdigit() else header)
+
+
+def _networks(values: tuple[str, ...]) -> tuple[ipaddress.IPv4Network | ipaddress.IPv6Network, ...]:
+    networks = []
+    for value in values:
+        try:
+            networks.append(ipaddress.ip_network(value, strict=False))
+        except ValueError:
+            raise ThrsimInputError(f"--igtl-allow {value}: not an address or network (ADDR or ADDR/PREFIX)") from None
+    return tuple(networks)
 
 
 @dataclass
@@ -74,32 +112,72 @@ class ServeSettings:
     igtl: bool = True
     model: Path | None = None  # the reaming mode's model folder (None: the shipped model)
     compile: bool = True  # run the reaming network compiled (thrsim.learn.compiled), compiled at start
+    allowed_hosts: tuple[str, ...] = ()  # host names the page may be opened by off loopback (besides addresses)
+    igtl_host: str | None = None  # the OpenIGTLink listener's address (None: loopback)
+    igtl_allow: tuple[str, ...] = ()  # networks beyond loopback whose trackers are served
+    session_ends: SessionEndLimit = SessionEndLimit()
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
-            raise ThrsimInputError(f"--host {self.host} is reachable from other machines: give an access token (--token or THRSIM_TOKEN)")
+            raise ThrsimInputError(
+                f"--host {self.host} is reachable from other machines: give an access token (THRSIM_TOKEN or --token-file)"
+            )
         if self.token is not None and len(self.token) < 8:
             raise ThrsimInputError("the access token must be at least 8 characters")
+        if self.token is not None and not _TOKEN.fullmatch(self.token):
+            raise ThrsimInputError("the access token may hold letters, digits and . _ ~ - only (it travels in URLs and a cookie)")
         if self.side not in ("right", "left"):
             raise ThrsimInputError(f"--side must be right or left, got {self.side!r}")
         if not self.sessions_dir.is_dir():
             raise ThrsimInputError(f"sessions folder {self.sessions_dir} does not exist")
         if self.model is not None and not self.model.is_dir():
             raise ThrsimInputError(f"--model {self.model}: no such model folder")
+        _networks(self.igtl_allow)
+        if self.igtl_allow and is_loopback(self.igtl_config().host):
+            raise ThrsimInputError("--igtl-allow admits trackers from other machines: give the address to listen on as well (--igtl-host)")
+        if not self.igtl_allow and not is_loopback(self.igtl_config().host):
+            raise ThrsimInputError(f"--igtl-host {self.igtl_host} serves no other machine without --igtl-allow ADDR/NET")
+
+    def igtl_config(self) -> IgtlConfig:
+        """The OpenIGTLink listener: on loopback (this host's, when it is loopback) unless ``igtl_host``."""
+        host = self.igtl_host or (self.host if is_loopback(self.host) else "127.0.0.1")
+        return IgtlConfig(host=host, port=self.igtl_port, allowed_peers=LOOPBACK_NETWORKS + tuple(map(str, _networks(self.igtl_allow))))
+
+    def host_allowed(self, header: str) -> bool:
+        """Whether a request's ``Host`` header names this trainer (see the module docstring)."""
+        name = host_of(header)
+        if is_loopback(name):
+            return True
+        if is_loopback(self.host):
+            return False
+        served = _canonical_host(self.host)
+        if name == served or name in map(_canonical_host, self.allowed_hosts):
+            return True
+        return served in ("0.0.0.0", "::") and _is_address(name)
 
 
-class _TokenGate:
-    """ASGI middleware: every HTTP request and WebSocket handshake must carry the token."""
+def _is_address(name: str) -> bool:
+    try:
+        ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return True
 
-    def __init__(self, app, token: str | None):
+
+class _AccessGate:
+    """ASGI middleware: every HTTP request and WebSocket handshake must name this trainer as its host,
+    and carry the token when there is one; WebSocket handshakes must come from this trainer's page."""
+
+    def __init__(self, app, settings: ServeSettings):
         self.app = app
-        self.token = token
+        self.settings = settings
+        self.token = settings.token
 
     def _presented(self, scope) -> tuple[str | None, bool]:
         query = parse_qs(scope.get("query_string", b"").decode("latin-1")).get("token", [None])[0]
         if query is not None:
             return query, True
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
+        headers = _headers(scope)
         auth = headers.get("authorization", "")
         if auth.lower().startswith("bearer "):
             return auth[7:].strip(), False
@@ -109,15 +187,19 @@ class _TokenGate:
                 return value, False
         return None, False
 
-    def _origin_ok(self, scope) -> bool:
-        headers = {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
-        origin = headers.get("origin")
-        return origin is None or urlsplit(origin).netloc == headers.get("host")
-
     async def __call__(self, scope, receive, send):
         if scope["type"] not in ("http", "websocket"):
             return await self.app(scope, receive, send)
-        if scope["type"] == "websocket" and not self._origin_ok(scope):
+        headers = _headers(scope)
+        host = headers.get("host")
+        if host is not None and not self.settings.host_allowed(host):
+            if scope["type"] == "websocket":
+                return await send({"type": "websocket.close", "code": 4403, "reason": "foreign host"})
+            body = f"host {host} is not one this trainer answers to\n".encode("utf-8", "replace")
+            await send({"type": "http.response.start", "status": 403, "headers": [(b"content-type", b"text/plain; charset=utf-8")]})
+            return await send({"type": "http.response.body", "body": body})
+        origin = headers.get("origin")
+        if scope["type"] == "websocket" and origin is not None and urlsplit(origin).netloc != host:
             return await send({"type": "websocket.close", "code": 4403, "reason": "foreign origin"})
         if self.token is None:
             return await self.app(scope, receive, send)
@@ -140,6 +222,10 @@ class _TokenGate:
 
             return await self.app(scope, receive, send_with_cookie)
         return await self.app(scope, receive, send)
+
+
+def _headers(scope) -> dict[str, str]:
+    return {k.decode("latin-1").lower(): v.decode("latin-1") for k, v in scope.get("headers", [])}
 
 
 @dataclass(eq=False)  # hashed by identity: viewers live in a set
@@ -167,6 +253,8 @@ class TrainerHub:
         self.saved: list[Path] = []
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
+        self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
+        self.ends_counted_at = clock()
 
     def _start(self, mode: Mode) -> LiveSession:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
@@ -216,6 +304,22 @@ class TrainerHub:
         for name, text in texts.items():
             for viewer in self.viewers[name]:
                 viewer.offer(text)
+
+    def end_asked(self, name: str) -> Path:
+        """A viewer's end of the mode's session, within :class:`~thrsim.config.SessionEndLimit`;
+        ThrsimInputError, the session going on, when ends come faster."""
+        limit = self.settings.session_ends
+        now = self.clock()
+        self.ends_left = min(limit.burst, self.ends_left + (now - self.ends_counted_at) / limit.refill_s)
+        self.ends_counted_at = now
+        if self.ends_left < 1:
+            wait_s = (1 - self.ends_left) * limit.refill_s
+            raise ThrsimInputError(
+                f"sessions ended too often ({limit.burst} at once, then one every {limit.refill_s:g} s): "
+                f"this one goes on; end it again in {math.ceil(wait_s)} s"
+            )
+        self.ends_left -= 1
+        return self.end(name)
 
     def end(self, name: str) -> Path:
         """Save the mode's session and start a fresh one."""
@@ -288,12 +392,13 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
             first = next(iter(hub.sessions.values())).trainer
             igtl_session = _ForwardingSession(hub, side=first.side, landmarks=getattr(first, "targets", None))
-            igtl_server = NavigationServer(IgtlConfig(host=settings.host, port=settings.igtl_port), session=igtl_session, clock=hub.clock)
+            igtl_config = settings.igtl_config()
+            igtl_server = NavigationServer(igtl_config, session=igtl_session, clock=hub.clock)
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:
                 app.state.startup_error = (
-                    f"cannot listen for OpenIGTLink on {settings.host}:{settings.igtl_port}: {error.strerror or error}"
+                    f"cannot listen for OpenIGTLink on {igtl_config.host}:{settings.igtl_port}: {error.strerror or error}"
                 )
                 raise ThrsimInputError(app.state.startup_error) from None
         ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
@@ -314,7 +419,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     app = FastAPI(title="thrsim trainer", lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
     app.state.hub = hub
-    app.add_middleware(_TokenGate, token=settings.token)
+    app.add_middleware(_AccessGate, settings=settings)
     app.mount("/static", StaticFiles(directory=STATIC, check_dir=True), name="static")
     if THREE_DIR.is_dir():
         app.mount("/vendor/three", StaticFiles(directory=THREE_DIR), name="three")
@@ -433,7 +538,7 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
         return [("one", {"type": "error", "message": f"control failed: {error}"})]
     if control.type == "end_session":
         try:
-            path = hub.end(mode_name)
+            path = hub.end_asked(mode_name)
         except (ThrsimInputError, OSError) as error:
             return [("one", {"type": "error", "message": f"session not saved: {error}"})]
         saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}

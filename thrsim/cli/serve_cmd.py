@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import signal
 import socket
 import sys
@@ -31,12 +32,46 @@ def _uvicorn_server(config):
     return _Server(config)
 
 
+def _access_token(token: str | None, token_file: Path | None) -> str | None:
+    """The access token: from --token-file, else --token (with a warning: a command line is public),
+    else the THRSIM_TOKEN environment variable; None when there is none."""
+    if token is not None and token_file is not None:
+        raise ThrsimInputError("give the access token once: --token-file PATH or THRSIM_TOKEN, not --token as well")
+    if token_file is not None:
+        try:
+            return token_file.read_text().strip()
+        except (OSError, UnicodeDecodeError) as error:
+            raise ThrsimInputError(f"cannot read the access token from {token_file}: {getattr(error, 'strerror', None) or error}") from None
+    if token is not None:
+        print(
+            "thrsim serve: warning: --token shows the token to every user of this machine (ps); use --token-file or THRSIM_TOKEN",
+            file=sys.stderr,
+        )
+        return token
+    return os.environ.get("THRSIM_TOKEN") or None
+
+
 def serve(
     port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
     igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
+    token_file: Path | None = typer.Option(
+        None, "--token-file", help="file holding the access token every request must carry (or env THRSIM_TOKEN)", metavar="PATH"
+    ),
     token: str | None = typer.Option(
-        None, "--token", envvar="THRSIM_TOKEN", help="access token every request must carry (env THRSIM_TOKEN)"
+        None, "--token", help="the access token itself: every user of this machine sees it in ps; prefer --token-file or THRSIM_TOKEN"
+    ),
+    allow_host: list[str] = typer.Option(
+        [], "--allow-host", help="off loopback: a host name the trainer may be opened by (addresses need none; repeatable)", metavar="NAME"
+    ),
+    igtl_host: str | None = typer.Option(
+        None, "--igtl-host", help="interface the OpenIGTLink listener listens on (default: loopback, whatever --host)"
+    ),
+    igtl_allow: list[str] = typer.Option(
+        [],
+        "--igtl-allow",
+        help="a network or address whose trackers the OpenIGTLink listener serves, beyond loopback (repeatable)",
+        metavar="ADDR/NET",
     ),
     sessions: Path = typer.Option(
         Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"
@@ -64,8 +99,9 @@ def serve(
             raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
         sessions.mkdir()
     settings = ServeSettings(
-        host=host, port=port, igtl_port=igtl_port, token=token, sessions_dir=sessions, side=side, seed=seed, model=model, compile=compile
-    )
+        host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
+        model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow),
+    )  # fmt: skip
     settings.check()  # refusals are one line, before the ports are taken and the network compiled
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
@@ -77,13 +113,14 @@ def serve(
         raise ThrsimInputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
     if igtl_port != 0:
         # Refuse a taken OpenIGTLink port here, as one line, before the app starts.
+        igtl_listen = settings.igtl_config().host
         try:
-            with socket.socket(family, socket.SOCK_STREAM) as probe:
+            with socket.socket(socket.AF_INET6 if ":" in igtl_listen else socket.AF_INET, socket.SOCK_STREAM) as probe:
                 probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                probe.bind((host, igtl_port))
+                probe.bind((igtl_listen, igtl_port))
         except OSError as error:
             listener.close()
-            raise ThrsimInputError(f"cannot listen for OpenIGTLink on {host}:{igtl_port}: {error.strerror or error}") from None
+            raise ThrsimInputError(f"cannot listen for OpenIGTLink on {igtl_listen}:{igtl_port}: {error.strerror or error}") from None
     if compile:
         print(
             "thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)",

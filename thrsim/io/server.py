@@ -16,12 +16,17 @@ reply where the stream allows one. Per message:
   that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
   where possible, then that connection (only) is closed.
 
+Peers: a connection from an address outside ``allowed_peers`` (loopback alone by default) is
+closed at once, with one log line and no reply.
+
 Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
-STATUS (7, time out) and is closed. When every slot is taken, a newcomer takes the slot of the
-oldest connection that has not sent one well-formed message in the ``reclaim_after_s`` since
-it connected (that one gets STATUS 7); with none such, the newcomer gets STATUS 6 (busy) and is
-closed. So idle sockets cannot lock a tracker out, and a client that has spoken keeps its slot
-until its idle timeout.
+STATUS (7, time out) and is closed. A client earns its slot by sending what the trainer uses: a
+pose of a known device or a force reading. When every slot is taken, a newcomer takes the slot
+of the oldest connection that has earned nothing in the ``reclaim_after_s`` since it connected,
+else of the one whose last useful message is oldest, if older than ``idle_timeout_s`` (that
+one gets STATUS 7); with neither, the newcomer gets STATUS 6 (busy) and is closed. So sockets that
+stay idle, or talk without tracking anything, cannot lock a tracker out, and a tracker keeps
+its slot through a pause (an occluded tool) shorter than the idle timeout.
 
 Large bodies are checksummed in a worker thread and the simulator hook runs in a worker thread,
 so the event loop never waits on computation.
@@ -36,6 +41,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import ipaddress
 import json
 import logging
 import time
@@ -78,7 +84,7 @@ class _Connection:
         self.writer = writer
         self.handler_task = asyncio.current_task()
         self.connected_at = asyncio.get_running_loop().time()
-        self.spoke = False  # has sent a well-formed message: a client, not (yet) an idle socket
+        self.earned_at: float | None = None  # when it last sent a pose or force the trainer uses (loop time)
         self.version = 1
         self.send_lock = asyncio.Lock()
         self.pending: tuple[np.ndarray, float | None] | None = None
@@ -163,7 +169,7 @@ class NavigationServer:
              "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts", "simulator_errors"),
             0,
         )  # fmt: skip
-        self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors"), 0))
+        self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors", "refused_peers"), 0))
         self._connections: set[_Connection] = set()
         self._handlers: set[asyncio.Task] = set()  # every connection's task, reclaimed ones included
         self._other_devices: set[str] = set()  # TRANSFORM names beyond config.known_devices, bounded
@@ -197,25 +203,46 @@ class NavigationServer:
         """Navigation state, client count and counters, for logs."""
         return {"state": self.session.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
 
+    def _peer_allowed(self, writer: asyncio.StreamWriter) -> bool:
+        """Whether the peer's address lies in ``allowed_peers``; refused peers are logged, one line each."""
+        peer = writer.get_extra_info("peername")
+        address = ipaddress.ip_address(peer[0].partition("%")[0])  # without an IPv6 scope
+        if address.version == 6 and address.ipv4_mapped is not None:
+            address = address.ipv4_mapped
+        if any(address in network for network in self.config.allowed_peers):
+            return True
+        self.stats["refused_peers"] += 1
+        log.warning("OpenIGTLink connection from %s refused: not in the allowed networks", address)
+        return False
+
     def _take_slot(self, connection: _Connection) -> bool:
-        """Admit ``connection``; when full, reclaim the slot of the oldest socket that never sent a
-        well-formed message, if it has had ``reclaim_after_s`` to do so."""
+        """Admit ``connection``; when full, reclaim the slot of a connection that has not earned it
+        (see the module docstring), or refuse the newcomer."""
         if len(self._connections) >= self.config.max_clients:
             now = asyncio.get_running_loop().time()
-            mute = [c for c in self._connections if not c.spoke and now - c.connected_at >= self.config.reclaim_after_s]
-            if not mute:
+            never_earned = [c for c in self._connections if c.earned_at is None and now - c.connected_at >= self.config.reclaim_after_s]
+            gone_stale = [c for c in self._connections if c.earned_at is not None and now - c.earned_at >= self.config.idle_timeout_s]
+            if never_earned:
+                victim = min(never_earned, key=lambda c: c.connected_at)
+                why = "no pose or force the trainer uses since connecting, and every client slot was wanted"
+            elif gone_stale:
+                victim = min(gone_stale, key=lambda c: c.earned_at)
+                why = f"no pose or force the trainer uses for {now - victim.earned_at:.1f} s, and every client slot was wanted"
+            else:
                 self.stats["rejected_connections"] += 1
                 connection.say_goodbye(igtl.STATUS_BUSY, "ServerFull", f"all {self.config.max_clients} client slots are in use")
                 return False
-            oldest = min(mute, key=lambda c: c.connected_at)
-            self._connections.discard(oldest)
+            self._connections.discard(victim)
             self.stats["reclaimed_slots"] += 1
-            oldest.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", "no message since connecting while every client slot was wanted")
+            victim.say_goodbye(igtl.STATUS_TIMEOUT, "SlotReclaimed", why)
         self._connections.add(connection)
         self.stats["connections"] += 1
         return True
 
     async def _handle(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if not self._peer_allowed(writer):
+            writer.close()
+            return
         connection = _Connection(self, writer)
         if not self._take_slot(connection):
             return
@@ -275,7 +302,6 @@ class NavigationServer:
                 await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
                 return not error.fatal
             connection.version = message.version
-            connection.spoke = True  # a well-formed, checksummed message: a client, not an idle socket
             await self._dispatch(message, connection)
         except (ConnectionError, asyncio.TimeoutError):
             raise  # the peer is gone or not reading: the connection ends (see _handle)
@@ -309,12 +335,15 @@ class NavigationServer:
                     return
                 self.session.update_pose(message.device_name, pose, now)
                 self.stats["transforms"] += 1
+                if message.device_name in self.config.known_devices:
+                    connection.earned_at = asyncio.get_running_loop().time()
             elif message.type_name == "SENSOR":
                 values, unit = igtl.unpack_sensor(message.content)
                 if unit not in (0, igtl.UNIT_NEWTON):
                     raise igtl.IgtlProtocolError(f"SENSOR unit {unit:#x} is not newton", igtl.STATUS_CONFIGURATION_ERROR)
                 self.session.update_force(values, now)
                 self.stats["sensors"] += 1
+                connection.earned_at = asyncio.get_running_loop().time()
             else:
                 self.stats["unknown_type"] += 1
                 log.debug("ignoring %s message %r", message.type_name, message.device_name)

@@ -1,15 +1,22 @@
-"""The session journal: inputs on disk as they arrive, read back exactly, a torn tail cut off."""
+"""The session journal: inputs on disk as they arrive, read back exactly, a torn tail cut off, and
+the sessions a crash left open closed as interrupted, with every input the journal kept."""
 
 from __future__ import annotations
 
 import errno
 import os
 import time
+import tracemalloc
 
+import h5py
 import numpy as np
 import pytest
 
+from thrsim.app.live import LiveSession, close_interrupted
+from thrsim.app.modes import MODES
+from thrsim.app.replay import replay_session
 from thrsim.errors import ThrsimInputError
+from thrsim.session import read_session
 from thrsim.session.journal import Journal, JournalWriter, claimed
 
 ATTRS = {"session_id": "20250101T000000Z-abcdef", "mode": "navigation", "started_utc": "2025-01-01T00:00:00+00:00"}
@@ -114,3 +121,70 @@ def test_records_the_disk_refuses_wait_in_memory_and_reach_the_file_in_order(tmp
     times = [time_s for kind, time_s, _ in Journal(journal.path).inputs() if kind == "tick"]
     assert times == [0.0, 1 / 60, 1.0, 2.0, 3.0, 4.0] and "writes again" in caplog.text
     journal.close()
+
+
+def test_a_long_session_keeps_its_inputs_on_disk_not_in_memory(tmp_path):
+    session, now = _live(tmp_path, seed=1)
+    pose = session.trainer.tools["Reamer"].pose.copy()
+    session.tick()
+    tracemalloc.start()
+    try:
+        before = tracemalloc.get_traced_memory()[0]
+        for k in range(10_000):
+            session.pose("ReamerToReference", pose, k / 240)
+            if k % 1000 == 999:
+                session.tick()  # the queued poses are logged and applied
+        grown = tracemalloc.get_traced_memory()[0] - before
+    finally:
+        tracemalloc.stop()
+    assert grown < 300_000  # about 100 kB of numpy caches; 10,000 poses were 1.5 MB in memory before the journal
+    started = time.perf_counter()
+    path = session.save()
+    assert time.perf_counter() - started < 5.0
+    with h5py.File(path) as h5:
+        matrix = h5["inputs/poses/matrix"]
+        assert matrix.shape == (10_000, 4, 4) and matrix.compression == "gzip"
+        assert h5["inputs/poses/device"][-1] == b"ReamerToReference"
+    assert path.stat().st_size < 500_000  # the same pose 10,000 times: compressed, not 10,000 strings
+
+
+def _live(folder, seed: int) -> tuple[LiveSession, list[float]]:
+    now = [0.0]
+    session = LiveSession(MODES["navigation"], {"side": "right", "seed": seed}, lambda: now[0], folder)
+    return session, now
+
+
+def test_a_session_that_never_ended_is_closed_as_interrupted_with_its_inputs(tmp_path):
+    session, now = _live(tmp_path, seed=5)
+    for k in range(90):
+        now[0] += 1 / 60
+        if k % 15 == 0:
+            session.control({"type": "probe", "action": "touch"})
+        if k == 40:
+            session.pose("ReamerToReference", session.trainer.tools["Reamer"].pose, now[0])
+        session.tick()
+    live_record = session.trainer.record()
+    assert close_interrupted(tmp_path) == []  # the live session holds its journal
+    quiet, _ = _live(tmp_path, seed=6)
+    quiet.tick()
+    saved, _ = _live(tmp_path, seed=7)
+    saved.control({"type": "probe", "action": "touch"})
+    saved_path = saved.save()
+    stale = tmp_path / f"{saved.id}.journal"
+    stale.write_bytes((tmp_path / f"{session.id}.journal").read_bytes())  # saved, then the crash before its journal went
+    for dead in (session, quiet):
+        dead.journal._closing.set()  # as a killed process: the journal is left as it is, its lock dropped
+        os.close(dead.journal._fd)
+
+    closed = close_interrupted(tmp_path)
+
+    target = tmp_path / f"{session.id}.h5"
+    assert closed == [target]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([target.name, saved_path.name])  # every journal gone
+    recovered = read_session(target)
+    assert recovered.attrs["interrupted"] and not read_session(saved_path).attrs["interrupted"]
+    assert recovered.attrs["duration_s"] == pytest.approx(1.5)
+    assert recovered.inputs.count == 90 + 6 + 1 and recovered.inputs.pose_devices() == ["ReamerToReference"]
+    record = MODES["navigation"].read_record(recovered.groups["navigation"])
+    assert np.array_equal(record.angles, live_record.angles, equal_nan=True) and record.events == live_record.events
+    assert replay_session(target).reproduced

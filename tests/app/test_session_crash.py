@@ -75,6 +75,7 @@ def test_a_killed_server_keeps_the_session_in_its_journal_and_closes_it_as_inter
         assert listed[session_id]["interrupted"] and listed[reaming_id]["interrupted"]
     finally:
         assert restarted.stop() == 0
+    assert restarted.stderr().count("interrupted session closed") == 2  # the server's log says what it closed
     assert sorted(p.name for p in tmp_path.glob("*.journal")) == []  # both closed, and the restarted server's idle sessions left none
     session = read_session(tmp_path / f"{session_id}.h5")
     assert session.attrs["interrupted"] and session.inputs.count == len(inputs)

@@ -179,7 +179,9 @@ def close_interrupted(folder: Path) -> list[Path]:
                 if not target.exists():
                     journal = Journal(path)
                     if any(kind != "tick" for kind, _, _ in journal.inputs()):
+                        log.warning("closing interrupted session %s from its journal (reliving its inputs)", path.stem)
                         closed.append(_close_from_journal(journal, target))
+                        log.warning("interrupted session closed: %s", target)
                 path.unlink()
         except Exception as error:  # whatever it is, the journal is kept and the server starts
             log.warning("%s: interrupted session not closed, its journal is kept: %s", path, error)

@@ -299,8 +299,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
-        for path in await asyncio.to_thread(close_interrupted, settings.sessions_dir):
-            log.warning("interrupted session closed: %s", path)
+        await asyncio.to_thread(close_interrupted, settings.sessions_dir)  # before the tracker and the ticker compete with it
         igtl_server = None
         if settings.igtl:
             from thrsim.io.server import NavigationServer

@@ -87,6 +87,9 @@ def test_a_torn_last_record_is_cut_off_and_everything_before_it_kept(tmp_path):
     path.write_bytes(bytes(garbled))
     read = Journal(path)
     assert [kind for kind, _, _ in read.inputs()] == ["tick", "control", "pose"] and read.torn
+    path.write_bytes(whole + b"\xff\xff\xff\x7f" + bytes(64))  # a garbled length: no 2 GiB read, the end of the journal
+    read = Journal(path)
+    assert len(list(read.inputs())) == 5 and read.torn
     path.write_bytes(whole[:20])  # cut inside the header
     with pytest.raises(ThrsimInputError, match="not a thrsim session journal"):
         Journal(path)

@@ -49,6 +49,8 @@ SUFFIX = ".journal"
 DEVICE_BYTES = 20
 
 _FRAME = struct.Struct("<II")  # body length, CRC-32 of the body
+#: no record is longer (a control is at most 16 KiB): a longer length is a garbled frame, not a read of gigabytes
+_MAX_BODY = 1 << 20
 _TIME = struct.Struct("<d")
 _POSE = struct.Struct("<d16d")
 _FORCE = struct.Struct("<dd")
@@ -200,7 +202,7 @@ def _read_record(handle) -> bytes | None:
     frame = handle.read(_FRAME.size)
     if len(frame) == _FRAME.size:
         size, crc = _FRAME.unpack(frame)
-        body = handle.read(size)
+        body = handle.read(size) if size <= _MAX_BODY else b""
         if len(body) == size and zlib.crc32(body) == crc:
             return body
     handle.seek(start)

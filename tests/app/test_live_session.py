@@ -4,16 +4,22 @@ land in the log and the trainer in arrival order, before the next step or contro
 from __future__ import annotations
 
 import threading
+from pathlib import Path
 
 import numpy as np
 
 from thrsim.app.live import LiveSession
 from thrsim.app.modes import MODES
+from thrsim.session.journal import Journal
 
 
-def _session() -> tuple[LiveSession, list[float]]:
+def _session(folder: Path) -> tuple[LiveSession, list[float]]:
     now = [0.0]
-    return LiveSession(MODES["navigation"], {"side": "right", "seed": 1}, lambda: now[0]), now
+    return LiveSession(MODES["navigation"], {"side": "right", "seed": 1}, lambda: now[0], folder), now
+
+
+def _logged(session: LiveSession) -> list[tuple[str, float, object]]:
+    return list(Journal(session.journal.path).inputs())
 
 
 def _reamer_pose(session: LiveSession) -> np.ndarray:
@@ -22,8 +28,8 @@ def _reamer_pose(session: LiveSession) -> np.ndarray:
     return pose
 
 
-def test_a_pose_arriving_during_a_step_returns_at_once_and_lands_before_the_next_step():
-    session, now = _session()
+def test_a_pose_arriving_during_a_step_returns_at_once_and_lands_before_the_next_step(tmp_path):
+    session, now = _session(tmp_path)
     session.tick()
     pose = _reamer_pose(session)
     done = threading.Event()
@@ -31,22 +37,22 @@ def test_a_pose_arriving_during_a_step_returns_at_once_and_lands_before_the_next
         worker = threading.Thread(target=lambda: (session.pose("ReamerToReference", pose, 0.5), session.force(120.0, 0.6), done.set()))
         worker.start()
         assert done.wait(5.0)  # did not wait for the lock
-        assert session.inputs.count == 1  # queued, not yet logged
+        assert session.journal.count == 1  # queued, not yet logged
     now[0] = 1.0
     session.tick()
-    kinds = [(kind, time_s) for kind, time_s, _ in session.inputs.replay()]
+    kinds = [(kind, time_s) for kind, time_s, _ in _logged(session)]
     assert kinds == [("tick", 0.0), ("pose", 0.5), ("force", 0.6), ("tick", 1.0)]
     assert session.trainer.force_n == 120.0
 
 
-def test_a_control_applies_the_queued_readings_first_and_a_refused_pose_is_logged_and_skipped():
-    session, now = _session()
+def test_a_control_applies_the_queued_readings_first_and_a_refused_pose_is_logged_and_skipped(tmp_path):
+    session, now = _session(tmp_path)
     session.tick()
     before = session.trainer.tools["Reamer"].pose.copy()
     session.pose("ReamerToReference", np.full((4, 4), np.nan), 0.2)  # not a pose: refused when applied
     session.force(90.0, 0.3)
     now[0] = 0.4
     session.control({"type": "reamer", "inclination_deg": 42, "anteversion_deg": 18})
-    assert [kind for kind, _, _ in session.inputs.replay()] == ["tick", "pose", "force", "control"]
+    assert [kind for kind, _, _ in _logged(session)] == ["tick", "pose", "force", "control"]
     assert session.trainer.force_n == 90.0  # the reading after the refused pose still landed
     assert not np.isnan(session.trainer.tools["Reamer"].pose).any() and not np.array_equal(session.trainer.tools["Reamer"].pose, before)

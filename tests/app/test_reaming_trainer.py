@@ -198,7 +198,7 @@ def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tmp_path):
     from thrsim.session.reaming import read_reaming
 
     now = [0.0]
-    session = LiveSession(MODES["reaming"], {"side": "left", "seed": 3}, lambda: now[0])
+    session = LiveSession(MODES["reaming"], {"side": "left", "seed": 3}, lambda: now[0], tmp_path)
     session.control('{"type": "reamer", "inclination_deg": 42, "anteversion_deg": 18}')
     session.control('{"type": "run", "action": "start"}')
     for k in range(40):
@@ -209,7 +209,7 @@ def test_a_reaming_session_is_saved_read_back_and_replayed_exactly(tmp_path):
             with pytest.raises(ThrsimInputError, match="display's pose"):  # logged, and refused again in the replay
                 session.control('{"type": "calibration", "action": "start"}')
         session.tick()
-    path = session.save(tmp_path)
+    path = session.save()
     record = read_reaming(read_session(path).groups["reaming"])
     live = session.trainer.record()
     assert record.side == "left" and record.mesh_digest == session.trainer.simulator.model.graph.digest
@@ -280,13 +280,13 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
     assert 0 < through["fractions"]["perforated"] < 0.2 and through["fractions"]["on plan"] > 0.6
 
     now = [0.0]
-    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1}, lambda: now[0])
+    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1}, lambda: now[0], tmp_path)
     session.control('{"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20}')
     session.control('{"type": "run", "action": "start"}')
     for _ in range(30):
         now[0] += STEP
         session.tick()
-    report = build_report(session.save(tmp_path))
+    report = build_report(session.save())
     for title in (
         "Reaming: removal, depth and push",
         "Reaming: the final cavity",

@@ -33,7 +33,7 @@ class FakeClock:
 
 def live_session(folder: Path) -> Path:
     clock = FakeClock()
-    session = LiveSession(MODES["navigation"], {"side": "right", "seed": 11}, clock)
+    session = LiveSession(MODES["navigation"], {"side": "right", "seed": 11}, clock, folder)
 
     def run(seconds: float) -> None:
         for _ in range(int(seconds * 60)):
@@ -60,7 +60,7 @@ def live_session(folder: Path) -> Path:
     pose = session.trainer.tools["Reamer"].pose.copy()
     session.pose("ReamerToReference", pose, clock.now)  # a tracker reading mid-session
     run(0.2)
-    return session.save(folder)
+    return session.save()
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,9 @@
 
 Times given to the trainer are seconds since the session started; inputs are logged before the
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
+The log is the session's journal on disk (:mod:`thrsim.session.journal`), written as inputs
+arrive, so a crash of the server loses at most the last second; the next start closes what a
+crash left open (:func:`close_interrupted`).
 The server steps sessions on a worker thread while inputs arrive on its event loop: every entry
 point holds the session's lock, so an input lands between two steps, never inside one. Tracker
 poses and force readings do not wait for the lock: a step of the reaming mode holds it for tens
@@ -24,10 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from thrsim.app.modes import Mode
+from thrsim.app.modes import MODES, Mode
+from thrsim.app.replay import relive
 from thrsim.errors import ThrsimInputError
 from thrsim.provenance import package_versions
-from thrsim.session.file import InputLog, write_session
+from thrsim.session.file import write_session
+from thrsim.session.journal import SUFFIX, Journal, JournalWriter, claimed
 
 log = logging.getLogger(__name__)
 
@@ -55,18 +60,34 @@ def new_session_id() -> str:
 
 
 class LiveSession:
-    def __init__(self, mode: Mode, settings: dict, clock: Callable[[], float]):
+    """One mode's live session in ``folder``: its journal is ``<id>.journal`` there while it lives,
+    its session file ``<id>.h5`` once it ends."""
+
+    def __init__(self, mode: Mode, settings: dict, clock: Callable[[], float], folder: Path):
         self.mode = mode
         self.settings = dict(settings)
         self.clock = clock
+        self.folder = Path(folder)
         self.id = new_session_id()
         self.trainer = mode.make_trainer(self.settings)
-        self.inputs = InputLog()
         self.origin = clock()
         self.started_utc = dt.datetime.now(dt.UTC)
+        self.attrs = {
+            "mode": self.mode.name,
+            "session_id": self.id,
+            "started_utc": self.started_utc.isoformat(),
+            "settings": json.dumps({"mode": self.mode.name, **self.settings}),  # as started: a replay starts here
+            "versions": json.dumps(versions()),
+        }
+        self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
         self.last_state: dict | None = None
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
+
+    @property
+    def received_inputs(self) -> bool:
+        """Whether anything but the ticker's steps reached the session."""
+        return self.journal.count > self.journal.ticks
 
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
@@ -77,7 +98,7 @@ class LiveSession:
         with self.lock:
             self._apply_arrived()
             now = self.elapsed()
-            self.inputs.control(now, control.model_dump())
+            self.journal.control(now, control.model_dump())
             if control.type == "end_session":  # the app's to act on: it saves this session
                 return control, "session ending"
             return control, self.trainer.apply_control(control, now)
@@ -99,12 +120,12 @@ class LiveSession:
                 if entry[0] == "pose":
                     _, device, pose, clock_time = entry
                     now = self.elapsed(clock_time)
-                    self.inputs.pose(now, device, pose)
+                    self.journal.pose(now, device, pose)
                     self.trainer.apply_pose(device, pose, now)
                 else:
                     _, newton, clock_time = entry
                     now = self.elapsed(clock_time)
-                    self.inputs.force(now, newton)
+                    self.journal.force(now, newton)
                     self.trainer.apply_force(newton, now)
             except ThrsimInputError as error:
                 log.warning("%s refused: %s", entry[0], error)
@@ -115,24 +136,71 @@ class LiveSession:
         with self.lock:
             self._apply_arrived()
             now = self.elapsed()
-            self.inputs.tick(now)
+            self.journal.tick(now)
             session = {"id": self.id, "elapsed_s": now}
             state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
             state["session"] = session
             self.last_state = state
             return state
 
-    def save(self, folder: Path) -> Path:
-        ended = dt.datetime.now(dt.UTC)
-        attrs = {
-            "mode": self.mode.name,
-            "session_id": self.id,
-            "started_utc": self.started_utc.isoformat(),
-            "ended_utc": ended.isoformat(),
-            "duration_s": self.elapsed(),
-            "settings": json.dumps({"mode": self.mode.name, **self.settings}),  # as started: a replay starts here
-            "versions": json.dumps(versions()),
-        }
+    def save(self) -> Path:
+        """Write the session file from the journal, then remove the journal; on an error the journal
+        stays, and the session lives on."""
         with self.lock:
             self._apply_arrived()
-            return write_session(folder / f"{self.id}.h5", attrs, self.inputs, {self.mode.name: self.trainer.write})
+            self.journal.flush()
+            ended = dt.datetime.now(dt.UTC)
+            attrs = {**self.attrs, "ended_utc": ended.isoformat(), "duration_s": self.elapsed(), "interrupted": False}
+            path = write_session(
+                self.folder / f"{self.id}.h5", attrs, Journal(self.journal.path).inputs(), {self.mode.name: self.trainer.write}
+            )
+            self.journal.close(remove=True)
+            return path
+
+    def discard(self) -> None:
+        """End a session that is not kept (nothing but steps reached it): its journal goes."""
+        with self.lock:
+            self.journal.close(remove=True)
+
+
+def close_interrupted(folder: Path) -> list[Path]:
+    """Close the sessions a crash left open in ``folder``: each journal no live session holds becomes
+    a session file marked interrupted, with every input the journal kept, the mode's record rebuilt
+    by reliving them through a fresh trainer (as ``thrsim replay`` does). A journal whose session
+    file exists (saved, then the crash), or that holds nothing but steps, is removed; one that cannot
+    be closed stays, with a warning. Returns the session files written."""
+    closed = []
+    for path in sorted(folder.glob(f"*{SUFFIX}")):
+        target = path.with_suffix(".h5")
+        try:
+            with claimed(path) as ours:
+                if not ours:
+                    continue  # a live session's
+                if not target.exists():
+                    journal = Journal(path)
+                    if any(kind != "tick" for kind, _, _ in journal.inputs()):
+                        log.warning("closing interrupted session %s from its journal (reliving its inputs)", path.stem)
+                        closed.append(_close_from_journal(journal, target))
+                        log.warning("interrupted session closed: %s", target)
+                path.unlink()
+        except Exception as error:  # whatever it is, the journal is kept and the server starts
+            log.warning("%s: interrupted session not closed, its journal is kept: %s", path, error)
+    return closed
+
+
+def _close_from_journal(journal: Journal, target: Path) -> Path:
+    settings = json.loads(journal.attrs["settings"])
+    mode = MODES.get(settings.get("mode", ""))
+    if mode is None:
+        raise ThrsimInputError(f"recorded in mode {settings.get('mode')!r}, which this thrsim does not have")
+    trainer = mode.make_trainer(settings)
+    relive(trainer, mode, journal.inputs())
+    duration = max((time_s for _, time_s, _ in journal.inputs()), default=0.0)
+    started = dt.datetime.fromisoformat(journal.attrs["started_utc"])
+    attrs = {
+        **journal.attrs,
+        "ended_utc": (started + dt.timedelta(seconds=duration)).isoformat(),
+        "duration_s": duration,
+        "interrupted": True,
+    }
+    return write_session(target, attrs, journal.inputs(), {mode.name: trainer.write})

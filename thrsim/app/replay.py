@@ -8,12 +8,13 @@ behaviour changed since the session was recorded (the file keeps the versions th
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from thrsim.app.modes import MODES
+from thrsim.app.modes import MODES, Mode
 from thrsim.errors import ThrsimInputError
 from thrsim.session.file import read_session
 
@@ -48,28 +49,7 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
         raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
     recorded = mode.read_record(session.groups[mode.name])
     _check_same_mesh(path, recorded, trainer)
-    refused = 0
-    for kind, time_s, payload in session.inputs.replay():
-        if kind == "tick":
-            state = trainer.step(time_s)
-            if on_state is not None:
-                on_state(state)
-        elif kind == "pose":
-            device, matrix = payload
-            try:
-                trainer.apply_pose(device, np.asarray(matrix), time_s)
-            except ThrsimInputError:
-                refused += 1
-        elif kind == "force":
-            try:
-                trainer.apply_force(payload, time_s)
-            except ThrsimInputError:
-                refused += 1
-        elif payload.get("type") != "end_session":
-            try:
-                trainer.apply_control(mode.parse_control(payload), time_s)
-            except ThrsimInputError:
-                refused += 1  # refused live too: the same input, the same answer
+    refused = relive(trainer, mode, session.inputs.replay(), on_state)
     replayed = trainer.record()
     strip = lambda events: [(e["kind"], e.get("landmark") or e.get("detail"), round(e["time_s"], 9)) for e in events]
     same_shape = recorded.angles.shape == replayed.angles.shape
@@ -90,6 +70,34 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
         trace_match=trace_match,
         max_angle_difference_deg=difference,
     )
+
+
+def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, object]], on_state=None) -> int:
+    """Feed recorded ``(kind, time_s, payload)`` inputs, in order, to ``trainer`` as the live session fed
+    them (a tick is a step; ``end_session`` is the app's, not the trainer's); the number it refused."""
+    refused = 0
+    for kind, time_s, payload in inputs:
+        if kind == "tick":
+            state = trainer.step(time_s)
+            if on_state is not None:
+                on_state(state)
+        elif kind == "pose":
+            device, matrix = payload
+            try:
+                trainer.apply_pose(device, np.asarray(matrix), time_s)
+            except ThrsimInputError:
+                refused += 1
+        elif kind == "force":
+            try:
+                trainer.apply_force(payload, time_s)
+            except ThrsimInputError:
+                refused += 1
+        elif payload.get("type") != "end_session":
+            try:
+                trainer.apply_control(mode.parse_control(payload), time_s)
+            except ThrsimInputError:
+                refused += 1  # refused live too: the same input, the same answer
+    return refused
 
 
 def _check_same_mesh(path, recorded, trainer) -> None:

@@ -7,8 +7,9 @@ state, so a slow viewer skips frames instead of slowing the others or growing me
 reaming mode's bone goes to each viewer as binary frames of what changed since what that viewer
 last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach
 the live sessions through the OpenIGTLink server's session object (its public ``session=``
-hook). A session ends when a viewer asks (or the server stops): it is written atomically to
-``sessions_dir`` and a fresh one starts at once.
+hook). While a session lives its inputs stream to its journal in ``sessions_dir``; it ends when
+a viewer asks (or the server stops): it is written atomically there and a fresh one starts at
+once. A session a crash left open is closed, marked interrupted, when the server next starts.
 
 Access (who may talk):
 
@@ -50,11 +51,12 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.concurrency import run_in_threadpool
 
-from thrsim.app.live import STATIC, THREE_DIR, LiveSession
+from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
 from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.session import NavigationSession
+from thrsim.session.file import is_interrupted
 
 log = logging.getLogger(__name__)
 
@@ -263,7 +265,7 @@ class TrainerHub:
             settings["model"] = str(self.settings.model)
         if self.settings.compile and mode.name == "reaming":
             settings["compile"] = True
-        return LiveSession(mode, settings, self.clock)
+        return LiveSession(mode, settings, self.clock, self.settings.sessions_dir)
 
     def reaming_network(self) -> dict:
         """How the reaming session's network runs: compiled, eager (with why, if compiling failed) or none."""
@@ -322,16 +324,31 @@ class TrainerHub:
         return self.end(name)
 
     def end(self, name: str) -> Path:
-        """Save the mode's session and start a fresh one."""
+        """Save the mode's session and start a fresh one (first: where none can start, the session lives on unsaved)."""
         session = self.sessions[name]
-        path = session.save(self.settings.sessions_dir)
+        fresh = self._start(session.mode)
+        try:
+            path = session.save()
+        except BaseException:
+            fresh.discard()
+            raise
         self.saved.append(path)
-        self.sessions[name] = self._start(session.mode)
+        self.sessions[name] = fresh
         return path
 
     def save_all(self) -> list[Path]:
-        """On shutdown: keep every session that received anything."""
-        return [self.end(name) for name, session in list(self.sessions.items()) if session.inputs.count > session.inputs.ticks]
+        """On shutdown: keep every session that received anything, discard the others (no fresh ones start)."""
+        kept = []
+        for session in self.sessions.values():
+            if not session.received_inputs:
+                session.discard()
+                continue
+            try:
+                kept.append(session.save())
+            except (ThrsimInputError, OSError) as error:
+                log.warning("session %s not saved (%s): its journal is kept, and the next start closes it", session.id, error)
+        self.saved += kept
+        return kept
 
     def hello(self, name: str) -> dict:
         session = self.sessions[name]
@@ -386,6 +403,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @contextlib.asynccontextmanager
     async def lifespan(app: FastAPI):
+        await asyncio.to_thread(close_interrupted, settings.sessions_dir)  # before the tracker and the ticker compete with it
         igtl_server = None
         if settings.igtl:
             from thrsim.io.server import NavigationServer
@@ -460,7 +478,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         files = sorted(settings.sessions_dir.glob("*.h5"))
         return {
             "sessions": [
-                {"id": f.stem, "report": f"/sessions/{f.stem}/report", "file": f"/sessions/{f.stem}/file"}
+                {"id": f.stem, "report": f"/sessions/{f.stem}/report", "file": f"/sessions/{f.stem}/file", "interrupted": is_interrupted(f)}
                 for f in files
                 if _SESSION_ID.match(f.stem)
             ]

@@ -91,10 +91,11 @@ def render(session: SessionFile, sections: list[Section]) -> str:
     )
     attrs = session.attrs
     versions = ", ".join(f"{k} {v}" for k, v in session.versions.items())
+    interrupted = " · <b>interrupted</b>: the server stopped before the session ended" if attrs.get("interrupted") else ""
     parts = [
         f"<h1>Assessment report</h1><p class=meta>session {html.escape(str(attrs.get('session_id', session.path.stem)))} · "
         f"mode {html.escape(str(attrs.get('mode')))} · started {html.escape(str(attrs.get('started_utc')))} · "
-        f"duration {float(attrs.get('duration_s', 0.0)):.1f} s</p>",
+        f"duration {float(attrs.get('duration_s', 0.0)):.1f} s{interrupted}</p>",
         f"<h2>Summary score</h2>{summary}",
     ]
     parts += [f"<h2>{html.escape(s.title)}</h2>{s.body}" for s in sections]

@@ -4,7 +4,9 @@ Layout (HDF5, one file per session; times in seconds from the session's start, p
 
 * attrs: ``format`` = "thrsim-session", ``format_version``, ``mode``, ``started_utc``,
   ``ended_utc``, ``duration_s``, ``settings`` (JSON), ``versions`` (JSON: thrsim, Python,
-  numerical and web libraries, three.js);
+  numerical and web libraries, three.js), ``interrupted`` (true when the session never ended: the
+  server stopped without saving it, and the next start closed it from its journal; files written
+  before journals lack it and ended normally);
 * ``/inputs/controls``: ``seq``, ``time``, ``message`` (JSON text of each page control);
 * ``/inputs/poses``: ``seq``, ``time``, ``device`` (name), ``matrix`` (N×4×4) from the tracker;
 * ``/inputs/forces``: ``seq``, ``time``, ``newton``;
@@ -13,14 +15,16 @@ Layout (HDF5, one file per session; times in seconds from the session's start, p
   that mode's record class.
 
 ``seq`` is one counter over all inputs, so a replay applies them in the order they were lived.
-The file is written once, when the session ends, to a temporary name and renamed
-(:mod:`thrsim.atomic`): a crash mid-write leaves no half file.
+While the session lives its inputs go to its journal (:mod:`thrsim.session.journal`), not to
+memory; the file is written once, when the session ends, streamed from the journal into chunked,
+compressed tables, to a temporary name that is then renamed (:mod:`thrsim.atomic`): a crash
+mid-write leaves no half file, and the journal is removed only once the file is in place.
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from array import array
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,6 +34,7 @@ import numpy as np
 
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
+from thrsim.session.journal import DEVICE_BYTES
 
 FORMAT = "thrsim-session"
 FORMAT_VERSION = 1
@@ -56,7 +61,7 @@ class _Column:
 
 
 class InputLog:
-    """Every input of a live session, appended as it arrives; ``seq`` orders them all."""
+    """Every input of a session read back from its file, in compact columns; ``seq`` orders them all."""
 
     def __init__(self) -> None:
         self.controls: list[tuple[int, float, str]] = []
@@ -70,9 +75,6 @@ class InputLog:
         self._seq += 1
         return self._seq
 
-    def control(self, time_s: float, message: dict) -> None:
-        self.controls.append((self._next(), time_s, json.dumps(message, separators=(",", ":"))))
-
     def pose(self, time_s: float, device: str, matrix: np.ndarray) -> None:
         if device not in self.devices:
             self.devices.append(device)
@@ -81,22 +83,9 @@ class InputLog:
         self.pose_device.append(self.devices.index(device))
         self.pose_matrix.append(*np.asarray(matrix, dtype=float).ravel())
 
-    def force(self, time_s: float, newton: float) -> None:
-        self.force_seq.append(self._next())
-        self.force_time.append(time_s)
-        self.force_newton.append(float(newton))
-
-    def tick(self, time_s: float) -> None:
-        self.tick_seq.append(self._next())
-        self.tick_time.append(time_s)
-
     @property
     def count(self) -> int:
         return self._seq
-
-    @property
-    def ticks(self) -> int:
-        return len(self.tick_seq)
 
     def pose_devices(self) -> list[str]:
         return [self.devices[i] for i in self.pose_device.data]
@@ -133,52 +122,82 @@ class SessionFile:
         return json.loads(self.attrs["versions"])
 
 
-def _write_table(group: h5py.Group, columns: dict[str, np.ndarray]) -> None:
-    for name, values in columns.items():
-        group.create_dataset(name, data=values)
+class _TableWriter:
+    """One inputs table written as its rows arrive: resizable chunked columns, appended a chunk at a
+    time, so a long session is written in bounded memory. Numeric and device columns are compressed."""
+
+    CHUNK = 4096
+
+    def __init__(self, group: h5py.Group, columns: dict[str, tuple[object, tuple[int, ...]]]):
+        self.columns = {}
+        for name, (dtype, shape) in columns.items():
+            packed = {} if dtype is _TEXT else {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+            self.columns[name] = group.create_dataset(
+                name, shape=(0, *shape), maxshape=(None, *shape), dtype=dtype, chunks=(self.CHUNK, *shape), **packed
+            )
+        self.rows: list[tuple] = []
+
+    def append(self, *row) -> None:
+        self.rows.append(row)
+        if len(self.rows) == self.CHUNK:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.rows:
+            return
+        for values, dataset in zip(zip(*self.rows, strict=True), self.columns.values(), strict=True):
+            start = dataset.shape[0]
+            dataset.resize(start + len(values), axis=0)
+            dataset[start:] = np.array(values, dtype=object if dataset.dtype.kind == "O" else dataset.dtype)
+        self.rows = []
 
 
 def write_session(
     path: str | Path,
     attrs: dict,
-    inputs: InputLog,
+    inputs: Iterable[tuple[str, float, object]],
     mode_writers: dict[str, Callable[[h5py.Group], None]],
 ) -> Path:
-    """Write the whole session atomically; ``mode_writers`` fill one group per mode."""
+    """Write the whole session atomically: ``inputs`` as ``(kind, time_s, payload)`` in lived order
+    (a journal's :meth:`~thrsim.session.journal.Journal.inputs`); ``mode_writers`` fill one group per mode."""
     path = Path(path)
+    device = h5py.string_dtype("utf-8", DEVICE_BYTES)
     with atomic_path(path) as tmp:
         with h5py.File(tmp, "w") as h5:
             h5.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, **attrs})
             group = h5.create_group("inputs")
-            _write_table(
-                group.create_group("controls"),
-                {
-                    "seq": np.array([c[0] for c in inputs.controls], dtype=np.int64),
-                    "time": np.array([c[1] for c in inputs.controls], dtype=float),
-                    "message": np.array([c[2] for c in inputs.controls], dtype=object).astype(_TEXT),
-                },
-            )
-            _write_table(
-                group.create_group("poses"),
-                {
-                    "seq": inputs.pose_seq.numpy(np.int64),
-                    "time": inputs.pose_time.numpy(float),
-                    "device": np.array(inputs.pose_devices(), dtype=object).astype(_TEXT),
-                    "matrix": inputs.pose_matrix.numpy(float).reshape(-1, 4, 4),
-                },
-            )
-            _write_table(
-                group.create_group("forces"),
-                {
-                    "seq": inputs.force_seq.numpy(np.int64),
-                    "time": inputs.force_time.numpy(float),
-                    "newton": inputs.force_newton.numpy(float),
-                },
-            )
-            _write_table(group.create_group("ticks"), {"seq": inputs.tick_seq.numpy(np.int64), "time": inputs.tick_time.numpy(float)})
+            seq, time = (np.int64, ()), (np.float64, ())
+            tables = {
+                "control": _TableWriter(group.create_group("controls"), {"seq": seq, "time": time, "message": (_TEXT, ())}),
+                "pose": _TableWriter(
+                    group.create_group("poses"), {"seq": seq, "time": time, "device": (device, ()), "matrix": (np.float64, (4, 4))}
+                ),
+                "force": _TableWriter(group.create_group("forces"), {"seq": seq, "time": time, "newton": (np.float64, ())}),
+                "tick": _TableWriter(group.create_group("ticks"), {"seq": seq, "time": time}),
+            }
+            for number, (kind, time_s, payload) in enumerate(inputs, start=1):
+                if kind == "control":
+                    tables[kind].append(number, time_s, json.dumps(payload, separators=(",", ":")))
+                elif kind == "pose":
+                    tables[kind].append(number, time_s, payload[0].encode(), payload[1])
+                elif kind == "force":
+                    tables[kind].append(number, time_s, payload)
+                else:
+                    tables[kind].append(number, time_s)
+            for table in tables.values():
+                table.flush()
             for mode, writer in mode_writers.items():
                 writer(h5.create_group(mode))
     return path
+
+
+def is_interrupted(path: Path) -> bool:
+    """Whether the session file at ``path`` was closed from its journal after a crash (False when unreadable)."""
+    try:
+        with h5py.File(path, "r") as h5:
+            return bool(h5.attrs.get("interrupted", False))
+    except (OSError, ValueError):
+        return False
 
 
 def _read_group(group: h5py.Group) -> dict:

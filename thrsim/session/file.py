@@ -28,7 +28,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 
 FORMAT = "thrsim-session"
@@ -147,7 +147,7 @@ def write_session(
     """Write the whole session atomically; ``mode_writers`` fill one group per mode."""
     path = Path(path)
     with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as h5:
+        with hdf5_in_memory(tmp) as h5:
             h5.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, **attrs})
             group = h5.create_group("inputs")
             _write_table(

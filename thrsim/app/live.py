@@ -65,6 +65,7 @@ class LiveSession:
         self.origin = clock()
         self.started_utc = dt.datetime.now(dt.UTC)
         self.last_state: dict | None = None
+        self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
 
@@ -123,13 +124,15 @@ class LiveSession:
             return state
 
     def save(self, folder: Path) -> Path:
-        ended = dt.datetime.now(dt.UTC)
+        if self.ended is None:
+            self.ended = (dt.datetime.now(dt.UTC), self.elapsed())
+        ended, duration_s = self.ended
         attrs = {
             "mode": self.mode.name,
             "session_id": self.id,
             "started_utc": self.started_utc.isoformat(),
             "ended_utc": ended.isoformat(),
-            "duration_s": self.elapsed(),
+            "duration_s": duration_s,
             "settings": json.dumps({"mode": self.mode.name, **self.settings}),  # as started: a replay starts here
             "versions": json.dumps(versions()),
         }

@@ -8,7 +8,9 @@ reaming mode's bone goes to each viewer as binary frames of what changed since w
 last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach
 the live sessions through the OpenIGTLink server's session object (its public ``session=``
 hook). A session ends when a viewer asks (or the server stops): it is written atomically to
-``sessions_dir`` and a fresh one starts at once.
+``sessions_dir`` and a fresh one starts at once. A session that cannot be written (a full disk)
+is kept in memory and written again every ``save_retry_s``; at shutdown, after a few more
+tries, into the temporary folder instead, and only then given up, with a log line that says so.
 
 Access: on a loopback address no token is needed unless one is given; on any other address a
 token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
@@ -26,6 +28,7 @@ import json
 import logging
 import re
 import secrets
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -74,6 +77,7 @@ class ServeSettings:
     igtl: bool = True
     model: Path | None = None  # the reaming mode's model folder (None: the shipped model)
     compile: bool = True  # run the reaming network compiled (thrsim.learn.compiled), compiled at start
+    save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -165,6 +169,8 @@ class TrainerHub:
         self.sessions: dict[str, LiveSession] = {name: self._start(mode) for name, mode in MODES.items()}
         self.viewers: dict[str, set[_Viewer]] = {name: set() for name in MODES}
         self.saved: list[Path] = []
+        self.unsaved: list[LiveSession] = []  # ended, not yet written (a full disk): kept and retried
+        self._saving = threading.Lock()
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
 
@@ -218,16 +224,59 @@ class TrainerHub:
                 viewer.offer(text)
 
     def end(self, name: str) -> Path:
-        """Save the mode's session and start a fresh one."""
+        """Start a fresh session of the mode and save the one that ended.
+
+        A save that fails (ThrsimOutputError, or ThrsimInputError for a sessions folder gone) is
+        raised after the session is put in :attr:`unsaved`, which :meth:`retry_unsaved` writes later.
+        """
         session = self.sessions[name]
-        path = session.save(self.settings.sessions_dir)
-        self.saved.append(path)
         self.sessions[name] = self._start(session.mode)
+        try:
+            path = session.save(self.settings.sessions_dir)
+        except (ThrsimInputError, OSError):
+            self.unsaved.append(session)
+            raise
+        self.saved.append(path)
         return path
 
-    def save_all(self) -> list[Path]:
-        """On shutdown: keep every session that received anything."""
-        return [self.end(name) for name, session in list(self.sessions.items()) if session.inputs.count > session.inputs.ticks]
+    def retry_unsaved(self, folder: Path | None = None) -> list[Path]:
+        """Write the sessions kept in memory (to ``folder``, default the sessions folder); those that fail stay."""
+        written = []
+        with self._saving:  # the retry task and the shutdown may both be here
+            for session in list(self.unsaved):
+                try:
+                    path = session.save(folder or self.settings.sessions_dir)
+                except (ThrsimInputError, OSError) as error:
+                    log.error("session %s kept in memory, not saved: %s", session.id, error)
+                    continue
+                self.unsaved.remove(session)
+                self.saved.append(path)
+                written.append(path)
+                log.warning("session %s saved: %s", session.id, path)
+        return written
+
+    def save_all(self, tries: int = 3, pause_s: float = 1.0) -> list[Path]:
+        """On shutdown: save every session that received anything, trying ``tries`` times, then the
+        temporary folder; a session that cannot be written anywhere is logged as lost."""
+        written = []
+        for name, session in list(self.sessions.items()):
+            if session.inputs.count > session.inputs.ticks:
+                with contextlib.suppress(ThrsimInputError, OSError):  # kept in self.unsaved
+                    written.append(self.end(name))
+        for attempt in range(tries):
+            if not self.unsaved:
+                break
+            if attempt:
+                time.sleep(pause_s)
+            written += self.retry_unsaved()
+        fallback = Path(tempfile.gettempdir()) / "thrsim-sessions"
+        if self.unsaved:
+            with contextlib.suppress(OSError):
+                fallback.mkdir(exist_ok=True)
+                written += self.retry_unsaved(fallback)
+        for session in self.unsaved:
+            log.error("session %s lost: it could not be written to %s nor %s", session.id, self.settings.sessions_dir, fallback)
+        return written
 
     def hello(self, name: str) -> dict:
         session = self.sessions[name]
@@ -248,6 +297,14 @@ class _ForwardingSession(NavigationSession):
     def update_force(self, values, time_s: float) -> None:
         super().update_force(values, time_s)
         self.hub.on_force(self.force.value, time_s)
+
+
+async def _retry_saves(hub: TrainerHub, period: float) -> None:
+    """Write the sessions a full disk kept in memory, every ``period`` s (on a worker thread)."""
+    while True:
+        await asyncio.sleep(period)
+        if hub.unsaved:
+            await asyncio.to_thread(hub.retry_unsaved)
 
 
 async def _ticker(hub: TrainerHub, period: float) -> None:
@@ -297,6 +354,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
                 )
                 raise ThrsimInputError(app.state.startup_error) from None
         ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
+        saver = asyncio.create_task(_retry_saves(hub, settings.save_retry_s))
         app.state.ready = True
         announce = getattr(app.state, "announce", None)
         if announce is not None:
@@ -304,9 +362,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
         try:
             yield
         finally:
-            ticker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await ticker
+            for task in (ticker, saver):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
             if igtl_server is not None:
                 await igtl_server.close()
             for path in hub.save_all():
@@ -434,8 +493,12 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
     if control.type == "end_session":
         try:
             path = hub.end(mode_name)
-        except (ThrsimInputError, OSError) as error:
-            return [("one", {"type": "error", "message": f"session not saved: {error}"})]
+        except (ThrsimInputError, OSError) as error:  # the session ended; the hub keeps it and retries
+            kept = {
+                "type": "error",
+                "message": f"session kept in memory, not saved yet ({error}); saving it again every {hub.settings.save_retry_s:g} s",
+            }
+            return [("all", kept), ("all", hub.hello(mode_name))]
         saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}
         return [("all", saved), ("all", hub.hello(mode_name))]
     if control.type == "side":

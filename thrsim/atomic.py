@@ -1,14 +1,23 @@
-"""Write files to a temporary name in the target folder, fsync, then rename: never a half-written output."""
+"""Write files to a temporary name in the target folder, fsync, then rename: never a half-written output.
+
+A write that fails (a full disk, a file-size limit, an I/O error) raises :class:`ThrsimOutputError`
+naming the output; the temporary file is removed and a previous file of that name is untouched.
+"""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from thrsim.errors import ThrsimInputError
+from thrsim.errors import ThrsimInputError, ThrsimOutputError
+
+if TYPE_CHECKING:
+    import h5py
 
 
 @contextlib.contextmanager
@@ -23,22 +32,86 @@ def atomic_path(target: str | os.PathLike, suffix: str | None = None) -> Iterato
         raise ThrsimInputError(f"{target}: output folder {folder} does not exist")
     if not os.access(folder, os.W_OK):
         raise ThrsimInputError(f"{target}: output folder {folder} is not writable")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or "".join(target.suffixes) or ".tmp", dir=folder)
+    try:
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=suffix or "".join(target.suffixes) or ".tmp", dir=folder)
+    except OSError as error:
+        raise _output_error(error, target) from error
     os.close(fd)
     tmp = Path(tmp_name)
     umask = os.umask(0)
     os.umask(umask)
-    os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
     try:
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; outputs get the usual permissions
         yield tmp
         # flush the data to disk before the rename publishes it, and the rename itself after
         with open(tmp, "rb+") as handle:
             os.fsync(handle.fileno())
         os.replace(tmp, target)
         fsync_folder(folder)
+    except OSError as error:
+        if isinstance(error, ThrsimOutputError) or error.filename not in (None, tmp_name, tmp):
+            raise  # already named, or about another file (an input read in the block)
+        raise _output_error(error, target) from error
     finally:
         if tmp.exists():
             tmp.unlink()
+
+
+@contextlib.contextmanager
+def hdf5_in_memory(path: str | os.PathLike) -> Iterator[h5py.File]:
+    """Yield a new HDF5 file built in memory; write it to ``path`` in one go if the block succeeds.
+
+    Use it inside :func:`atomic_path`. HDF5 writing to disk keeps data and metadata in its own
+    caches: on a full disk its close fails, h5py leaves the file open and the library crashes at
+    interpreter exit (SIGSEGV). In memory, the file meets the disk in one Python write, whose
+    failure is an ordinary OSError.
+    """
+    import h5py
+
+    # the core driver without a backing store never touches the file of that name
+    h5 = h5py.File(path, "w", driver="core", backing_store=False, block_size=1 << 20)
+    try:
+        yield h5
+        h5.flush()
+        image = h5.id.get_file_image()
+    finally:
+        h5.close()
+    with open(path, "wb") as handle:
+        handle.write(image)
+
+
+@contextlib.contextmanager
+def atomic_folder(target: str | os.PathLike) -> Iterator[Path]:
+    """Yield a new temporary folder beside ``target``; it replaces ``target`` only if the block succeeds.
+
+    A write that fails in the folder raises :class:`ThrsimOutputError` naming ``target``; the
+    temporary folder is removed and a previous ``target`` is left as it was.
+    """
+    target = Path(target)
+    parent = target.parent if str(target.parent) else Path(".")
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=parent))
+    except OSError as error:
+        raise _output_error(error, target) from error
+    try:
+        yield staging
+        os.chmod(staging, 0o755)
+        if target.exists():
+            shutil.rmtree(target)
+        os.replace(staging, target)
+        fsync_folder(parent)
+    except OSError as error:
+        inside = error.filename is None or os.fspath(error.filename).startswith(os.fspath(staging))
+        if isinstance(error, ThrsimOutputError) or not inside:
+            raise
+        raise _output_error(error, target) from error
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def _output_error(error: OSError, target: Path) -> ThrsimOutputError:
+    return ThrsimOutputError(error.errno, error.strerror or str(error), str(target))
 
 
 def fsync_folder(folder: Path) -> None:

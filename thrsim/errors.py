@@ -10,3 +10,14 @@ class ThrsimInputError(Exception):
 
 class SimulationError(Exception):
     """A run that cannot go on (NaN, energy explosion); the message names the frame and cause."""
+
+
+class ThrsimOutputError(OSError):
+    """An output that could not be written: a full disk, a file-size limit, an I/O error.
+
+    ``filename`` is the output asked for, not its temporary name: the temporary file is removed
+    and a previous file of that name is left as it was. The CLI prints one line and exits with 2.
+    """
+
+    def __str__(self) -> str:
+        return f"cannot write {self.filename}: {self.strerror}"

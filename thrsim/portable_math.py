@@ -20,6 +20,10 @@ import math
 import numpy as np
 from numba import njit
 
+from thrsim.cache import use_numba_cache
+
+use_numba_cache()  # before the first kernel: Numba reads the cache folder then
+
 _LN2_HI = 6.93147180369123816490e-01  # ln 2 with its last 32 bits zero: k·_LN2_HI is exact
 _LN2_LO = 1.90821492927058770002e-10
 _INV_LN2 = 1.44269504088896338700e00

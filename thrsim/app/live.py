@@ -81,6 +81,7 @@ class LiveSession:
         }
         self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
         self.last_state: dict | None = None
+        self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
 
@@ -143,16 +144,22 @@ class LiveSession:
             self.last_state = state
             return state
 
-    def save(self) -> Path:
-        """Write the session file from the journal, then remove the journal; on an error the journal
-        stays, and the session lives on."""
+    def save(self, folder: Path | None = None) -> Path:
+        """Write the session file (into ``folder``, default the sessions folder) from the journal, then
+        remove the journal; on an error the journal stays. The end time is fixed by the first try, so a
+        retried save records when the session ended, not when it could be written."""
         with self.lock:
             self._apply_arrived()
             self.journal.flush()
-            ended = dt.datetime.now(dt.UTC)
-            attrs = {**self.attrs, "ended_utc": ended.isoformat(), "duration_s": self.elapsed(), "interrupted": False}
+            if self.ended is None:
+                self.ended = (dt.datetime.now(dt.UTC), self.elapsed())
+            ended, duration_s = self.ended
+            attrs = {**self.attrs, "ended_utc": ended.isoformat(), "duration_s": duration_s, "interrupted": False}
             path = write_session(
-                self.folder / f"{self.id}.h5", attrs, Journal(self.journal.path).inputs(), {self.mode.name: self.trainer.write}
+                Path(folder or self.folder) / f"{self.id}.h5",
+                attrs,
+                Journal(self.journal.path).inputs(),
+                {self.mode.name: self.trainer.write},
             )
             self.journal.close(remove=True)
             return path

@@ -10,6 +10,9 @@ the live sessions through the OpenIGTLink server's session object (its public ``
 hook). While a session lives its inputs stream to its journal in ``sessions_dir``; it ends when
 a viewer asks (or the server stops): it is written atomically there and a fresh one starts at
 once. A session a crash left open is closed, marked interrupted, when the server next starts.
+A session that cannot be written (a full disk) is kept, journal and all, and written again every
+``save_retry_s``; at shutdown, after a few more tries, into the temporary folder instead, and only
+then left to its journal, with a log line that says so.
 
 Access (who may talk):
 
@@ -38,6 +41,7 @@ import logging
 import math
 import re
 import secrets
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -59,6 +63,11 @@ from thrsim.nav.session import NavigationSession
 from thrsim.session.file import is_interrupted
 
 log = logging.getLogger(__name__)
+
+
+class SessionEndTooSoon(ThrsimInputError):
+    """A viewer asked to end sessions faster than :class:`~thrsim.config.SessionEndLimit` allows: the session goes on."""
+
 
 TOKEN_COOKIE = "thrsim_token"
 _SESSION_ID = re.compile(r"^[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}$")
@@ -118,6 +127,7 @@ class ServeSettings:
     igtl_host: str | None = None  # the OpenIGTLink listener's address (None: loopback)
     igtl_allow: tuple[str, ...] = ()  # networks beyond loopback whose trackers are served
     session_ends: SessionEndLimit = SessionEndLimit()
+    save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -253,6 +263,8 @@ class TrainerHub:
         self.sessions: dict[str, LiveSession] = {name: self._start(mode) for name, mode in MODES.items()}
         self.viewers: dict[str, set[_Viewer]] = {name: set() for name in MODES}
         self.saved: list[Path] = []
+        self.unsaved: list[LiveSession] = []  # ended, not yet written (a full disk): kept and retried
+        self._saving = threading.Lock()
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
         self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
@@ -316,7 +328,7 @@ class TrainerHub:
         self.ends_counted_at = now
         if self.ends_left < 1:
             wait_s = (1 - self.ends_left) * limit.refill_s
-            raise ThrsimInputError(
+            raise SessionEndTooSoon(
                 f"sessions ended too often ({limit.burst} at once, then one every {limit.refill_s:g} s): "
                 f"this one goes on; end it again in {math.ceil(wait_s)} s"
             )
@@ -324,31 +336,73 @@ class TrainerHub:
         return self.end(name)
 
     def end(self, name: str) -> Path:
-        """Save the mode's session and start a fresh one (first: where none can start, the session lives on unsaved)."""
+        """Start a fresh session of the mode and save the one that ended.
+
+        A save that fails (ThrsimOutputError, or ThrsimInputError for a sessions folder gone) is
+        raised after the session is put in :attr:`unsaved` (its journal kept), which
+        :meth:`retry_unsaved` writes later.
+        """
         session = self.sessions[name]
-        fresh = self._start(session.mode)
+        self.sessions[name] = self._start(session.mode)
         try:
             path = session.save()
-        except BaseException:
-            fresh.discard()
+        except (ThrsimInputError, OSError):
+            self.unsaved.append(session)
             raise
         self.saved.append(path)
-        self.sessions[name] = fresh
         return path
 
-    def save_all(self) -> list[Path]:
-        """On shutdown: keep every session that received anything, discard the others (no fresh ones start)."""
-        kept = []
+    def retry_unsaved(self, folder: Path | None = None) -> list[Path]:
+        """Write the sessions that ended unsaved (to ``folder``, default the sessions folder); those that fail stay."""
+        written = []
+        with self._saving:  # the retry task and the shutdown may both be here
+            for session in list(self.unsaved):
+                try:
+                    path = session.save(folder)
+                except (ThrsimInputError, OSError) as error:
+                    log.error("session %s kept, not saved: %s", session.id, error)
+                    continue
+                self.unsaved.remove(session)
+                self.saved.append(path)
+                written.append(path)
+                log.warning("session %s saved: %s", session.id, path)
+        return written
+
+    def save_all(self, tries: int = 3, pause_s: float = 1.0) -> list[Path]:
+        """On shutdown: save every session that received anything (no fresh ones start), trying
+        ``tries`` times, then the temporary folder; discard the others. A session that cannot be
+        written anywhere keeps its journal, which the next start closes."""
+        written = []
         for session in self.sessions.values():
             if not session.received_inputs:
                 session.discard()
                 continue
             try:
-                kept.append(session.save())
-            except (ThrsimInputError, OSError) as error:
-                log.warning("session %s not saved (%s): its journal is kept, and the next start closes it", session.id, error)
-        self.saved += kept
-        return kept
+                path = session.save()
+            except (ThrsimInputError, OSError):
+                self.unsaved.append(session)
+                continue
+            self.saved.append(path)
+            written.append(path)
+        for attempt in range(tries):
+            if not self.unsaved:
+                break
+            if attempt:
+                time.sleep(pause_s)
+            written += self.retry_unsaved()
+        fallback = Path(tempfile.gettempdir()) / "thrsim-sessions"
+        if self.unsaved:
+            with contextlib.suppress(OSError):
+                fallback.mkdir(exist_ok=True)
+                written += self.retry_unsaved(fallback)
+        for session in self.unsaved:
+            log.error(
+                "session %s not saved to %s nor %s: its journal is kept, and the next start closes it",
+                session.id,
+                self.settings.sessions_dir,
+                fallback,
+            )
+        return written
 
     def hello(self, name: str) -> dict:
         session = self.sessions[name]
@@ -369,6 +423,14 @@ class _ForwardingSession(NavigationSession):
     def update_force(self, values, time_s: float) -> None:
         super().update_force(values, time_s)
         self.hub.on_force(self.force.value, time_s)
+
+
+async def _retry_saves(hub: TrainerHub, period: float) -> None:
+    """Write the sessions a full disk kept in memory, every ``period`` s (on a worker thread)."""
+    while True:
+        await asyncio.sleep(period)
+        if hub.unsaved:
+            await asyncio.to_thread(hub.retry_unsaved)
 
 
 async def _ticker(hub: TrainerHub, period: float) -> None:
@@ -420,6 +482,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
                 )
                 raise ThrsimInputError(app.state.startup_error) from None
         ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
+        saver = asyncio.create_task(_retry_saves(hub, settings.save_retry_s))
         app.state.ready = True
         announce = getattr(app.state, "announce", None)
         if announce is not None:
@@ -427,9 +490,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
         try:
             yield
         finally:
-            ticker.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await ticker
+            for task in (ticker, saver):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
             if igtl_server is not None:
                 await igtl_server.close()
             for path in hub.save_all():
@@ -557,8 +621,14 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
     if control.type == "end_session":
         try:
             path = hub.end_asked(mode_name)
-        except (ThrsimInputError, OSError) as error:
+        except SessionEndTooSoon as error:
             return [("one", {"type": "error", "message": f"session not saved: {error}"})]
+        except (ThrsimInputError, OSError) as error:  # the session ended; the hub keeps it and retries
+            kept = {
+                "type": "error",
+                "message": f"session kept, not saved yet ({error}); saving it again every {hub.settings.save_retry_s:g} s",
+            }
+            return [("all", kept), ("all", hub.hello(mode_name))]
         saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}
         return [("all", saved), ("all", hub.hello(mode_name))]
     if control.type == "side":

@@ -12,6 +12,7 @@ same tasks to a Dask scheduler instead. Start one and its workers with::
 
 from __future__ import annotations
 
+import signal
 import time
 from pathlib import Path
 from typing import Optional
@@ -189,6 +190,10 @@ def dataset(
         elif progress is not None and event.status == "retry":
             progress.console.print(f"[yellow]{event.case_id}: worker lost, retrying[/yellow]")
 
+    def terminate(signum, frame) -> None:
+        raise _Terminated()
+
+    previous = signal.signal(signal.SIGTERM, terminate)  # a service manager's stop: as clean as Ctrl-C
     try:
         result = run_sweep(
             out,
@@ -202,7 +207,15 @@ def dataset(
             on_start=on_start,
             template_overrides=template_overrides,
         )
+    except KeyboardInterrupt as stop:
+        if progress is not None:
+            progress.stop()
+        err_console.print(
+            f"thrsim: stopped; every case finished so far is in {out / 'manifest.json'}: rerun the same command to go on", soft_wrap=True
+        )
+        raise typer.Exit(143 if isinstance(stop, _Terminated) else 130) from None
     finally:
+        signal.signal(signal.SIGTERM, previous)
         if progress is not None:
             progress.stop()
     summary = result.summary()
@@ -283,6 +296,10 @@ def pack(
             **({"files": ", ".join(summary["files"])} if "files" in summary else {}),
         },
     )
+
+
+class _Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C would be so that the sweep stops as cleanly (exit 143, not 130)."""
 
 
 _SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")

@@ -11,6 +11,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
+from thrsim.errors import ThrsimOutputError
 from thrsim.provenance import json_default
 
 console = Console()
@@ -53,6 +54,8 @@ def format_validation_error(error: ValidationError) -> str:
 
 def describe_os_error(error: OSError) -> str:
     """'<file>: <problem>' for an OSError (both files for a rename), on one line."""
+    if isinstance(error, ThrsimOutputError):  # it names the output, not its temporary file
+        return str(error)
     problem = error.strerror or str(error) or type(error).__name__
     if error.filename is not None and error.filename2 is not None:
         return f"{error.filename} -> {error.filename2}: {problem}"

@@ -43,7 +43,7 @@ import h5py
 import numpy as np
 
 from thrsim import __version__
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
@@ -172,7 +172,7 @@ def write_case(
         raise ThrsimInputError(f"{where}: output folder {folder} does not exist")
     config_text = json.dumps(config, sort_keys=True, default=json_default)
     with atomic_path(path, suffix=".tmp") as tmp:
-        with h5py.File(tmp, "w") as f:
+        with hdf5_in_memory(tmp) as f:
             attrs = {
                 "format": CASE_FORMAT,
                 "version": CASE_VERSION,

@@ -7,7 +7,9 @@ Local (default): ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn`` s
 each worker limits its numerical threads to cores ÷ workers and, on Linux, asks the kernel to
 kill it when the parent dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the parent leaves no
 orphan solver running. A worker killed mid-case breaks the pool; the caller restarts it
-(:meth:`LocalExecutor.restart`) and resubmits the cases that were in flight.
+(:meth:`LocalExecutor.restart`) and resubmits the cases that were in flight. Workers ignore
+Ctrl-C (the terminal sends it to them too): the caller decides, and :meth:`LocalExecutor.stop`
+ends them at once.
 
 Dask (``--scheduler tcp://HOST:PORT``): start a scheduler and workers, for example::
 
@@ -30,6 +32,7 @@ import multiprocessing
 import os
 import signal
 import sys
+import time
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
 
@@ -65,6 +68,8 @@ class Executor(Protocol):
 
     def close(self, cancel: bool = False) -> None: ...
 
+    def stop(self) -> None: ...
+
 
 def is_worker_lost(error: BaseException) -> bool:
     """True when the error means the process running the task died (not that the task failed)."""
@@ -75,6 +80,7 @@ def is_worker_lost(error: BaseException) -> bool:
 
 
 def _worker_init(threads: int) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent decides
     for var in _THREAD_VARS:
         os.environ[var] = str(threads)
     if "numba" in sys.modules:  # imported before this initializer ran: the env var is too late
@@ -128,6 +134,24 @@ class LocalExecutor:
     def close(self, cancel: bool = False) -> None:
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
+    def stop(self, grace_s: float = 1.0) -> None:
+        """Cancel the queued tasks and end the running ones now: their workers are terminated.
+
+        A pool's shutdown waits for the running tasks (a solver case: minutes); the pool has no
+        public way to end them, so its worker processes are terminated (killed after ``grace_s``).
+        The pool is broken afterwards: :meth:`restart` makes a new one.
+        """
+        processes = list((getattr(self._pool, "_processes", None) or {}).values())
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        deadline = time.monotonic() + grace_s
+        for process in processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.kill()
+                process.join(1.0)
+
 
 class DaskExecutor:
     """Tasks on a Dask distributed scheduler (one task per case)."""
@@ -158,6 +182,7 @@ class DaskExecutor:
             self._client.close()
             raise ThrsimInputError(f"the Dask scheduler at {address} has no workers (waited {worker_wait_s:g} s)") from None
         self.address = address
+        self._futures: list[Any] = []
         self.workers = max(1, len(self._client.scheduler_info().get("workers", {})))
         self.description = f"Dask scheduler {address}, {self.workers} worker(s)"
 
@@ -167,7 +192,9 @@ class DaskExecutor:
             import uuid
 
             kwargs["key"] = f"{key}-{uuid.uuid4().hex[:8]}"
-        return self._client.submit(fn, *args, **kwargs)
+        future = self._client.submit(fn, *args, **kwargs)
+        self._futures.append(future)
+        return future
 
     def as_completed(self, futures: Iterable[Any]) -> Iterator[Any]:
         from distributed import as_completed
@@ -184,6 +211,13 @@ class DaskExecutor:
 
     def restart(self) -> None:  # Dask reschedules lost tasks itself
         pass
+
+    def stop(self) -> None:
+        """Cancel every task of this client, running ones included."""
+        try:
+            self._client.cancel([f for f in self._futures if not f.done()], force=True)
+        except Exception:  # noqa: BLE001 - a scheduler that went away runs nothing of ours
+            pass
 
     def close(self, cancel: bool = False) -> None:
         try:

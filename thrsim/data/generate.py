@@ -13,7 +13,9 @@ per case its parameters, split, solver and version, config hash, wall time, stat
 count, removed count, file SHA-256 and data digest. Rerunning the same command skips cases
 whose file matches the manifest's checksum, adopts complete files that the manifest missed
 (the coordinator was killed between the rename and the manifest write), and redoes the rest.
-Killing any process at any moment loses at most the cases in flight.
+Killing any process at any moment loses at most the cases in flight. Ctrl-C (or SIGTERM, which
+``thrsim dataset`` turns into one) and an output that cannot be written (a full disk) stop the
+sweep at once: the workers are ended and every case finished by then is in the manifest.
 
 A directory made by a different configuration (another solver, frame count or any physics
 setting outside the sweep axes) is refused rather than mixed.
@@ -42,7 +44,7 @@ from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan, coverage_order
-from thrsim.errors import ThrsimInputError
+from thrsim.errors import ThrsimInputError, ThrsimOutputError
 from thrsim.provenance import config_hash, json_default
 
 MANIFEST = "manifest.json"
@@ -136,6 +138,8 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
         digest = data_digest(part)
         os.replace(part, final)
         fsync_folder(folder)
+    except ThrsimOutputError as error:  # the user knows the case file, not its part name
+        raise ThrsimOutputError(error.errno, error.strerror, str(final)) from None
     finally:
         if part.exists():
             part.unlink()
@@ -502,22 +506,49 @@ class _Sweep:
             self.save()
             retry: list[CaseSpec] = []
             broken = False
-            for future in executor.as_completed(list(futures)):
-                spec = futures[future]
-                try:
-                    fields = future.result()
-                except Exception as error:  # noqa: BLE001 - every failure is recorded per case
-                    broken = broken or is_worker_lost(error)
-                    if is_worker_lost(error) and attempts[spec.case_id] < MAX_ATTEMPTS:
-                        retry.append(spec)
-                        self.emit(spec.case_id, "retry", message="worker lost")
-                    else:
-                        self.failed(spec, error, attempts[spec.case_id])
-                    continue
-                self.completed(spec, fields)
+            try:
+                for future in executor.as_completed(list(futures)):
+                    spec = futures[future]
+                    try:
+                        fields = future.result()
+                    except ThrsimOutputError:
+                        raise  # a full disk fails every case alike: stop the sweep
+                    except Exception as error:  # noqa: BLE001 - every failure is recorded per case
+                        broken = broken or is_worker_lost(error)
+                        if is_worker_lost(error) and attempts[spec.case_id] < MAX_ATTEMPTS:
+                            retry.append(spec)
+                            self.emit(spec.case_id, "retry", message="worker lost")
+                        else:
+                            self.failed(spec, error, attempts[spec.case_id])
+                        continue
+                    self.completed(spec, fields)
+            except BaseException as stop:  # Ctrl-C, SIGTERM, a full disk
+                self.stop(executor, futures, stop)
+                raise
             if broken:
                 executor.restart()
             queue = retry
+
+    def stop(self, executor: Executor, futures: dict[Any, CaseSpec], reason: BaseException) -> None:
+        """End the sweep now: record the results already in, end the workers, adopt the case files
+        they renamed into place before they ended, and write the manifest (at best: a full disk
+        may refuse it; the next run adopts those files then)."""
+        pending = {spec.case_id: spec for spec in futures.values() if self.manifest["cases"][spec.case_id].get("status") == "pending"}
+        for future, spec in futures.items():
+            if spec.case_id in pending and future.done() and not future.cancelled():
+                with contextlib.suppress(Exception):  # a failed case stays pending: the next run redoes it
+                    self.completed(spec, future.result(), save=False)
+                    del pending[spec.case_id]
+        executor.stop()
+        for case_id, spec in pending.items():
+            found = _existing_complete(self.root, spec, None)
+            if found is not None:
+                self.manifest["cases"][case_id].update(found[1], status="complete", adopted=True, finished=_now())
+                self.result.adopted += 1
+        _clean_stale(self.root / CASES_DIR)
+        self.manifest["runs"][-1].update(stopped=_now(), stop_reason=str(reason) or type(reason).__name__)
+        with contextlib.suppress(OSError):
+            self.save()
 
     # ---- progress: the manifest after every case, and an event
 
@@ -533,7 +564,7 @@ class _Sweep:
         self.save()
         self.emit(spec.case_id, "failed", message=message)
 
-    def completed(self, spec: CaseSpec, fields: dict) -> None:
+    def completed(self, spec: CaseSpec, fields: dict, save: bool = True) -> None:
         fields = {k: v for k, v in fields.items() if k != "case_id"}
         entry = self.manifest["cases"][spec.case_id]
         entry.update(fields, status="complete", finished=_now())
@@ -542,7 +573,8 @@ class _Sweep:
         self.result.complete += 1
         self.result.frames_generated += int(fields["frames"])
         self.done += 1
-        self.save()
+        if save:
+            self.save()
         self.emit(
             spec.case_id, "complete", frames=int(fields["frames"]), wall_s=float(fields["wall_s"]), removed=int(fields["removed"]),
             end_reason=str((fields.get("solver_summary") or {}).get("end_reason", "")),

@@ -47,7 +47,7 @@ import h5py
 import numpy as np
 
 from thrsim import __version__
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.config import LabelConfig
 from thrsim.data.case_file import OPTIONAL_PER_ELEMENT, OPTIONAL_PER_FRAME, CaseReader, attr_value, decode_attrs, data_digest, file_sha256
 from thrsim.data.labels import alpha as alpha_label
@@ -280,7 +280,7 @@ def _estimated_bytes(shard: Path, entry: dict) -> float:
 def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labels: LabelConfig) -> tuple[list[str], list[str]]:
     """One pack file: the cases ``out`` holds (checked to be of the same source) plus ``entries``; (kept, added)."""
     kept, added = [], []
-    with atomic_path(out, suffix=".tmp") as tmp, h5py.File(tmp, "w") as f:
+    with atomic_path(out, suffix=".tmp") as tmp, hdf5_in_memory(tmp) as f:
         cases = f.create_group("cases")
         mesh = None
         if out.exists():

@@ -17,7 +17,7 @@ from typing import Literal
 import h5py
 import numpy as np
 
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import MATERIAL_NAMES, TetMesh
 from thrsim.provenance import package_versions
@@ -181,7 +181,7 @@ def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: d
         raise ThrsimInputError(f"{path}: unsupported output format {suffix or '(none)'}; use one of {', '.join(WRITABLE_SUFFIXES)}")
     with atomic_path(path) as tmp:
         if suffix == ".h5":
-            with h5py.File(tmp, "w") as f:
+            with hdf5_in_memory(tmp) as f:
                 f.attrs["format"] = "thrsim-mesh"
                 f.attrs["units"] = "m"
                 f.attrs["versions"] = json.dumps(package_versions())

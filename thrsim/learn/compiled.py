@@ -9,13 +9,18 @@ learned step at γ 15° went from 14.4 to 8.6 ms per frame with the same removed
 Shapes are symbolic (``dynamic=True``): the region changes size every frame and must not trigger
 a recompile. Compiling takes seconds (tens on a cold cache, which Inductor keeps on disk) and
 needs a C++ compiler, so it is opt-in, and any failure leaves the eager network in place with
-the reason, never an error: the simulator works either way.
+the reason, never an error: the simulator works either way. Inductor's cache goes to the user's
+cache folder (:func:`thrsim.cache.cache_dir`), not to its default ``/tmp/torchinductor_<user>``,
+a name any other user of the machine can take first; TORCHINDUCTOR_CACHE_DIR still wins.
 """
 
 from __future__ import annotations
 
+import os
+
 import torch
 
+from thrsim.cache import cache_dir
 from thrsim.learn.features import GraphBatch
 from thrsim.learn.learned_simulator import LearnedSimulator
 
@@ -30,6 +35,8 @@ def compile_network(model: LearnedSimulator, example: GraphBatch) -> str | None:
     """
     if getattr(model, "network_compiled", False):
         return None
+    if not os.environ.get("TORCHINDUCTOR_CACHE_DIR"):  # Inductor reads it when it compiles
+        os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(cache_dir("inductor"))
     compiled = torch.compile(model.network, dynamic=True)
     try:
         with torch.inference_mode():  # as the step calls it: another grad mode would compile again

@@ -13,8 +13,11 @@ import numpy as np
 import torch
 from numba import njit
 
+from thrsim.cache import use_numba_cache
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.settings import FeatureSet, FeatureSettings
+
+use_numba_cache()  # before the first kernel: Numba reads the cache folder then
 
 #: widths of (node, edge, global) inputs per feature set, before the corner and damage columns
 WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3)}

@@ -18,8 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from thrsim.cache import use_numba_cache
 from thrsim.geometry.mesh import INNER, TetMesh
 from thrsim.geometry.tet_metrics import TET_FACES
+
+use_numba_cache()  # before the first kernel: Numba reads the cache folder then
 
 
 @dataclass(frozen=True)

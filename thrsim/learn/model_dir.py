@@ -25,9 +25,9 @@ import torch
 from pydantic import ValidationError
 from safetensors import safe_open
 from safetensors.numpy import load_file as load_arrays
-from safetensors.numpy import save_file as save_arrays
+from safetensors.numpy import save as array_bytes
 from safetensors.torch import load_file as load_tensors
-from safetensors.torch import save_file as save_tensors
+from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
@@ -98,13 +98,12 @@ def load_network_tensors(gn: LearnedSimulator, mlp: LearnedSimulator, tensors: d
 def save_model(out: Path, card: dict, gn: LearnedSimulator, mlp: LearnedSimulator, advance: ArrayRegressor, mesh: TetMesh) -> Path:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    # safetensors recreates the file it writes: give it the usual permissions back
+    # serialised here and written by Python: safetensors' own file writer reports a full disk as
+    # a SafetensorError, not as the OSError every writer of thrsim turns into one line
     with atomic_path(out / NETWORK) as tmp:
-        save_tensors(network_tensors(gn, mlp), str(tmp))
-        os.chmod(tmp, 0o644)
+        tmp.write_bytes(tensor_bytes(network_tensors(gn, mlp)))
     with atomic_path(out / MESH) as tmp:
-        save_arrays(mesh_arrays(mesh), str(tmp))
-        os.chmod(tmp, 0o644)
+        tmp.write_bytes(array_bytes(mesh_arrays(mesh)))
     card = {**card, "mesh": {**card.get("mesh", {}), "digest": mesh_digest(mesh), "elements": mesh.n_tets, "nodes": mesh.n_nodes}}
     return save_advance(out, card, advance)
 
@@ -112,8 +111,7 @@ def save_model(out: Path, card: dict, gn: LearnedSimulator, mlp: LearnedSimulato
 def save_advance(out: Path, card: dict, advance: ArrayRegressor) -> Path:
     """Write the regressor, then the card (last, so a directory with a card is complete)."""
     with atomic_path(out / ADVANCE) as tmp:
-        save_arrays({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, str(tmp), metadata={"kind": advance.kind})
-        os.chmod(tmp, 0o644)
+        tmp.write_bytes(array_bytes({k: np.ascontiguousarray(v) for k, v in advance.arrays.items()}, metadata={"kind": advance.kind}))
     card = {**card, "format": MODEL_FORMAT, "format_version": MODEL_FORMAT_VERSION}
     card["advance"] = {**card.get("advance", {}), "chosen": advance.kind}
     with atomic_path(out / CARD) as tmp:

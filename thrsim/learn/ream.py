@@ -12,14 +12,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from thrsim.atomic import fsync_folder
+from thrsim.atomic import atomic_folder
 from thrsim.config import Orientation
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator, check_force
@@ -72,9 +70,7 @@ def ream(
     mesh = simulator.mesh
     teeth = simulator.model.teeth_radius_m
     frame_dt = 1.0 / 60.0
-    parent = out.parent if str(out.parent) else Path(".")
-    staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=parent))
-    try:
+    with atomic_folder(out) as staging:
         start = simulator.reamer_start(axis)
         entries = [(0.0, *write_frame(staging, 0, mesh, simulator.alpha, simulator.removed, start, axis, teeth))]
         step_ms, states = [], []
@@ -116,14 +112,6 @@ def ream(
         if png is not None:
             summary["png"] = str(_picture(simulator, states[-1], axis, teeth, Path(png)))
         (staging / SUMMARY).write_text(json.dumps(summary, indent=2, default=json_default))
-        os.chmod(staging, 0o755)
-        if out.exists():
-            shutil.rmtree(out)
-        os.replace(staging, out)
-        fsync_folder(parent)
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging, ignore_errors=True)
     return summary
 
 

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 import torch
 from safetensors.torch import load_file as load_tensors
-from safetensors.torch import save_file as save_tensors
+from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
@@ -269,7 +269,7 @@ class Trainer:
                     tensors[f"opt.{name}.{index}.{key}"] = torch.as_tensor(value).detach().clone().contiguous()
             groups[name] = state["param_groups"]
         with atomic_path(folder / "state.safetensors") as tmp:
-            save_tensors(tensors, str(tmp))
+            tmp.write_bytes(tensor_bytes(tensors))  # a full disk: an OSError, as model_dir writes
         progress = {"identity": self.identity(), "epoch": self.epoch, "history": self.history, "param_groups": groups}
         with atomic_path(folder / "progress.json") as tmp:
             tmp.write_text(json.dumps(progress, indent=1))

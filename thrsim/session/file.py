@@ -32,7 +32,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thrsim.atomic import atomic_path
+from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 from thrsim.session.journal import DEVICE_BYTES
 
@@ -163,7 +163,7 @@ def write_session(
     path = Path(path)
     device = h5py.string_dtype("utf-8", DEVICE_BYTES)
     with atomic_path(path) as tmp:
-        with h5py.File(tmp, "w") as h5:
+        with hdf5_in_memory(tmp) as h5:
             h5.attrs.update({"format": FORMAT, "format_version": FORMAT_VERSION, **attrs})
             group = h5.create_group("inputs")
             seq, time = (np.int64, ()), (np.float64, ())

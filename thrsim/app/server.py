@@ -343,9 +343,9 @@ class TrainerHub:
         :meth:`retry_unsaved` writes later.
         """
         session = self.sessions[name]
-        self.sessions[name] = self._start(session.mode)
+        self.sessions[name] = self._start(session.mode)  # where no fresh session can start (no journal), this one goes on
         try:
-            path = session.save()
+            path = session.save(self.settings.sessions_dir)
         except (ThrsimInputError, OSError):
             self.unsaved.append(session)
             raise
@@ -358,7 +358,7 @@ class TrainerHub:
         with self._saving:  # the retry task and the shutdown may both be here
             for session in list(self.unsaved):
                 try:
-                    path = session.save(folder)
+                    path = session.save(folder or self.settings.sessions_dir)
                 except (ThrsimInputError, OSError) as error:
                     log.error("session %s kept, not saved: %s", session.id, error)
                     continue
@@ -378,7 +378,7 @@ class TrainerHub:
                 session.discard()
                 continue
             try:
-                path = session.save()
+                path = session.save(self.settings.sessions_dir)
             except (ThrsimInputError, OSError):
                 self.unsaved.append(session)
                 continue
@@ -397,7 +397,7 @@ class TrainerHub:
                 written += self.retry_unsaved(fallback)
         for session in self.unsaved:
             log.error(
-                "session %s not saved to %s nor %s: its journal is kept, and the next start closes it",
+                "session %s lost for now: not saved to %s nor %s; its journal is kept, and the next start closes it",
                 session.id,
                 self.settings.sessions_dir,
                 fallback,

@@ -124,6 +124,12 @@ class SocketConfig(_Frozen):
     def planned_reamer_max_diameter_mm(self) -> float:
         return self.planned_reamer_max_mm if self.planned_reamer_max_mm is not None else self.socket_diameter_mm + 4.0
 
+    @property
+    def fine_radius_mm(self) -> float:
+        """Radius about the socket centre within which a planned reamer's teeth can cut, plus the margin:
+        the bone stock the fine mesh is made for."""
+        return 0.5 * self.planned_reamer_max_diameter_mm + ReamerConfig.model_fields["tooth_protrusion_mm"].default + self.fine_margin_mm
+
 
 class BoneMaterial(_Frozen):
     """Elastic constants of cortical bone [Table 7]."""
@@ -261,6 +267,17 @@ class ReamerConfig(_Frozen):
     @property
     def head_radius(self) -> float:
         return self.head_diameter_mm * 0.5e-3
+
+    @property
+    def size_mm(self) -> float:
+        """The reamer's size as surgeons name it: the diameter its teeth cut (head plus the teeth standing proud)."""
+        return self.head_diameter_mm + 2.0 * self.tooth_protrusion_mm
+
+
+def head_diameter_for_size(size_mm: float, tooth_protrusion_mm: float | None = None) -> float:
+    """Head diameter of the reamer that cuts ``size_mm`` (the teeth stand ``tooth_protrusion_mm`` proud)."""
+    protrusion = ReamerConfig.model_fields["tooth_protrusion_mm"].default if tooth_protrusion_mm is None else tooth_protrusion_mm
+    return size_mm - 2.0 * protrusion
 
 
 class ContactConfig(_Frozen):
@@ -494,6 +511,10 @@ class ReamingCaseConfig(_Frozen):
     frames: int = Field(120, ge=1)
     frame_rate_hz: float = Field(60.0, gt=0)
     bone_kind: Literal["patch", "socket"] = Field("patch", description="the thesis's patch, or the layered socket")
+    pre_ream_mm: float | None = Field(
+        None, gt=0, description="the socket starts reamed geometrically to this diameter (a previous reamer's cavity); None: native"
+    )
+    pre_ream_centre_mm: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="the prepared cavity's centre in the bone frame")
     bone: BonePatchConfig = BonePatchConfig()
     socket: SocketConfig = SocketConfig()
     cancellous: CancellousBone = CancellousBone()
@@ -514,6 +535,28 @@ class ReamingCaseConfig(_Frozen):
                 f"contact.penalty_factor {self.contact.penalty_factor:g} with damping_ratio {self.contact.damping_ratio:g} and "
                 f"solver.safety_factor {self.solver.safety_factor:g} would break the stable step "
                 f"(stability sums {normal:.2f} normal, {tangential:.2f} tangential; each must stay below {bound:.2f})"
+            )
+        return self
+
+    @model_validator(mode="after")
+    def _preparation_fits(self) -> "ReamingCaseConfig":
+        if self.pre_ream_mm is None:
+            return self
+        if self.bone_kind != "socket":
+            raise ValueError("pre_ream_mm applies to the socket (bone_kind socket) only")
+        cutting_mm = self.reamer.size_mm
+        if cutting_mm < self.pre_ream_mm:
+            raise ValueError(
+                f"a {cutting_mm:g} mm reamer is smaller than the {self.pre_ream_mm:g} mm prepared cavity: it cannot cut its wall "
+                "(step up 1-2 mm)"
+            )
+        reach_mm = 0.5 * self.pre_ream_mm + math.dist(self.pre_ream_centre_mm, (0.0, 0.0, 0.0))
+        stock_mm = self.socket.fine_radius_mm
+        if reach_mm >= stock_mm:
+            raise ValueError(
+                f"a {self.pre_ream_mm:g} mm pre-ream reaches {reach_mm:g} mm from the socket centre, beyond the bone stock "
+                f"meshed for reamers up to {self.socket.planned_reamer_max_diameter_mm:g} mm ({stock_mm:g} mm; raise "
+                "socket.planned_reamer_max_mm)"
             )
         return self
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 from typing import Optional
@@ -10,7 +11,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import err_console, print_json, print_table
-from thrsim.config import ContactConfig, load_case_config
+from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
 from thrsim.errors import ThrsimInputError
 
 # the help shows the configuration's defaults, not copies of them that can fall behind
@@ -23,6 +24,25 @@ def fem(
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
     frames: Optional[int] = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
     force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
+    bone: str = typer.Option("patch", "--bone", help="which bone: patch (the thesis's 2 mm shell) or socket (the layered acetabulum)"),
+    reamer_diameter: Optional[float] = typer.Option(
+        None,
+        "--reamer-diameter",
+        help="reamer size in mm (the diameter its teeth cut), 31 to 80; its teeth follow the size [default: the thesis's 45 mm head]",
+        metavar="MM",
+    ),
+    pre_ream: Optional[float] = typer.Option(
+        None, "--pre-ream", help="start from a socket reamed geometrically to this diameter in mm (socket only)", metavar="MM"
+    ),
+    pre_ream_centre: Optional[str] = typer.Option(
+        None, "--pre-ream-centre", help="the prepared cavity's centre X,Y,Z in mm, bone frame [default: 0,0,0]", metavar="X,Y,Z"
+    ),
+    socket_diameter: Optional[float] = typer.Option(
+        None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only) [default: 46]", metavar="MM"
+    ),
+    cancellous: Optional[str] = typer.Option(
+        None, "--cancellous", help="cancellous bone behind the subchondral plate: normal or osteoporotic (socket only) [default: normal]"
+    ),
     element_size: Optional[float] = typer.Option(None, "--element-size", help="bone mesh element size in mm [default: 0.45]", metavar="MM"),
     side: Optional[str] = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
     failure_displacement: Optional[float] = typer.Option(
@@ -59,6 +79,12 @@ def fem(
     folder = out.parent if str(out.parent) else Path(".")
     if not folder.is_dir() or not os.access(folder, os.W_OK):
         raise ThrsimInputError(f"{out}: output folder {folder} does not exist or is not writable")
+    if bone not in ("patch", "socket"):
+        raise ThrsimInputError(f"--bone must be patch or socket, got {bone!r}")
+    if bone == "patch" and (socket_diameter is not None or cancellous is not None):
+        raise ThrsimInputError("--socket-diameter and --cancellous only apply to --bone socket")
+    if cancellous is not None and cancellous not in CANCELLOUS_PRESETS:
+        raise ThrsimInputError(f"--cancellous must be one of {', '.join(CANCELLOUS_PRESETS)}, got {cancellous!r}")
     case = load_case_config(
         None if config is None else str(config),
         {
@@ -66,8 +92,14 @@ def fem(
             "anteversion_deg": anteversion,
             "frames": frames,
             "force_n": force,
-            "bone.element_size_mm": element_size,
-            "bone.side": side,
+            "bone_kind": bone,
+            f"{'socket' if bone == 'socket' else 'bone'}.element_size_mm": element_size,
+            f"{'socket' if bone == 'socket' else 'bone'}.side": side,
+            "socket.socket_diameter_mm": socket_diameter,
+            "cancellous": None if cancellous is None else CANCELLOUS_PRESETS[cancellous].model_dump(),
+            "reamer.head_diameter_mm": None if reamer_diameter is None else head_diameter_for_size(reamer_diameter),
+            "pre_ream_mm": pre_ream,
+            "pre_ream_centre_mm": None if pre_ream_centre is None else _point_mm(pre_ream_centre, "--pre-ream-centre"),
             "damage.displacement_at_failure_m": None if failure_displacement is None else failure_displacement * 1e-3,
             "solver.target_dt_s": target_dt,
             "solver.threads": threads,
@@ -94,3 +126,14 @@ def fem(
         print_json(summary)
     else:
         print_table("reaming case", summary)
+
+
+def _point_mm(text: str, flag: str) -> list[float]:
+    """Three comma-separated finite numbers (mm)."""
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ThrsimInputError(f"{flag} must be three numbers X,Y,Z in mm, got {text!r}")
+    return values

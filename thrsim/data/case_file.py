@@ -18,6 +18,9 @@ Layout::
     /frames/reamer_axial (T,3) float64 m, within-frame mean, min and max of the reamer's axial
         coordinate s along D (optional, solver ≥ 0.3.0)
     /frames/contact_force_axial (T,) float64 N, within-frame mean of the contact force along D (optional)
+    /frames/reaction_force (T,3) float64 N, within-frame mean of the bone's force on the reamer (optional)
+    /frames/motor_torque (T,) float64 N·m, within-frame mean torque the motor delivers about D (optional)
+    /mesh/material (E,) uint8, per-element material, attribute names: JSON list (optional; none: all cortical)
     /frames/contact_fraction (T,) float64, fraction of the frame's steps with contact (optional)
     /frames/damage (T,E) float32, damage D in [0, 1]: Johnson–Cook evolution plus the teeth's
         cutting; an element is deleted at 1 (optional, thrsim ≥ 0.3.1)
@@ -56,7 +59,14 @@ PER_ELEMENT = ("status", "peeq", "von_mises")
 #: per-element datasets a case may carry (older solvers did not record them)
 OPTIONAL_PER_ELEMENT = ("damage", "damage_initiation")
 #: per-frame datasets a case may carry (older solvers wrote fewer), with their trailing shape
-OPTIONAL_PER_FRAME = {"contact_force": (3,), "reamer_axial": (3,), "contact_force_axial": (), "contact_fraction": ()}
+OPTIONAL_PER_FRAME = {
+    "contact_force": (3,),
+    "reamer_axial": (3,),
+    "contact_force_axial": (),
+    "contact_fraction": (),
+    "reaction_force": (3,),
+    "motor_torque": (),
+}
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 
 
@@ -74,6 +84,8 @@ class CaseFrames:
     contact_force: np.ndarray | None = None  # (T,3) N
     reamer_axial: np.ndarray | None = None  # (T,3) m: within-frame mean, min, max of s
     contact_force_axial: np.ndarray | None = None  # (T,) N
+    reaction_force: np.ndarray | None = None  # (T,3) N on the reamer
+    motor_torque: np.ndarray | None = None  # (T,) N·m about D
     contact_fraction: np.ndarray | None = None  # (T,)
     damage: np.ndarray | None = None  # (T,E) float32
     damage_initiation: np.ndarray | None = None  # (T,E) float32
@@ -288,6 +300,8 @@ class CaseReader:
         self.energy_names = _energy_names(g["energy"])
         self.contact_force = g["contact_force"][()] if "contact_force" in g else None
         self.reamer_axial = g["reamer_axial"][()] if "reamer_axial" in g else None
+        self.reaction_force = g["reaction_force"][()] if "reaction_force" in g else None
+        self.motor_torque = g["motor_torque"][()] if "motor_torque" in g else None
         self._mesh: TetMesh | None = None
 
     @property

@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-from thrsim.config import ReamerConfig, SocketConfig
+from thrsim.config import SocketConfig
 from thrsim.geometry.gmsh_model import gmsh_session, read_back, set_mesh_options
 from thrsim.geometry.mesh import ARTICULAR, CANCELLOUS, CORTICAL, MEDIAL_WALL, RIM, SUPPORTED, TetMesh
 
@@ -48,18 +48,13 @@ def medial_wall_offset_mm(config: SocketConfig) -> float:
     return config.socket_radius_mm + config.fossa_depth_mm + config.medial_wall_distance_mm
 
 
-def fine_radius_mm(config: SocketConfig) -> float:
-    """Radius about the socket centre within which a planned reamer's teeth can cut, plus the margin."""
-    return 0.5 * config.planned_reamer_max_diameter_mm + ReamerConfig().tooth_protrusion_mm + config.fine_margin_mm
-
-
 def generate_socket(config: SocketConfig | None = None) -> TetMesh:
     """Mesh the layered socket with gmsh (OpenCASCADE kernel) and return it in metres, materials tagged."""
     config = config or SocketConfig()
     radius = config.socket_radius_mm
     fossa = fossa_axis(config)
     wall = medial_wall_offset_mm(config)
-    outer = fine_radius_mm(config) + config.bone_stock_mm
+    outer = config.fine_radius_mm + config.bone_stock_mm
     big = 4.0 * outer
     with gmsh_session("acetabular_socket") as gmsh:
         occ = gmsh.model.occ
@@ -197,7 +192,7 @@ def _size_field(gmsh, config: SocketConfig, fossa: np.ndarray, wall: float) -> N
     """Element size: fine within the planned reamers' reach and behind the fossa out to the medial
     wall, growing by ``SIZE_GROWTH`` per mm beyond, capped at the coarse size."""
     fine, coarse = config.element_size_mm, config.coarse_element_size_mm
-    reach = fine_radius_mm(config)
+    reach = config.fine_radius_mm
     r = "Sqrt(x*x+y*y+z*z)"
     along = "({}*x+{}*y+{}*z)".format(*(f"({float(c):.15g})" for c in fossa))
     lateral = f"Sqrt(Max(0,x*x+y*y+z*z-{along}*{along}))"

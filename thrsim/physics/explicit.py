@@ -213,7 +213,9 @@ def element_update(s, m):
         pressure = (sxx + syy + szz) / 3.0
         dxx, dyy, dzz = sxx - pressure, syy - pressure, szz - pressure
         q_trial = math.sqrt(1.5 * (dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (sxy * sxy + syz * syz + szx * szx)))
-        dpeeq = jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row]) if q_trial > 0.0 else 0.0
+        dpeeq = (
+            jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row]) if q_trial > 0.0 else 0.0
+        )
         if dpeeq > 0.0:
             factor = 1.0 - 3.0 * mu * dpeeq / q_trial
             dxx *= factor
@@ -498,6 +500,17 @@ class ExplicitSolid:
 
     def viscous_dissipation(self) -> float:
         return float(self.viscous_work.sum())
+
+    def remove_elements(self, removed: np.ndarray) -> int:
+        """Take these elements out before the run (bone reamed away earlier): their mass leaves the
+        nodes, as at deletion, with nothing booked as debris. Returns how many were active."""
+        removed = np.asarray(removed, dtype=bool) & (self.active > 0)
+        self.active[removed] = 0
+        self.damage[removed] = 1.0
+        account_deletions(self.arrays)
+        self._accounted[removed] = True
+        self.debris[:] = 0.0
+        return int(removed.sum())
 
     def delete_detached(self) -> int:
         """Delete active elements no longer face-connected, through active elements, to supported bone.

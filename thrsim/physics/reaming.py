@@ -61,7 +61,7 @@ from thrsim.config import ReamingCaseConfig
 from thrsim import portable_math as pm
 from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, SIDE, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, SIDE, SUPPORTED, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
 from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
@@ -133,6 +133,8 @@ class FrameLog:
     contact_fraction: list = field(default_factory=list)  # steps of the frame with any contact
     energy: list = field(default_factory=list)
     contact_force: list = field(default_factory=list)
+    reaction_force: list = field(default_factory=list)  # within-frame mean of the bone's force on the reamer (N)
+    motor_torque: list = field(default_factory=list)  # within-frame mean torque the motor delivers about D (N·m)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The records as arrays, in the case file's dtypes."""
@@ -149,6 +151,8 @@ class FrameLog:
             "contact_fraction": np.array(self.contact_fraction),
             "energy": np.array(self.energy),
             "contact_force": np.array(self.contact_force),
+            "reaction_force": np.array(self.reaction_force),
+            "motor_torque": np.array(self.motor_torque),
         }
 
 
@@ -222,6 +226,7 @@ class ReamingSimulation:
         self.solid = ExplicitSolid(
             self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others
         )
+        self.prepared = self._prepare(case)
         self.reamer = build_reamer(case.reamer)
         self.axis = np.array(case.orientation.reamer_axis)
         self.rotation = frame_rotation(self.axis)
@@ -248,9 +253,38 @@ class ReamingSimulation:
         self.frame_stats = np.zeros(FRAME_STATS_SIZE)
         self._scratch = np.zeros(4)
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
-        self.tip_exit_depth = tip_exit_depth(self.mesh, self.axis)
+        self._face_elements = {
+            name: np.flatnonzero(np.isin(self.mesh.tets, self.mesh.node_sets[name]).any(axis=1) & ~self.prepared)
+            for name in (MEDIAL_WALL, SUPPORTED)
+            if case.bone_kind == "socket" and name in self.mesh.node_sets
+        }
+        self.tip_exit_depth = None if case.bone_kind == "socket" else tip_exit_depth(self.mesh, self.axis)
+        self.spin_work_at_frame_start = 0.0
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
+
+    def _prepare(self, case: ReamingCaseConfig) -> np.ndarray:
+        """Ream the socket geometrically to ``pre_ream_mm`` (every element whose centroid lies in the
+        sphere goes, then the chips it frees); the elements gone before the case starts."""
+        if case.pre_ream_mm is None:
+            return np.zeros(self.mesh.n_tets, dtype=bool)
+        centre = np.array(case.pre_ream_centre_mm) * 1e-3
+        inside = np.linalg.norm(self.mesh.centroids - centre, axis=1) < 0.5e-3 * case.pre_ream_mm
+        self.solid.remove_elements(inside)
+        self.solid.delete_detached()
+        self.solid.detached_count = 0
+        self.solid.debris[:] = 0.0
+        return self.solid.active == 0
+
+    def breached(self) -> str | None:
+        """For a socket: ``medial_wall_breached`` when an element on the medial wall's pelvic face has
+        gone (a hole into the pelvis), ``perforated`` when one on the supported boundary has (through
+        the bone elsewhere); None while both hold. The patch uses :meth:`perforated` instead."""
+        for reason, name in (("medial_wall_breached", MEDIAL_WALL), ("perforated", SUPPORTED)):
+            on_face = self._face_elements.get(name)
+            if on_face is not None and np.any(self.solid.active[on_face] == 0):
+                return reason
+        return None
 
     @property
     def drive(self) -> ReamerDrive:
@@ -263,7 +297,7 @@ class ReamingSimulation:
 
     def _initial_position(self) -> float:
         """Axial coordinate s where the teeth clear the nearest bone node by the initial gap."""
-        nodes = self.mesh.nodes
+        nodes = self.mesh.nodes[self.solid.alive_nodes]
         reach = self.reamer.outer_radius + INITIAL_GAP_M
 
         def clearance(s: float) -> float:
@@ -376,12 +410,21 @@ class ReamingSimulation:
             log.contact_force_axial.append(0.0)
             log.contact_fraction.append(0.0)
             log.contact_force.append(np.zeros(3))
+            log.reaction_force.append(np.zeros(3))
+            log.motor_torque.append(0.0)
             return
         steps = self.steps_per_frame
         log.reamer_axial.append([stats[SUM_POSITION] / steps, stats[MIN_POSITION], stats[MAX_POSITION]])
         log.contact_force_axial.append(stats[SUM_AXIAL_FORCE] / steps)
         log.contact_fraction.append(stats[CONTACT_STEPS] / steps)
-        log.contact_force.append(np.array([stats[SUM_FX], stats[SUM_FY], stats[SUM_FZ]]) / steps)
+        contact_force = np.array([stats[SUM_FX], stats[SUM_FY], stats[SUM_FZ]]) / steps
+        log.contact_force.append(contact_force)
+        log.reaction_force.append(-contact_force)
+        # the motor's power is the spin work over the frame; its torque about D, that power over ω
+        spin_work = float(self.ledger[SPIN])
+        frame_time = steps * self.solid.dt
+        log.motor_torque.append((spin_work - self.spin_work_at_frame_start) / (self.omega * frame_time) if self.omega else 0.0)
+        self.spin_work_at_frame_start = spin_work
 
     def _check(self, frame: int) -> None:
         solid = self.solid
@@ -418,6 +461,11 @@ class ReamingSimulation:
             self._check(frame)
             if self.first_contact_frame is not None:
                 # a frame of free fall, through a hole or past the bone, is not recorded
+                breach = self.breached()
+                if breach is not None:
+                    end_reason = breach
+                    self.perforated_frame = frame
+                    break
                 if self.perforated():
                     end_reason = "perforated"
                     self.perforated_frame = frame
@@ -445,7 +493,7 @@ class ReamingSimulation:
         after = slice(self.first_contact_frame + 1, None) if self.first_contact_frame is not None else slice(0, 0)
         ratio = kinetic[after] / np.maximum(internal[after], 1e-300)
         status = records["status"]
-        removed_now = status[-1] == 0
+        removed_now = (status[-1] == 0) & ~self.prepared
         simulated = len(log.time) - 1
         axial = _along(records["reamer_position"], self.axis) - self.start_position
         external = energy[-1, names["external_work"]]
@@ -456,9 +504,18 @@ class ReamingSimulation:
             "perforated_frame": self.perforated_frame,
             "first_contact_frame": self.first_contact_frame,
             "elements": self.mesh.n_tets,
+            "prepared_removed": int(self.prepared.sum()),
             "removed": int(removed_now.sum()),
             "detached": self.solid.detached_count,
             "removed_volume_mm3": float(self.solid.volume[removed_now].sum() * 1e9),
+            "removed_volume_by_material_mm3": {
+                name: float(self.solid.volume[removed_now & (self.mesh.element_material == index)].sum() * 1e9)
+                for index, name in enumerate(self.mesh.material_names)
+            },
+            "bone": self.case.bone_kind,
+            "reamer_diameter_mm": self.case.reamer.size_mm,
+            "pre_ream_mm": self.case.pre_ream_mm,
+            "reamer_teeth": self.reamer.tooth_count,
             "mean_peeq_active": float(self.solid.peeq[~removed_now].mean()) if (~removed_now).any() else None,
             "reamer_advance_mm": float(axial[-1] * 1e3),
             "seconds_per_frame": elapsed / max(simulated, 1),

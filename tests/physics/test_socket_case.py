@@ -1,0 +1,77 @@
+"""A reaming case on the layered socket: sizes, pre-ream, materials, the force and torque the surgeon feels."""
+
+from __future__ import annotations
+
+import json
+
+import h5py
+import numpy as np
+import pytest
+from checkout_cli import run_thrsim
+
+from thrsim.config import ReamerConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size, teeth_for_diameter
+from thrsim.physics.reaming import ReamingSimulation
+
+#: a coarse socket: seconds to mesh, enough elements to ream
+COARSE = ["--bone", "socket", "--element-size", "2.5"]
+
+
+def test_a_reamer_one_size_up_reams_the_native_socket(tmp_path):
+    out = tmp_path / "socket.h5"
+    result = run_thrsim(
+        "fem", *COARSE, "--reamer-diameter", "48", "--inclination", "0", "--anteversion", "0", "--frames", "2",
+        "--out", str(out), "--json", timeout=900,
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    summary = json.loads(result.stdout)
+    assert summary["bone"] == "socket" and summary["reamer_diameter_mm"] == pytest.approx(48.0)
+    assert summary["reamer_teeth"] == teeth_for_diameter(head_diameter_for_size(48.0))
+    assert set(summary["removed_volume_by_material_mm3"]) == {"cortical", "cancellous"}
+    assert summary["first_contact_frame"] == 1 and summary["end_reason"] in ("completed", "stalled")
+    with h5py.File(out, "r") as f:
+        assert json.loads(f["mesh/material"].attrs["names"]) == ["cortical", "cancellous"]
+        assert set(np.unique(f["mesh/material"][()])) == {0, 1}
+        reaction, torque = f["frames/reaction_force"][()], f["frames/motor_torque"][()]
+        axis = f["frames/reamer_axis"][()]
+        assert reaction.shape == (f["frames/time"].shape[0], 3) and torque.shape == (reaction.shape[0],)
+        assert np.all(reaction[0] == 0) and torque[0] == 0
+        # once seated on the rim the bone pushes back against the feed, and the motor works to turn the teeth
+        assert reaction[-1] @ axis < 0 and torque[-1] > 0
+        assert f.attrs["bone"] == "socket" and f.attrs["reamer_diameter_mm"] == pytest.approx(48.0)
+
+
+def test_a_pre_reamed_socket_starts_from_its_cavity():
+    socket = SocketConfig(element_size_mm=2.5)
+    case = ReamingCaseConfig(
+        inclination_deg=0, anteversion_deg=0, bone_kind="socket", socket=socket, pre_ream_mm=48.0,
+        reamer=ReamerConfig(head_diameter_mm=head_diameter_for_size(50.0)), frames=1,
+    )  # fmt: skip
+    simulation = ReamingSimulation(case)
+    radius = np.linalg.norm(simulation.mesh.centroids, axis=1)
+    assert simulation.prepared.sum() > 50
+    assert np.all(radius[simulation.prepared] < 24e-3) and not np.any(simulation.solid.active[radius < 24e-3])
+    # the reamer starts clear of what is left, nearer than it would over the native socket
+    clear = np.linalg.norm(simulation.mesh.nodes[simulation.solid.alive_nodes] - simulation.centre, axis=1)
+    assert clear.min() >= simulation.reamer.outer_radius
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (("--reamer-diameter", "44", "--pre-ream", "46"), "smaller than the 46 mm prepared cavity"),
+        (("--reamer-diameter", "60", "--pre-ream", "58"), "beyond the bone stock"),
+        (("--cancellous", "spongy"), "--cancellous must be one of"),
+        (("--pre-ream-centre", "1,2"), "--pre-ream-centre must be three numbers"),
+    ],
+)
+def test_bad_socket_cases_are_refused(tmp_path, args, says):
+    out = tmp_path / "case.h5"
+    result = run_thrsim("fem", *COARSE, "--inclination", "0", "--anteversion", "0", *args, "--out", str(out))
+    assert result.returncode == 2 and says in result.stderr and "Traceback" not in result.stderr
+    assert not out.exists()
+
+
+def test_socket_options_on_the_patch_are_refused(tmp_path):
+    out = tmp_path / "case.h5"
+    result = run_thrsim("fem", "--inclination", "0", "--anteversion", "0", "--pre-ream", "46", "--out", str(out))
+    assert result.returncode == 2 and "socket" in result.stderr and not out.exists()

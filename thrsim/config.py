@@ -4,14 +4,14 @@ Skills" (its section, table or equation in brackets), unless a docstring says wh
 
 Inside, quantities are SI (m, kg, s, N, Pa, rad) unless a field name says otherwise
 (``_mm``, ``_deg``): those are user-facing values, converted once by the properties here.
-A bad value (negative size, inclination outside [0, 90], unknown side) raises pydantic's
-``ValidationError``, which the CLI reports as one line.
+A bad value (negative size, inclination outside [0, 90], unknown side, NaN or infinity anywhere)
+raises pydantic's ``ValidationError``, which the CLI reports as one line.
 """
 
 from __future__ import annotations
 
 import math
-from typing import ClassVar, Literal
+from typing import Annotated, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, field_validator, model_validator
 
@@ -21,7 +21,14 @@ Side = Literal["right", "left"]
 
 
 class _Frozen(BaseModel):
-    model_config = ConfigDict(frozen=True, extra="forbid")
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+#: an output frame rate a case or sweep may ask for (the thesis's is 60 Hz); far outside, a frame
+#: is shorter than a solver step or longer than any reaming
+FrameRateHz = Annotated[float, Field(ge=1.0, le=10_000.0)]
+#: output frames a case or sweep may ask for: 100,000 frames at 60 Hz are 28 minutes of reaming
+FrameCount = Annotated[int, Field(ge=1, le=100_000)]
 
 
 class BonePatchConfig(_Frozen):
@@ -374,8 +381,8 @@ class SweepConfig(_Frozen):
     forces_n: tuple[float, ...] = Field((230.0,), description="the thesis's mean push force [5.3.2]")
     extra_forces_n: tuple[float, ...] = (150.0, 310.0)
     extra_force_anteversions_deg: tuple[float, ...] = (0.0, 90.0, 180.0)
-    frames: int = Field(120, ge=1)
-    frame_rate_hz: float = Field(60.0, gt=0)
+    frames: FrameCount = 120
+    frame_rate_hz: FrameRateHz = 60.0
 
     @field_validator("inclinations_deg")
     @classmethod
@@ -492,7 +499,7 @@ class SessionEndLimit(_Frozen):
 class SolverConfig(_Frozen):
     """Explicit central-difference settings of the ground-truth solver."""
 
-    target_dt_s: float = Field(4e-6, gt=0, description="time step reached by per-element mass scaling")
+    target_dt_s: float = Field(4e-6, ge=1e-8, le=1e-3, description="time step reached by per-element mass scaling")
     safety_factor: float = Field(
         0.7, gt=0, le=1,
         description="fraction of the Courant limit the mass-scaled elements run at; 0.7 leaves the margin contact needs",
@@ -508,8 +515,8 @@ class ReamingCaseConfig(_Frozen):
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
     force_n: float = Field(230.0, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
-    frames: int = Field(120, ge=1)
-    frame_rate_hz: float = Field(60.0, gt=0)
+    frames: FrameCount = 120
+    frame_rate_hz: FrameRateHz = 60.0
     bone_kind: Literal["patch", "socket"] = Field("patch", description="the thesis's patch, or the layered socket")
     pre_ream_mm: float | None = Field(
         None, gt=0, description="the socket starts reamed geometrically to this diameter (a previous reamer's cavity); None: native"
@@ -588,8 +595,10 @@ def read_settings_file(path: str) -> dict:
         raise ThrsimInputError(f"{file}: no such configuration file")
     try:
         settings = json.loads(file.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+    except (ValueError, UnicodeDecodeError) as error:  # JSONDecodeError, or an integer of thousands of digits
         raise ThrsimInputError(f"{file}: not valid JSON ({error})") from None
+    except RecursionError:
+        raise ThrsimInputError(f"{file}: not valid JSON (nested too deeply)") from None
     if not isinstance(settings, dict):
         raise ThrsimInputError(f"{file}: the configuration must be a JSON object")
     return settings

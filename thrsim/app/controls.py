@@ -1,8 +1,9 @@
 """The page's control messages, validated before anything acts on them.
 
 Each WebSocket message is one JSON object whose ``type`` picks the model; a field out of its
-range, an unknown type or a message that is not JSON is refused with a one-line reason and the
-session goes on. Degrees and millimetres here (the user-facing edge); the trainer converts.
+range or of another JSON type (``"200"`` or ``true`` is not a number), an unknown type or a message
+that is not JSON (nested too deeply, an integer of thousands of digits) is refused with a one-line
+reason and the session goes on. Degrees and millimetres here (the user-facing edge); the trainer converts.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ MAX_MESSAGE_BYTES = 16 * 1024
 
 
 class _Control(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
 
 
 class CameraControl(_Control):
@@ -140,6 +141,10 @@ class _Parser:
                 text = json.loads(text)
             except (json.JSONDecodeError, UnicodeDecodeError):
                 raise ThrsimInputError("control message is not JSON") from None
+            except ValueError:  # Python's cap on the digits of an integer
+                raise ThrsimInputError("control message holds a number of too many digits") from None
+            except RecursionError:
+                raise ThrsimInputError("control message nests too deeply") from None
         if not isinstance(text, dict):
             raise ThrsimInputError("control message must be a JSON object with a 'type'")
         if text.get("type") not in self.types:

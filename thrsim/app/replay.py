@@ -4,6 +4,11 @@ trainer of the same mode and settings, and compare what it produces with what wa
 The trainers are deterministic given their inputs and seed, so a replay of an unchanged thrsim
 reproduces the session's events and orientation trace exactly; a difference means the trainer's
 behaviour changed since the session was recorded (the file keeps the versions that made it).
+
+A reaming session names the model folder it was reamed with when that was not the shipped model.
+A replay never follows that path by itself (a session file may come from elsewhere): it uses the
+shipped model, or the folder the user names, and that folder passes the same checks as any model
+(:func:`thrsim.learn.model_dir.load_model`).
 """
 
 from __future__ import annotations
@@ -16,12 +21,14 @@ import numpy as np
 
 from thrsim.app.modes import MODES, Mode
 from thrsim.errors import ThrsimInputError
+from thrsim.learn.model_dir import SHIPPED_MODEL
 from thrsim.session.file import read_session
 
 
 @dataclass(frozen=True)
 class ReplayOutcome:
     mode: str
+    model: str | None  # the model folder the replay ran (None: no model, a navigation session)
     inputs: int
     refused_controls: int
     events: int
@@ -37,13 +44,16 @@ class ReplayOutcome:
         return {**self.__dict__, "reproduced": self.reproduced}
 
 
-def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
-    """Re-live the session at ``path``; ``on_state(state)`` sees every step's state (e.g. to draw it)."""
+def replay_session(path: str | Path, on_state=None, model: str | Path | None = None) -> ReplayOutcome:
+    """Re-live the session at ``path``; ``on_state(state)`` sees every step's state (e.g. to draw it).
+    ``model``: the model folder a reaming session replays with (None: the shipped model; a session
+    reamed with another folder is refused until the user names one)."""
     session = read_session(path)
     settings = session.settings
     mode = MODES.get(settings.get("mode", ""))
     if mode is None:
         raise ThrsimInputError(f"{path}: recorded in mode {settings.get('mode')!r}, which this thrsim does not have")
+    settings["model"] = _model_to_use(path, settings.get("model"), model)
     trainer = mode.make_trainer(settings)
     if mode.name not in session.groups:
         raise ThrsimInputError(f"{path}: session file has no {mode.name} group")
@@ -61,8 +71,10 @@ def replay_session(path: str | Path, on_state=None) -> ReplayOutcome:
             and np.array_equal(recorded.removed, replayed.removed)
             and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
         )
+    used = trainer.settings().get("model")
     return ReplayOutcome(
         mode=mode.name,
+        model=None if used is None else str(used["path"]),
         inputs=session.inputs.count,
         refused_controls=refused,
         events=len(replayed.events),
@@ -98,6 +110,18 @@ def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, object]], on_
             except ThrsimInputError:
                 refused += 1  # refused live too: the same input, the same answer
     return refused
+
+
+def _model_to_use(path, recorded: object, given: str | Path | None) -> str | None:
+    """The model folder to replay with: the user's, else the shipped one, which the session must have used."""
+    if given is not None:
+        return str(given)
+    if recorded is None or (isinstance(recorded, str) and Path(recorded).resolve() == SHIPPED_MODEL.resolve()):
+        return None
+    raise ThrsimInputError(
+        f"{path}: reamed with the model folder {recorded!r}, not the shipped model; a replay loads only a model you name: "
+        f"add --model MODEL_DIR (that folder, if you trust it)"
+    )
 
 
 def _check_same_mesh(path, recorded, trainer) -> None:

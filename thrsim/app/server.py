@@ -614,6 +614,7 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
     try:
         control, ack = session.control(text)
     except ThrsimInputError as error:
+        log.warning("%s control refused: %s", mode_name, error)  # one line per bad message, never a traceback
         return [("one", {"type": "error", "message": str(error)})]
     except Exception as error:  # a trainer bug: refuse this control, keep the session and the server
         log.exception("control failed")

@@ -50,6 +50,7 @@ from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
+from thrsim.hdf5_checks import check_dataset, dataset_at, group_at, read_dataset
 from thrsim.provenance import config_hash, json_default, package_versions
 
 CASE_FORMAT = "thrsim-case"
@@ -68,6 +69,8 @@ OPTIONAL_PER_FRAME = {
     "motor_torque": (),
 }
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: the small per-frame datasets a reader takes whole, with their trailing shape
+_PER_FRAME_SHAPES = {"reamer_position": (3,), **OPTIONAL_PER_FRAME}
 
 
 @dataclass
@@ -263,23 +266,25 @@ def read_case(path: str | os.PathLike) -> Case:
     with _open(path) as f:
         if f.attrs.get("format") not in (CASE_FORMAT, CASE_FORMAT.encode()):
             raise ThrsimInputError(f"{path}: not a thrsim case file (format attribute {f.attrs.get('format')!r})")
-        try:
-            g = f["frames"]
-            frames = CaseFrames(
-                time=g["time"][()],
-                status=g["status"][()],
-                peeq=g["peeq"][()],
-                von_mises=g["von_mises"][()],
-                reamer_position=g["reamer_position"][()],
-                energy=g["energy"][()],
-                energy_names=_energy_names(g["energy"]),
-                **{name: g[name][()] if name in g else None for name in (*OPTIONAL_PER_FRAME, *OPTIONAL_PER_ELEMENT)},
-            )
-            return Case(
-                path=path, mesh=read_mesh_group(f["mesh"]), frames=frames, reamer_axis=g["reamer_axis"][()], attrs=decode_attrs(f.attrs)
-            )
-        except KeyError as error:
-            raise ThrsimInputError(f"{path}: missing dataset ({error})") from None
+        g = group_at(f, "frames", path)
+        per_frame = {
+            name: read_dataset(g, name, path, shape=(None, *trailing)) for name, trailing in _PER_FRAME_SHAPES.items() if name in g
+        }
+        frames = CaseFrames(
+            time=read_dataset(g, "time", path, "f", (None,)),
+            status=read_dataset(g, "status", path, "iu", (None, None)),
+            peeq=read_dataset(g, "peeq", path, "f", (None, None)),
+            von_mises=read_dataset(g, "von_mises", path, "f", (None, None)),
+            reamer_position=read_dataset(g, "reamer_position", path, "f", (None, 3)),
+            energy=read_dataset(g, "energy", path, "f", (None, None)),
+            energy_names=_energy_names(g["energy"]),
+            **{name: per_frame.get(name) for name in OPTIONAL_PER_FRAME},
+            **{name: read_dataset(g, name, path, "f", (None, None)) if name in g else None for name in OPTIONAL_PER_ELEMENT},
+        )
+        mesh = read_mesh_group(group_at(f, "mesh", path))
+        return Case(
+            path=path, mesh=mesh, frames=frames, reamer_axis=read_dataset(g, "reamer_axis", path, "f", (3,)), attrs=decode_attrs(f.attrs)
+        )
 
 
 class CaseReader:
@@ -288,31 +293,39 @@ class CaseReader:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self._file = _open(self.path)
-        self.attrs = decode_attrs(self._file.attrs)
-        g = self._file["frames"]
-        self._frames = g
-        self.n_frames = int(g["status"].shape[0])
-        self.n_elements = int(g["status"].shape[1])
-        self.time = g["time"][()]
-        self.reamer_position = g["reamer_position"][()]
-        self.reamer_axis = g["reamer_axis"][()]
-        self.energy = g["energy"][()]
-        self.energy_names = _energy_names(g["energy"])
-        self.contact_force = g["contact_force"][()] if "contact_force" in g else None
-        self.reamer_axial = g["reamer_axial"][()] if "reamer_axial" in g else None
-        self.reaction_force = g["reaction_force"][()] if "reaction_force" in g else None
-        self.motor_torque = g["motor_torque"][()] if "motor_torque" in g else None
+        try:
+            self.attrs = decode_attrs(self._file.attrs)
+            g = group_at(self._file, "frames", self.path)
+            self._frames = g
+            status = dataset_at(g, "status", self.path)
+            check_dataset(status, self.path, "iu", (None, None))
+            self.n_frames, self.n_elements = (int(n) for n in status.shape)
+            for name in (*PER_ELEMENT, *OPTIONAL_PER_ELEMENT):
+                if name in g or name in PER_ELEMENT:
+                    check_dataset(dataset_at(g, name, self.path), self.path, "fiu", (self.n_frames, self.n_elements))
+            self.time = read_dataset(g, "time", self.path, "f", (self.n_frames,))
+            self.reamer_position = read_dataset(g, "reamer_position", self.path, "f", (self.n_frames, 3))
+            self.reamer_axis = read_dataset(g, "reamer_axis", self.path, "f", (3,))
+            self.energy = read_dataset(g, "energy", self.path, "f", (self.n_frames, None))
+            self.energy_names = _energy_names(g["energy"])
+            self.contact_force = read_dataset(g, "contact_force", self.path, "f", (self.n_frames, 3)) if "contact_force" in g else None
+            self.reamer_axial = read_dataset(g, "reamer_axial", self.path, "f", (self.n_frames, 3)) if "reamer_axial" in g else None
+            self.reaction_force = read_dataset(g, "reaction_force", self.path, "f", (self.n_frames, 3)) if "reaction_force" in g else None
+            self.motor_torque = read_dataset(g, "motor_torque", self.path, "f", (self.n_frames,)) if "motor_torque" in g else None
+        except ThrsimInputError:
+            self._file.close()
+            raise
         self._mesh: TetMesh | None = None
 
     @property
     def mesh(self) -> TetMesh:
         if self._mesh is None:
-            self._mesh = read_mesh_group(self._file["mesh"])
+            self._mesh = read_mesh_group(group_at(self._file, "mesh", self.path))
         return self._mesh
 
     def series(self, name: str) -> np.ndarray | None:
-        """A whole ``/frames`` dataset (every frame), or None where this case lacks it."""
-        return self._frames[name][()] if name in self._frames else None
+        """A whole ``/frames`` dataset (every frame, checked), or None where this case lacks it."""
+        return read_dataset(self._frames, name, self.path) if name in self._frames else None
 
     def frame(self, t: int) -> dict[str, np.ndarray]:
         """status, peeq and von_mises of frame ``t`` (and damage where the case has it), plus its
@@ -432,6 +445,8 @@ def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, .
     missing = [name for name in _REQUIRED if name not in f or not isinstance(f[name], h5py.Dataset)]
     if missing:
         raise ThrsimInputError(f"{path}: missing dataset /{missing[0]}" + (f" (and {len(missing) - 1} more)" if len(missing) > 1 else ""))
+    for name in (*_REQUIRED, *(f"frames/{name}" for name in (*OPTIONAL_PER_FRAME, *OPTIONAL_PER_ELEMENT) if name in f["frames"])):
+        check_dataset(dataset_at(f, name, path), path)  # numbers, within the size thrsim reads
     missing_attrs = [a for a in _REQUIRED_ATTRS if a not in f.attrs]
     if missing_attrs:
         raise ThrsimInputError(f"{path}: missing attribute {missing_attrs[0]!r}")

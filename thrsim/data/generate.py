@@ -38,6 +38,8 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
 from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
@@ -181,16 +183,49 @@ def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
+class _ManifestPart(BaseModel):
+    """A part of the manifest that the commands read: its fields typed, any others kept."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+
+class ManifestEntry(_ManifestPart):
+    file: str = Field(pattern=rf"^{CASES_DIR}/[^/\\]+\.h5$", description="the case file, inside the dataset's cases folder")
+    status: str
+    split: str | None = None
+    params: dict = {}
+    data_digest: str | None = None
+    sha256: str | None = None
+    attempts: int = Field(0, ge=0)
+    frames: int = Field(0, ge=0)
+    wall_s: float | None = Field(None, ge=0, description="None for a file adopted after a crash")
+
+
+class Manifest(_ManifestPart):
+    """The manifest's checked shape (:func:`read_manifest`): a file of other types is refused with one line."""
+
+    identity: dict
+    identity_hash: str
+    cases: dict[str, ManifestEntry]
+    split_rule: dict | None = None
+    runs: list[dict] = []
+
+
 def read_manifest(root: Path) -> dict | None:
     path = root / MANIFEST
     if not path.exists():
         return None
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError) as error:
-        raise ThrsimInputError(f"{path}: unreadable dataset manifest ({error})") from None
+    except (OSError, ValueError, RecursionError) as error:
+        raise ThrsimInputError(f"{path}: unreadable dataset manifest ({' '.join(str(error).split()) or 'nested too deeply'})") from None
     if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT:
         raise ThrsimInputError(f"{path}: not a thrsim dataset manifest")
+    try:
+        Manifest.model_validate(data)
+    except ValidationError as error:
+        first = error.errors()[0]
+        raise ThrsimInputError(f"{path}: malformed dataset manifest: {'.'.join(map(str, first['loc']))}: {first['msg']}") from None
     return data
 
 

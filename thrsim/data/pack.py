@@ -54,6 +54,7 @@ from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
+from thrsim.hdf5_checks import group_at, read_dataset
 from thrsim.provenance import config_hash, json_default, package_versions
 
 PACK_FORMAT = "thrsim-learning-pack"
@@ -346,37 +347,48 @@ def read_pack(
 def _read_pack_file(
     path: Path, f: h5py.File, splits: tuple[str, ...] | None, labels: LabelConfig | None
 ) -> tuple[TetMesh, list[PackedCase]]:
-    version = int(f.attrs.get("version", -1))
+    try:
+        version = int(f.attrs.get("version", -1))
+        packed_labels = LabelConfig.model_validate_json(f.attrs["labels"]).model_dump()
+        levels, damage_levels = (
+            float(f.attrs.get(key, default)) for key, default in (("alpha_levels", None), ("damage_levels", DAMAGE_LEVELS))
+        )
+    except (KeyError, TypeError, ValueError) as error:  # pydantic's ValidationError is a ValueError
+        raise ThrsimInputError(
+            f"{path}: the pack's version, label constants or levels are missing or malformed ({str(error).splitlines()[0]})"
+        ) from None
     if version != PACK_VERSION:
         raise ThrsimInputError(f"{path}: learning pack version {version}; this thrsim reads version {PACK_VERSION}")
-    packed_labels = json.loads(f.attrs["labels"])
+    if not (1 <= levels <= 255 and 1 <= damage_levels <= 255):
+        raise ThrsimInputError(f"{path}: the pack's levels ({levels:g}, {damage_levels:g}) do not fit its uint8 values")
     if labels is not None and labels.model_dump() != packed_labels:
         raise ThrsimInputError(f"{path}: packed with label constants {packed_labels}; α cannot be recomputed with others from a pack")
-    levels = float(f.attrs["alpha_levels"])
-    damage_levels = float(f.attrs.get("damage_levels", DAMAGE_LEVELS))
-    mesh = read_mesh_group(f["mesh"])
+    mesh = read_mesh_group(group_at(f, "mesh", path))
+    cases = group_at(f, "cases", path)
     out = []
-    for case_id in sorted(f["cases"]):
-        g = f["cases"][case_id]
+    for case_id in sorted(cases):
+        g = group_at(cases, case_id, path)
         attrs = decode_attrs(g.attrs)
         split = attrs.pop("split", None)
         split = None if split in (None, "None") else split
         if splits is not None and split not in splits:
             continue
-        quantised = g["alpha"][()]
-        if quantised.shape[0] != mesh.n_tets:
-            raise ThrsimInputError(f"{path}: case {case_id} has {quantised.shape[0]} elements, the mesh {mesh.n_tets}")
-        status = _status_from(g["removed_frame"][()], quantised.shape[1])
+        quantised = read_dataset(g, "alpha", path, "u", (mesh.n_tets, None))
+        frames = quantised.shape[1]
+        status = _status_from(read_dataset(g, "removed_frame", path, "iu", (mesh.n_tets,)), frames)
         alpha = np.where(status == 1, dequantise_alpha(quantised, levels), np.float32(0.0))
         out.append(PackedCase(
             case_id=case_id,
             alpha=alpha.astype(np.float32),
             status=status,
-            reamer_position=g["reamer_position"][()],
-            reamer_axis=g["reamer_axis"][()],
+            reamer_position=read_dataset(g, "reamer_position", path, "f", (frames, 3)),
+            reamer_axis=read_dataset(g, "reamer_axis", path, "f", (3,)),
             split=split,
             attrs=attrs,
             data_digest=str(attrs.get("source_data_digest", "")),
-            **{name: dequantise_damage(g[name][()], damage_levels) if name in g else None for name in OPTIONAL_PER_ELEMENT},
+            **{
+                name: dequantise_damage(read_dataset(g, name, path, "u", (mesh.n_tets, frames)), damage_levels) if name in g else None
+                for name in OPTIONAL_PER_ELEMENT
+            },
         ))  # fmt: skip
     return mesh, out

@@ -20,6 +20,7 @@ import numpy as np
 from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import MATERIAL_NAMES, TetMesh
+from thrsim.hdf5_checks import read_dataset
 from thrsim.provenance import package_versions
 
 Units = Literal["mm", "m"]
@@ -158,19 +159,24 @@ def write_mesh_group(group: h5py.Group, mesh: TetMesh) -> None:
 
 
 def read_mesh_group(group: h5py.Group) -> TetMesh:
-    """The mesh of a ``/mesh`` group written by :func:`write_mesh_group` (KeyError if a dataset is missing)."""
-    sets = {name: group["node_sets"][name][()] for name in group.get("node_sets", {})}
-    fixed = group["fixed_nodes"][()] if "fixed_nodes" in group else np.zeros(0, dtype=np.int32)
+    """The mesh of a ``/mesh`` group written by :func:`write_mesh_group`, each dataset checked
+    (:mod:`thrsim.hdf5_checks`) before it is read; ThrsimInputError names the file and the dataset."""
+    source = group.file.filename
+    sets = group.get("node_sets", {})
+    if not isinstance(sets, (h5py.Group, dict)):
+        raise ThrsimInputError(f"{source}: {group.name}/node_sets is a dataset, expected a group of node sets")
+    node_sets = {name: read_dataset(sets, name, source, "iu", (None,)) for name in sets}
+    fixed = read_dataset(group, "fixed_nodes", source, "iu", (None,)) if "fixed_nodes" in group else np.zeros(0, dtype=np.int32)
+    nodes = read_dataset(group, "nodes", source, "f", (None, 3))
+    tets = read_dataset(group, "tets", source, "iu", (None, 4))
     material, names = None, TetMesh.__dataclass_fields__["material_names"].default
     if "material" in group:
-        material = group["material"][()]
+        material = read_dataset(group, "material", source, "u", (len(tets),))
         try:
-            names = tuple(json.loads(group["material"].attrs["names"]))
+            names = tuple(str(name) for name in json.loads(group["material"].attrs["names"]))
         except (KeyError, TypeError, ValueError):
-            raise ThrsimInputError("/mesh/material has no readable 'names' attribute (a JSON list of material names)") from None
-    return TetMesh(
-        nodes=group["nodes"][()], tets=group["tets"][()], node_sets=sets, fixed_nodes=fixed, material=material, material_names=names
-    )
+            raise ThrsimInputError(f"{source}: {group.name}/material has no readable 'names' attribute (a JSON list of names)") from None
+    return TetMesh(nodes=nodes, tets=tets, node_sets=node_sets, fixed_nodes=fixed, material=material, material_names=names)
 
 
 def write_mesh(mesh: TetMesh, path: str | Path, units: Units = "mm", metadata: dict | None = None) -> Path:

@@ -43,6 +43,13 @@ import numpy as np
 
 FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n", "impulse_n_s")
 KINDS = ("random_forest", "svr", "ridge", "linear")
+#: the arrays each kind's prediction reads (besides target_range)
+_KIND_ARRAYS = {
+    "random_forest": ("left", "right", "feature", "threshold", "value", "roots"),
+    "svr": ("mean", "scale", "support_vectors", "dual_coef", "intercept", "gamma"),
+    "ridge": ("mean", "scale", "coef", "intercept"),
+    "linear": ("mean", "scale", "coef", "intercept"),
+}
 
 
 def case_samples(case) -> tuple[np.ndarray, np.ndarray]:
@@ -70,9 +77,74 @@ class ArrayRegressor:
 
     def __init__(self, kind: str, arrays: dict[str, np.ndarray]):
         if kind not in KINDS:
-            raise ValueError(f"unknown regressor kind {kind!r}")
+            raise ValueError(f"unknown regressor kind {kind!r} (known: {', '.join(KINDS)})")
         self.kind = kind
         self.arrays = {k: np.asarray(v) for k, v in arrays.items()}
+        self._check()
+
+    def _check(self) -> None:
+        """ValueError unless the arrays make a regressor that predicts finite advances and ends:
+        every array the kind reads, numeric and finite, of consistent shapes; tree nodes that
+        point only to later nodes of the table (scikit-learn's order), so no walk leaves the table
+        or runs in a circle."""
+        a = self.arrays
+        needed = ("target_range", *_KIND_ARRAYS[self.kind])
+        missing = [name for name in needed if name not in a]
+        if missing:
+            raise ValueError(f"the {self.kind} regressor lacks array(s) {', '.join(missing)}")
+        for name, values in a.items():
+            # an unbounded target range (±∞) is allowed: it means "do not clip"
+            finite = np.isfinite(values).all() if name != "target_range" else not np.isnan(values).any()
+            if values.dtype.kind not in "fiu" or (values.dtype.kind == "f" and not finite):
+                raise ValueError(f"regressor array {name!r} ({values.dtype}) is not all finite numbers")
+        for name in ("n_features", "reference_force_n", "intercept", "gamma"):
+            if name in a and a[name].size != 1:
+                raise ValueError(f"regressor array {name!r} has shape {a[name].shape}, expected one value")
+        low_high = a["target_range"]
+        if low_high.shape != (2,) or low_high[0] > low_high[1]:
+            raise ValueError(f"regressor target_range {low_high.tolist()} is not [low, high]")
+        if self.n_features not in (len(FEATURES) - 1, len(FEATURES)):
+            raise ValueError(f"regressor n_features {self.n_features}, expected {len(FEATURES) - 1} or {len(FEATURES)}")
+        if self.reference_force_n is not None and not self.reference_force_n > 0:
+            raise ValueError(f"regressor reference_force_n {self.reference_force_n} is not a positive push")
+        if self.kind == "random_forest":
+            self._check_forest()
+            return
+        width = (self.n_features,)
+        shapes = {"mean": width, "scale": width, **({"coef": width} if "coef" in _KIND_ARRAYS[self.kind] else {})}
+        if self.kind == "svr":
+            shapes.update(support_vectors=(len(a["dual_coef"]), self.n_features), dual_coef=(len(a["dual_coef"]),))
+        for name, shape in shapes.items():
+            if a[name].shape != shape:
+                raise ValueError(f"regressor array {name!r} has shape {a[name].shape}, expected {shape}")
+        if not np.all(a["scale"] != 0):
+            raise ValueError("regressor array 'scale' holds a zero")
+
+    def _check_forest(self) -> None:
+        a = self.arrays
+        n = len(a["left"])
+        for name in ("left", "right", "feature", "threshold", "value"):
+            if a[name].shape != (n,) or n == 0:
+                raise ValueError(f"forest array {name!r} has shape {a[name].shape}, expected ({n},) like 'left' (one per node)")
+        for name in ("left", "right", "feature", "roots"):
+            if a[name].dtype.kind not in "iu":
+                raise ValueError(f"forest array {name!r} has dtype {a[name].dtype}, expected integers")
+        roots = a["roots"]
+        if roots.ndim != 1 or len(roots) == 0 or roots.min() < 0 or roots.max() >= n:
+            raise ValueError(f"forest roots must be node indices in [0, {n}), got {roots.min(initial=0)} to {roots.max(initial=0)}")
+        node = np.arange(n)
+        split = a["left"] >= 0
+        for name in ("left", "right"):
+            child = a[name][split].astype(np.int64)
+            bad = (child <= node[split]) | (child >= n)
+            if bad.any():
+                first = int(node[split][bad][0])
+                raise ValueError(
+                    f"forest node {first}'s {name} child {int(child[bad][0])} is not a later node of the {n} (a cycle or out of range)"
+                )
+        feature = a["feature"][split]
+        if feature.size and (feature.min() < 0 or feature.max() >= self.n_features):
+            raise ValueError(f"forest splits on feature {int(feature.max())} (or below 0); the regressor reads {self.n_features}")
 
     @property
     def reference_force_n(self) -> float | None:

@@ -10,7 +10,10 @@
 
 Nothing is pickled. Every file is written atomically and the card last, so a directory with a
 card is complete. Loading refuses a directory from another format version, files that do not
-match the card's mesh digest, or a mesh other than the one asked for.
+match the card's mesh digest, or a mesh other than the one asked for. A folder is used only when
+every part passes its checks (:class:`ModelCard`, :func:`check_network_tensors`, the mesh's
+validation, :class:`ArrayRegressor`'s): a corrupt or tampered folder is refused with one line
+that names the file and the value, never a traceback or an endless loop.
 """
 
 from __future__ import annotations
@@ -19,20 +22,22 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import ValidationError
-from safetensors import safe_open
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from safetensors import SafetensorError, safe_open
 from safetensors.numpy import load_file as load_arrays
 from safetensors.numpy import save as array_bytes
 from safetensors.torch import load_file as load_tensors
 from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
+from thrsim.config import LabelConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.advance import ArrayRegressor
+from thrsim.learn.advance import KINDS, ArrayRegressor
 from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.learned_simulator import LearnedSimulator
@@ -43,6 +48,47 @@ MODEL_FORMAT_VERSION = 1
 CARD, NETWORK, ADVANCE, MESH = "card.json", "network.safetensors", "advance.safetensors", "mesh.safetensors"
 #: where the shipped default model lives inside the package
 SHIPPED_MODEL = Path(__file__).parent / "models" / "default"
+#: a card is a few kilobytes (the shipped one 10 KB); anything far larger is not one
+MAX_CARD_BYTES = 16 << 20
+
+
+class _CardSection(BaseModel):
+    """A part of the card that loading reads: its fields checked, any others kept as they are."""
+
+    model_config = ConfigDict(extra="allow", allow_inf_nan=False)
+
+
+class ReamerCard(_CardSection):
+    teeth_radius_m: float = Field(gt=0, le=0.1, description="radius of the teeth's sphere the model was trained with")
+    omega_rad_s: float = Field(ge=-1e4, le=1e4, description="the reamer's spin in the training cases")
+
+
+class MeshCard(_CardSection):
+    digest: str = Field(pattern=r"^[0-9a-f]{64}$")
+    elements: int = Field(ge=1)
+    nodes: int = Field(ge=4)
+
+
+class DataCard(_CardSection):
+    digest: str
+    source: str
+
+
+class AdvanceCard(_CardSection):
+    chosen: Literal[KINDS]
+
+
+class ModelCard(_CardSection):
+    """The fields of ``card.json`` that loading and the commands read, with their types and ranges
+    (``settings`` is checked by :class:`ModelSettings` itself)."""
+
+    reamer: ReamerCard
+    labels: LabelConfig
+    mesh: MeshCard
+    data: DataCard
+    advance: AdvanceCard
+    settings: dict
+    training: dict
 
 
 @dataclass
@@ -123,13 +169,49 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     """The mesh a model directory belongs to, checked against its card."""
     path = Path(path)
     card = read_card(path)
-    try:
-        mesh = mesh_from_arrays(load_arrays(str(path / MESH)))
-    except (OSError, ValueError, KeyError) as error:
-        raise ThrsimInputError(f"{path}: unreadable model files ({error})") from None
-    if mesh_digest(mesh) != card.get("mesh", {}).get("digest"):
+    arrays = _read_safetensors(path / MESH, load_arrays)
+    expected = {"nodes": ("f", (None, 3)), "tets": ("i", (None, 4)), "fixed_nodes": ("i", (None,))}
+    expected.update({name: ("i", (None,)) for name in arrays if name.startswith("set.")})
+    _check_arrays(path / MESH, arrays, expected)
+    n_nodes = len(arrays["nodes"])
+    for name, values in arrays.items():
+        if values.dtype.kind == "i" and values.size and (values.min() < 0 or values.max() >= n_nodes):
+            raise ThrsimInputError(f"{path / MESH}: {name} refers to node {int(values.max())} of {n_nodes} (or below 0)")
+    mesh = mesh_from_arrays(arrays)
+    if mesh_digest(mesh) != card["mesh"]["digest"]:
         raise ThrsimInputError(f"{path}: {MESH} does not match the card's mesh digest (mixed model files)")
+    if (mesh.n_tets, mesh.n_nodes) != (card["mesh"]["elements"], card["mesh"]["nodes"]):
+        raise ThrsimInputError(
+            f"{path}: the card says {card['mesh']['elements']} elements and {card['mesh']['nodes']} nodes, "
+            f"{MESH} holds {mesh.n_tets} and {mesh.n_nodes}"
+        )
+    mesh.validate(source=str(path / MESH))
     return mesh
+
+
+def _read_safetensors(file: Path, loader) -> dict:
+    """Every array of a safetensors file; a missing, truncated or garbled file is one line naming it."""
+    try:
+        return loader(str(file))
+    except (SafetensorError, OSError, ValueError, KeyError, TypeError) as error:
+        reason = " ".join(str(error).split()) or type(error).__name__
+        raise ThrsimInputError(f"{file}: unreadable model file ({reason})") from None
+
+
+def _check_arrays(file: Path, arrays: dict[str, np.ndarray], expected: dict[str, tuple[str, tuple]]) -> None:
+    """Exactly the ``expected`` names, each of its dtype kind ('f' floating, 'i' integer) and shape
+    (None: any length on that axis) and, for floats, finite values."""
+    missing, unknown = sorted(set(expected) - set(arrays)), sorted(set(arrays) - set(expected))
+    if missing or unknown:
+        raise ThrsimInputError(f"{file}: arrays do not match the card (missing {missing or 'none'}, unexpected {unknown or 'none'})")
+    for name, (kind, shape) in expected.items():
+        values = arrays[name]
+        if values.dtype.kind != kind or values.dtype.itemsize not in (4, 8):
+            raise ThrsimInputError(f"{file}: {name} has dtype {values.dtype}, expected {'float' if kind == 'f' else 'int'}32 or 64")
+        if values.ndim != len(shape) or any(want is not None and got != want for got, want in zip(values.shape, shape)):
+            raise ThrsimInputError(f"{file}: {name} has shape {values.shape}, expected {tuple('n' if n is None else n for n in shape)}")
+        if kind == "f" and not np.isfinite(values).all():
+            raise ThrsimInputError(f"{file}: {name} holds NaN or infinite values")
 
 
 def _json_default(value):
@@ -145,10 +227,12 @@ def read_card(path: str | os.PathLike) -> dict:
         raise ThrsimInputError(f"{path}: no such model directory")
     if not card_file.is_file():
         raise ThrsimInputError(f"{path}: not a thrsim model directory (no {CARD})")
+    if card_file.stat().st_size > MAX_CARD_BYTES:
+        raise ThrsimInputError(f"{card_file}: {card_file.stat().st_size} bytes, more than a model card's {MAX_CARD_BYTES}")
     try:
         card = json.loads(card_file.read_text())
-    except (ValueError, UnicodeDecodeError) as error:
-        raise ThrsimInputError(f"{card_file}: unreadable model card ({error})") from None
+    except (ValueError, UnicodeDecodeError, RecursionError) as error:
+        raise ThrsimInputError(f"{card_file}: unreadable model card ({' '.join(str(error).split())})") from None
     if not isinstance(card, dict) or card.get("format") != MODEL_FORMAT:
         raise ThrsimInputError(f"{path}: not a thrsim model (card format {card.get('format') if isinstance(card, dict) else None!r})")
     if card.get("format_version") != MODEL_FORMAT_VERSION:
@@ -156,7 +240,45 @@ def read_card(path: str | os.PathLike) -> dict:
             f"{path}: model format version {card.get('format_version')!r} is incompatible with this thrsim "
             f"(reads version {MODEL_FORMAT_VERSION}); retrain it with `thrsim train`"
         )
+    try:
+        ModelCard.model_validate(card)
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = ".".join(str(part) for part in first["loc"])
+        got = "" if first["type"] == "missing" else f" (got {first['input']!r:.60})"
+        raise ThrsimInputError(f"{card_file}: invalid model card: {where}: {first['msg']}{got}") from None
     return card
+
+
+def check_network_tensors(file: Path, tensors: dict[str, torch.Tensor], expected: dict[str, torch.Tensor]) -> None:
+    """The weights are exactly the networks' parameters and buffers: same names, shapes and dtypes, finite."""
+    missing, unknown = sorted(set(expected) - set(tensors)), sorted(set(tensors) - set(expected))
+    if missing or unknown:
+        raise ThrsimInputError(
+            f"{file}: weights do not fit the card's architecture (missing {missing[:3] or 'none'}, unexpected {unknown[:3] or 'none'})"
+        )
+    for name, reference in expected.items():
+        tensor = tensors[name]
+        if tensor.dtype != reference.dtype or tensor.shape != reference.shape:
+            raise ThrsimInputError(
+                f"{file}: {name} is {tensor.dtype} {tuple(tensor.shape)}, the card's architecture needs {reference.dtype} {tuple(reference.shape)}"
+            )
+        if tensor.is_floating_point() and not torch.isfinite(tensor).all():
+            raise ThrsimInputError(f"{file}: {name} holds NaN or infinite values")
+
+
+def read_advance(file: Path) -> ArrayRegressor:
+    """The regressor stored in ``file``, checked (kind, arrays, tree indices) before it can predict."""
+
+    def arrays_and_kind(name: str) -> tuple[dict, str]:
+        with safe_open(name, framework="numpy") as handle:
+            return {key: handle.get_tensor(key) for key in handle.keys()}, (handle.metadata() or {}).get("kind", "")
+
+    arrays, kind = _read_safetensors(file, arrays_and_kind)
+    try:
+        return ArrayRegressor(kind, arrays)
+    except ValueError as error:
+        raise ThrsimInputError(f"{file}: {error}") from None
 
 
 def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | None = None) -> LoadedModel:
@@ -174,13 +296,8 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
         if not (path / name).is_file():
             raise ThrsimInputError(f"{path}: incomplete model directory (no {name})")
     mesh = read_mesh(path)
-    try:
-        tensors = load_tensors(str(path / NETWORK))
-        with safe_open(str(path / ADVANCE), framework="numpy") as handle:
-            kind = (handle.metadata() or {}).get("kind", "")
-        advance = ArrayRegressor(kind, load_arrays(str(path / ADVANCE)))
-    except (OSError, ValueError, KeyError) as error:
-        raise ThrsimInputError(f"{path}: unreadable model files ({error})") from None
+    tensors = _read_safetensors(path / NETWORK, load_tensors)
+    advance = read_advance(path / ADVANCE)
     digest = mesh_digest(mesh)
     if expect_mesh is not None and mesh_digest(expect_mesh) != digest:
         raise ThrsimInputError(
@@ -193,10 +310,8 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
         raise ThrsimInputError(f"{path}: the card's settings are not valid for this thrsim ({str(error).splitlines()[0]})") from None
     threshold = float(card["labels"]["removed_threshold"])
     gn, mlp = LearnedSimulator(settings, "gn", threshold), LearnedSimulator(settings, "mlp", threshold)
-    try:
-        load_network_tensors(gn, mlp, tensors)
-    except RuntimeError as error:
-        raise ThrsimInputError(f"{path}: weights do not fit the card's architecture ({str(error).splitlines()[0]})") from None
+    check_network_tensors(path / NETWORK, tensors, network_tensors(gn, mlp))
+    load_network_tensors(gn, mlp, tensors)
     return LoadedModel(
         path=path, card=card, settings=settings, gn=gn.eval(), mlp=mlp.eval(), advance=advance, mesh=mesh, graph=StaticGraph(mesh)
     )

@@ -34,6 +34,7 @@ import numpy as np
 
 from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
+from thrsim.hdf5_checks import check_dataset
 from thrsim.session.journal import DEVICE_BYTES
 
 FORMAT = "thrsim-session"
@@ -200,12 +201,14 @@ def is_interrupted(path: Path) -> bool:
         return False
 
 
-def _read_group(group: h5py.Group) -> dict:
+def _read_group(group: h5py.Group, source: Path) -> dict:
     out: dict = {"attrs": dict(group.attrs)}
     for name, item in group.items():
         if isinstance(item, h5py.Group):
-            out[name] = _read_group(item)
-        elif item.dtype.kind == "O" or h5py.check_string_dtype(item.dtype) is not None:
+            out[name] = _read_group(item, source)
+            continue
+        check_dataset(item, source, kinds=None)  # within the size thrsim reads, before it is read
+        if item.dtype.kind == "O" or h5py.check_string_dtype(item.dtype) is not None:
             out[name] = [v.decode() if isinstance(v, bytes) else str(v) for v in item[()]]
         else:
             out[name] = item[()]
@@ -225,7 +228,7 @@ def read_session(path: str | Path) -> SessionFile:
             version = int(attrs.get("format_version", -1))
             if version != FORMAT_VERSION:
                 raise ThrsimInputError(f"{path}: session file format version {version}; this thrsim reads version {FORMAT_VERSION}")
-            data = {name: _read_group(group) for name, group in h5.items()}
+            data = {name: _read_group(group, path) for name, group in h5.items() if isinstance(group, h5py.Group)}
     except ThrsimInputError:
         raise
     except (OSError, KeyError, ValueError, TypeError) as error:
@@ -249,6 +252,11 @@ def read_session(path: str | Path) -> SessionFile:
         inputs.tick_seq, inputs.tick_time = _Column("q", 1, ticks["seq"].tolist()), _Column("d", 1, ticks["time"].tolist())
     except (KeyError, ValueError, TypeError) as error:
         raise ThrsimInputError(f"{path}: session file lacks or garbles an inputs table ({error})") from None
+    for _, _, message in inputs.controls:
+        try:
+            json.loads(message)
+        except (ValueError, RecursionError):
+            raise ThrsimInputError(f"{path}: a recorded control is not JSON (or nests too deeply)") from None
     every = [s for s, _, _ in inputs.controls] + list(inputs.pose_seq.data) + list(inputs.force_seq.data) + list(inputs.tick_seq.data)
     inputs._seq = max(every, default=0)
     return SessionFile(path=path, attrs=attrs, inputs=inputs, groups=data)

@@ -1,0 +1,47 @@
+"""NaN, infinity, out-of-range and oversized values in configuration files are refused through the
+real command: one line on stderr, exit 2, nothing written, never a traceback (issue 27, item 6)."""
+
+from __future__ import annotations
+
+import pytest
+from test_cli_errors import assert_one_line_error
+
+BAD_CASE_SETTINGS = {
+    "nan_spin": ('{"reamer": {"omega_rad_s": NaN}}', "reamer.omega_rad_s: Input should be a finite number"),
+    "nan_damage_d1": ('{"damage": {"d1": NaN}}', "damage.d1: Input should be a finite number"),
+    "infinite_force": ('{"force_n": Infinity}', "force_n: Input should be a finite number"),
+    "tiny_frame_rate": ('{"frame_rate_hz": 1e-300}', "frame_rate_hz"),
+    "huge_frame_rate": ('{"frame_rate_hz": 1e9}', "frame_rate_hz"),
+    "tiny_time_step": ('{"solver": {"target_dt_s": 1e-300}}', "target_dt_s"),
+    "too_many_frames": ('{"frames": 1000000000000}', "frames"),
+    "integer_of_5000_digits": ('{"frames": ' + "9" * 5000 + "}", "not valid JSON"),
+    "json_100k_deep": ('{"a": ' * 100_000 + "1" + "}" * 100_000, "nested too deeply"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASE_SETTINGS))
+def test_fem_refuses_a_bad_configuration_file(thrsim_inprocess, tmp_path, case):
+    text, needle = BAD_CASE_SETTINGS[case]
+    (tmp_path / "case.json").write_text(text)
+    args = ("fem", "--inclination", "15", "--anteversion", "30", "--config", "case.json", "--out", "c.h5", "--json")
+    assert_one_line_error(thrsim_inprocess(*args, cwd=tmp_path), needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["case.json"]
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [('{"train": {"learning_rate": NaN}}', "train.learning_rate"), ('{"train": {"gradient_clip": Infinity}}', "train.gradient_clip")],
+)
+def test_train_refuses_non_finite_settings(thrsim_inprocess, tmp_path, text, needle):
+    (tmp_path / "settings.json").write_text(text)
+    (tmp_path / "data").mkdir()
+    args = ("train", "--data", "data", "--out", "model", "--settings", "settings.json")
+    assert_one_line_error(thrsim_inprocess(*args, cwd=tmp_path), needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data", "settings.json"]
+
+
+def test_dataset_refuses_a_deeply_nested_configuration(thrsim_inprocess, tmp_path):
+    (tmp_path / "sweep.json").write_text("[" * 100_000 + "]" * 100_000)
+    args = ("dataset", "--out", "data", "--solver", "synthetic", "--config", "sweep.json", "--json")
+    assert_one_line_error(thrsim_inprocess(*args, cwd=tmp_path), "nested too deeply")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sweep.json"]

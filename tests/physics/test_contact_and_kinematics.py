@@ -21,7 +21,8 @@ def _one_node(mass: float, position: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> So
     """The arrays the contact kernel reads, for a single free node."""
     one, node3 = np.zeros(1), np.zeros((1, 3))
     return SolidArrays(
-        tets=np.zeros((0, 4), dtype=np.int64), material=np.zeros(0, dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
+        tets=np.zeros((0, 4), dtype=np.int64), zone_elements=np.zeros(0, dtype=np.int64), zone_nodes=np.arange(1),
+        contact_nodes=np.arange(1), material=np.zeros(0, dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
         bulk_viscosity=np.zeros(0), element_mass=np.zeros(0), offsets=np.zeros(2, dtype=np.int64),
         entries=np.zeros(0, dtype=np.int64), support_stiffness=one.copy(), held=np.zeros(1, dtype=np.bool_),
         active=np.zeros(0, dtype=np.uint8), accounted=np.zeros(0, dtype=np.bool_), stress=np.zeros((0, 6)),
@@ -81,7 +82,8 @@ def _tooth_cut(polar_deg: float, volume: float, friction: float = 0.3, cutting_e
     nodes = np.array([direction * (edge_axis + edge - depth), [0.1, 0, 0], [0, 0.1, 0], [0, 0, 0.1]])
     mass, dt = 6e-4, 4e-6
     solid = _one_node(mass, None)._replace(
-        tets=np.array([[0, 1, 2, 3]], dtype=np.int64), material=np.zeros(1, dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
+        tets=np.array([[0, 1, 2, 3]], dtype=np.int64), zone_elements=np.arange(1), zone_nodes=np.arange(4),
+        contact_nodes=np.arange(4), material=np.zeros(1, dtype=np.int64), volume=np.array([volume]), active=np.ones(1, dtype=np.uint8),
         offsets=np.array([0, 1, 2, 3, 4], dtype=np.int64), entries=np.arange(4, dtype=np.int64),
         nodal_mass=np.full(4, mass), inverse_mass=np.full(4, 1 / mass), velocity=np.zeros((4, 3)),
         displacement=np.zeros((4, 3)), cutting_damage=np.zeros(4),

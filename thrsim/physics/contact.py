@@ -204,8 +204,10 @@ def reamer_contact(nodes, solid, pose, teeth, law, out):
     velocity = solid.velocity
     nodal_mass = solid.nodal_mass
     inverse_mass = solid.inverse_mass
+    contact_nodes = solid.contact_nodes
     contacts = 0
-    for node in prange(len(inverse_mass)):
+    for index in prange(len(contact_nodes)):
+        node = contact_nodes[index]
         fx = fy = fz = wx = wy = wz = bx = by = bz = stored = cut = 0.0
         touching = 0
         if inverse_mass[node] > 0.0:  # orphaned nodes (every element gone) are skipped
@@ -295,11 +297,13 @@ def reamer_contact(nodes, solid, pose, teeth, law, out):
 
 
 @njit(cache=True)
-def contact_totals(out, totals):
-    """Force on the bone (3) and the penalty energy, summed in node order into ``totals``."""
+def contact_totals(out, nodes, totals):
+    """Force on the bone (3) and the penalty energy, summed over ``nodes`` (the contact candidates) in
+    order into ``totals``."""
     for i in range(4):
         totals[i] = 0.0
-    for node in range(len(out.penalty_energy)):
+    for index in range(len(nodes)):
+        node = nodes[index]
         totals[0] += out.force[node, 0]
         totals[1] += out.force[node, 1]
         totals[2] += out.force[node, 2]
@@ -307,7 +311,7 @@ def contact_totals(out, totals):
 
 
 @njit(cache=True)
-def contact_step_work(out, du, axis, axial_speed, advance, dt, work):
+def contact_step_work(out, nodes, du, axis, axial_speed, advance, dt, work):
     """Work of the step's contact forces, each through the displacement it acted over.
 
     The reamer surface at a node moved by (ω D × (p − c))·Δt + D·Δs (spin, then the reamer's
@@ -316,7 +320,8 @@ def contact_step_work(out, du, axis, axial_speed, advance, dt, work):
     force through the relative slip, [3] the normal forces through the relative approach
     (penalty energy stored plus contact damping dissipated). Summed in node order.
     """
-    for node in range(len(out.penalty_energy)):
+    for index in range(len(nodes)):
+        node = nodes[index]
         fx, fy, fz = out.force[node, 0], out.force[node, 1], out.force[node, 2]
         if fx == 0.0 and fy == 0.0 and fz == 0.0:
             continue

@@ -17,6 +17,12 @@ State is owned by :class:`ExplicitSolid`; contact and loads are the caller's (th
 adds the reamer's contact forces as external forces every step). Stress is stored undamaged
 (effective, σ̄) in Voigt order xx, yy, zz, xy, yz, zx; the Cauchy stress is (1 − D)·σ̄.
 
+Cost follows the cutting: the kernels integrate only the *zone* (``zone_elements``, their free
+nodes ``zone_nodes``), the elements the reamer can change soon plus a halo, chosen by the caller
+(:meth:`ExplicitSolid.set_zone`); the rest of the bone is held as it is. Nodes of zone elements that
+also belong to held elements are not integrated: they hold the zone like a support. By default the
+zone is the whole mesh.
+
 Each element belongs to one material (a :class:`Tissue`: elastic constants, JC hardening and
 damage), by the mesh's per-element tags: the socket's cortical and cancellous bone.
 """
@@ -51,6 +57,9 @@ class SolidArrays(NamedTuple):
     """
 
     tets: np.ndarray  # (E, 4) int64
+    zone_elements: np.ndarray  # (K,) int64 elements integrated this step (the zone)
+    zone_nodes: np.ndarray  # (M,) int64 nodes integrated: those whose every element is in the zone
+    contact_nodes: np.ndarray  # (L,) int64 nodes the reamer may touch: every node of a zone element
     material: np.ndarray  # (E,) int64 row of the element's material in MaterialConstants
     grads: np.ndarray  # (E, 4, 3) ∂N/∂x
     volume: np.ndarray  # (E,)
@@ -139,7 +148,6 @@ def element_update(s, m):
     ``s`` is a :class:`SolidArrays`, ``m`` a :class:`MaterialConstants`. Returns the number of
     elements deleted during this step (their ``active`` flag is cleared and their forces zeroed).
     """
-    n_elements = len(s.volume)
     deleted = 0
     dt = m.dt
     # the material table's columns, taken out of the tuple like the arrays below
@@ -155,6 +163,7 @@ def element_update(s, m):
     d3_of = m.d3
     d4_of = m.d4
     u_f_of = m.u_f
+    zone_elements = s.zone_elements
     # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
     # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
     # array bound by a multiple assignment (a, b = t.a, t.b)
@@ -176,7 +185,8 @@ def element_update(s, m):
     element_force = s.element_force
     viscous_pressure = s.viscous_pressure
     cutting_damage = s.cutting_damage
-    for e in prange(n_elements):
+    for index in prange(len(zone_elements)):
+        e = zone_elements[index]
         if active[e] == 0:
             continue
         row = material[e]
@@ -300,7 +310,9 @@ def node_update(s, dt):
     offsets = s.offsets
     entries = s.entries
     element_force = s.element_force
-    for node in prange(len(inverse_mass)):
+    zone_nodes = s.zone_nodes
+    for index in prange(len(zone_nodes)):
+        node = zone_nodes[index]
         if held[node] or inverse_mass[node] == 0.0:
             for i in range(3):
                 velocity[node, i] = 0.0
@@ -325,15 +337,16 @@ def node_update(s, dt):
 
 
 @njit(cache=True)
-def account_deletions(s):
-    """Take newly deleted elements' mass off their nodes; freeze nodes left with no element.
+def account_deletions(s, elements):
+    """Take newly deleted ``elements``' mass off their nodes; freeze nodes left with no element.
 
     The debris carries its share of the nodes' momentum and kinetic energy out of the model:
     ``debris`` accumulates [mass, px, py, pz, kinetic energy, count, elastic energy] so momentum
     and energy can be balanced across deletion (the elastic part is booked by the caller that
     deletes elements still carrying stress).
     """
-    for e in range(len(s.active)):
+    for index in range(len(elements)):
+        e = elements[index]
         if s.active[e] != 0 or s.accounted[e]:
             continue
         s.accounted[e] = True
@@ -362,7 +375,7 @@ def solid_step(s, m):
     """One central-difference step of the solid: stresses, deletions, then nodes. Returns deletions."""
     deleted = element_update(s, m)
     if deleted > 0:
-        account_deletions(s)
+        account_deletions(s, s.zone_elements)
     node_update(s, m.dt)
     return deleted
 
@@ -454,8 +467,11 @@ class ExplicitSolid:
         self.detached_count = 0
         self._accounted = np.zeros(n_el, dtype=np.bool_)
         self.constants = MaterialConstants.of(self.dt, self.tissues)
+        self.all_elements = np.arange(n_el, dtype=np.int64)
+        self.all_nodes = np.arange(n_nodes, dtype=np.int64)
+        self.integrated = np.ones(n_nodes, dtype=bool)  # nodes the zone integrates
         self.arrays = SolidArrays(
-            tets=self.tets, material=self.element_material, grads=self.grads, volume=self.volume, char_length=self.char_length,
+            tets=self.tets, zone_elements=self.all_elements, zone_nodes=self.all_nodes, contact_nodes=self.all_nodes, material=self.element_material, grads=self.grads, volume=self.volume, char_length=self.char_length,
             bulk_viscosity=self.bulk_viscosity_coefficient, element_mass=self.element_mass,
             offsets=self.offsets, entries=self.entries, support_stiffness=self.support_stiffness, held=self.held,
             active=self.active, accounted=self._accounted, stress=self.stress, peeq=self.peeq, damage=self.damage,
@@ -465,6 +481,32 @@ class ExplicitSolid:
             displacement=self.displacement, du=self.du, external_force=self.external_force,
             cutting_damage=self.cutting_damage, debris=self.debris,
         )  # fmt: skip
+
+    def set_zone(self, in_zone: np.ndarray | None) -> np.ndarray:
+        """Integrate only the elements flagged in ``in_zone`` (None: every element) until the next call.
+
+        The zone's nodes that also belong to an active element outside it are held where they are
+        (the zone's support); a node that stops being integrated keeps its velocity but no longer
+        moves. Returns the nodes of zone elements, those the reamer may touch (a bool mask)."""
+        n_nodes = len(self.inverse_mass)
+        if in_zone is None:
+            elements, touched = self.all_elements, np.ones(n_nodes, dtype=bool)
+            integrated = touched
+        else:
+            elements = np.flatnonzero(in_zone).astype(np.int64)
+            touched = np.zeros(n_nodes, dtype=bool)
+            touched[self.tets[elements].ravel()] = True
+            supports = np.zeros(n_nodes, dtype=bool)
+            supports[self.tets[~in_zone & (self.active > 0)].ravel()] = True
+            integrated = touched & ~supports
+        self.du[self.integrated & ~integrated] = 0.0
+        self.integrated = integrated
+        self.arrays = self.arrays._replace(
+            zone_elements=elements,
+            zone_nodes=np.flatnonzero(integrated).astype(np.int64),
+            contact_nodes=np.flatnonzero(touched).astype(np.int64),
+        )
+        return touched
 
     @property
     def alive_nodes(self) -> np.ndarray:
@@ -507,7 +549,7 @@ class ExplicitSolid:
         removed = np.asarray(removed, dtype=bool) & (self.active > 0)
         self.active[removed] = 0
         self.damage[removed] = 1.0
-        account_deletions(self.arrays)
+        account_deletions(self.arrays, self.all_elements)
         self._accounted[removed] = True
         self.debris[:] = 0.0
         return int(removed.sum())
@@ -535,7 +577,7 @@ class ExplicitSolid:
             self.active[detached] = 0
             self.damage[detached] = 1.0
             self.detached_count += count
-            account_deletions(self.arrays)
+            account_deletions(self.arrays, self.all_elements)
         return count
 
     def von_mises(self) -> np.ndarray:

@@ -182,7 +182,7 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
             e2[i] = -spin_sin * rotation[i, 0] + spin_cos * rotation[i, 1]
         pose = ReamerPose(centre, e1, e2, axis, speed, omega)
         contacts = reamer_contact(nodes, solid, pose, teeth, law, contact)
-        contact_totals(contact, totals)
+        contact_totals(contact, solid.contact_nodes, totals)
         axial_force = totals[0] * axis[0] + totals[1] * axis[1] + totals[2] * axis[2]
         solid_step(solid, constants)
         # reamer: M·s̈ = push + gravity − F_contact·D − c·ṡ, same central difference as the bone
@@ -194,7 +194,7 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
         ledger[GRAVITY] += drive.gravity * advance
         ledger[ARM_DAMPING] += damper * advance
         ledger[AXIAL_REACTION] += axial_force * advance
-        contact_step_work(contact, solid.du, axis, speed, advance, dt, ledger)
+        contact_step_work(contact, solid.contact_nodes, solid.du, axis, speed, advance, dt, ledger)
         stats[SUM_POSITION] += reamer[POSITION]
         stats[MIN_POSITION] = min(stats[MIN_POSITION], reamer[POSITION])
         stats[MAX_POSITION] = max(stats[MAX_POSITION], reamer[POSITION])
@@ -260,6 +260,7 @@ class ReamingSimulation:
         }
         self.tip_exit_depth = None if case.bone_kind == "socket" else tip_exit_depth(self.mesh, self.axis)
         self.spin_work_at_frame_start = 0.0
+        self.zone_sizes: list[int] = []  # active elements integrated, at each choice of the zone
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
 
@@ -327,6 +328,48 @@ class ReamingSimulation:
     @property
     def speed(self) -> float:
         return float(self.state[SPEED])
+
+    @property
+    def zone_enabled(self) -> bool:
+        setting = self.case.solver.active_zone
+        return setting == "on" or (setting == "auto" and self.case.bone_kind == "socket")
+
+    @property
+    def zone_halo_m(self) -> float:
+        """Bone integrated beyond the teeth's reach: the configured halo, and at least three elements."""
+        element_mm = self.case.socket.element_size_mm if self.case.bone_kind == "socket" else self.case.bone.element_size_mm
+        return max(self.case.solver.zone_halo_mm, 3.0 * element_mm) * 1e-3
+
+    def select_zone(self, steps: int) -> int:
+        """Choose the elements to integrate for the next ``steps`` steps: those with a node within the
+        teeth's reach plus the halo of the segment the reamer's centre can sweep meanwhile (its travel
+        at its current speed plus the lookahead, along D). Returns how many active elements it holds."""
+        solver = self.case.solver
+        travel = abs(self.speed) * steps * self.solid.dt + solver.zone_lookahead_mm * 1e-3
+        relative = self.mesh.nodes + self.solid.displacement - self.centre
+        along = np.clip(_along(relative, self.axis), 0.0, travel)
+        lateral = relative - along[:, None] * self.axis
+        near = (lateral * lateral).sum(axis=1) < (self.reamer.outer_radius + self.zone_halo_m) ** 2
+        in_zone = near[self.mesh.tets].any(axis=1) & (self.solid.active > 0)
+        touched = self.solid.set_zone(in_zone)
+        idle = ~touched
+        for array in (self.contact.force, self.contact.surface_velocity, self.contact.normal_force):
+            array[idle] = 0.0
+        self.contact.penalty_energy[idle] = 0.0
+        self.contact.cutting_damage[idle] = 0.0
+        return int(in_zone.sum())
+
+    def advance_frame(self) -> None:
+        """One frame of steps; with the active zone, the zone is chosen again every ``solver.zone_steps``."""
+        if not self.zone_enabled:
+            self.advance(self.steps_per_frame)
+            return
+        done = 0
+        while done < self.steps_per_frame:
+            steps = min(self.case.solver.zone_steps, self.steps_per_frame - done)
+            self.zone_sizes.append(self.select_zone(steps))
+            self.advance(steps)
+            done += steps
 
     def advance(self, steps: int) -> None:
         """Run ``steps`` steps of bone and reamer in one compiled loop (statistics accumulate in
@@ -457,7 +500,7 @@ class ReamingSimulation:
         started = time.perf_counter()
         for frame in range(1, frames + 1):
             self.start_frame_statistics()
-            self.advance(self.steps_per_frame)
+            self.advance_frame()
             self._check(frame)
             if self.first_contact_frame is not None:
                 # a frame of free fall, through a hole or past the bone, is not recorded
@@ -505,6 +548,8 @@ class ReamingSimulation:
             "first_contact_frame": self.first_contact_frame,
             "elements": self.mesh.n_tets,
             "prepared_removed": int(self.prepared.sum()),
+            "active_zone": self.zone_enabled,
+            "active_elements_median": int(np.median(self.zone_sizes)) if self.zone_sizes else int((self.solid.active > 0).sum()),
             "removed": int(removed_now.sum()),
             "detached": self.solid.detached_count,
             "removed_volume_mm3": float(self.solid.volume[removed_now].sum() * 1e9),

@@ -57,7 +57,8 @@ class SingleTet:
         du = self.nodes @ np.asarray(deps, dtype=float).T  # Δu_a = Δε·X_a (Δε symmetric)
         one, nodes4 = np.zeros(1), np.zeros((4, 3))
         arrays = SolidArrays(
-            tets=self.tets, material=np.zeros(1, dtype=np.int64), grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
+            tets=self.tets, zone_elements=np.arange(1), zone_nodes=np.arange(4), contact_nodes=np.arange(4),
+            material=np.zeros(1, dtype=np.int64), grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
             element_mass=one.copy(), offsets=np.zeros(5, dtype=np.int64), entries=np.zeros(4, dtype=np.int64),
             support_stiffness=np.zeros(4), held=np.zeros(4, dtype=np.bool_), active=active,
             accounted=np.zeros(1, dtype=np.bool_), stress=stress, peeq=peeq, damage=damage, initiation=initiation,

@@ -155,9 +155,12 @@ def _thrsim(*args: str) -> subprocess.CompletedProcess:
 
 def test_report_and_replay_commands(saved, tmp_path):
     out = tmp_path / "report.html"
-    done = _thrsim("report", str(saved), "--out", str(out))
+    done = _thrsim("report", str(saved), "--out", str(out), "--json")
     assert done.returncode == 0, done.stderr
     assert out.read_text().startswith("<!doctype html>")
+    summary = json.loads(done.stdout)
+    assert summary["report"] == str(out) and 0 < summary["score"] <= summary["max_score"]
+    assert summary["max_score"] == sum(c["max_points"] for c in summary["criteria"]) and summary["criteria"][0]["name"]
     replayed = _thrsim("replay", str(saved), "--json")
     assert replayed.returncode == 0 and json.loads(replayed.stdout)["reproduced"] is True
 

@@ -177,6 +177,12 @@ def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
     picture = np.asarray(Image.open(png).convert("RGB"))
     assert picture.shape == (768, 1024, 3) and len(np.unique(picture.reshape(-1, 3), axis=0)) > 20  # the bone is drawn
     assert summary["frames"] == 3 and len(summary["removed_per_frame"]) == 3
+    assert summary["png_frame"] <= 3 and summary["png_bone_left"] >= 0.1 * summary["elements"]
+    assert summary["end_reason_text"].startswith(summary["end_reason"].replace("_", " "))
+    assert summary["removed_all"] is (summary["removed"] == summary["elements"])
+    assert summary["series_path"] == str(out.resolve() / "ream.pvd") and summary["series_path"] in summary["open_with"]
+    assert "ParaView" in summary["open_with"]
+    assert (summary["cup_inclination_deg"], summary["cup_anteversion_deg"]) == pytest.approx((54.906, 11.208), abs=1e-3)
     assert json.loads((out / "ream.json").read_text()) == summary
     pvd = (out / "ream.pvd").read_text()
     assert pvd.count("<DataSet") == 8 and 'part="1"' in pvd
@@ -187,6 +193,30 @@ def test_ream_writes_a_paraview_series_and_a_summary(tiny_model, tmp_path):
     reamer = meshio.read(out / "reamer_0003.vtu")
     centre = np.array(summary["reamer_end_mm"])
     assert np.allclose(np.linalg.norm(reamer.points - centre, axis=1), 22.9, atol=1e-6)
+
+
+def test_ream_says_why_it_stopped_what_it_removed_and_how_to_open_the_series(tiny_model, tmp_path):
+    out = tmp_path / "ream"
+    result = run_thrsim("ream", "--frames", "2", "--model", str(tiny_model), "--out", str(out))
+    assert result.returncode == 0, result.stderr
+    summary = json.loads((out / "ream.json").read_text())
+    text = result.stdout
+    assert f"stopped: {summary['end_reason_text']}" in text
+    assert f"frames: {summary['frames']} run of 2 asked" in text
+    assert f"removed: {summary['removed']} of {summary['elements']} elements" in text
+    assert "ParaView" in text and str(out.resolve() / "ream.pvd") in text
+    assert "cup 54.9°/11.2° radiographic" in text
+
+
+def test_ream_takes_clinical_cup_angles(tiny_model, tmp_path):
+    from thrsim.nav.bone_frame import bone_angles_from_cup
+
+    args = ["--cup-inclination", "45", "--cup-anteversion", "20", "--frames", "1", "--model", str(tiny_model), "--json"]
+    result = run_thrsim("ream", *args, "--out", str(tmp_path / "ream"))
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    assert (summary["inclination_deg"], summary["anteversion_deg"]) == pytest.approx(bone_angles_from_cup(45.0, 20.0))
+    assert (summary["cup_inclination_deg"], summary["cup_anteversion_deg"]) == pytest.approx((45.0, 20.0))
 
 
 @pytest.mark.parametrize(
@@ -232,8 +262,9 @@ def test_ream_refuses_a_folder_that_is_not_a_model(tmp_path):
 
 def test_the_shipped_model_reams_a_tilted_case_through_and_stops_there(tmp_path):
     # the held-out γ 45°, θ 45° case: the solver's reamer swept through the whole patch in 12 frames
-    out = tmp_path / "ream"
-    result = run_thrsim("ream", "--inclination", "45", "--anteversion", "45", "--frames", "60", "--out", str(out), "--json")
+    out, png = tmp_path / "ream", tmp_path / "ream.png"
+    args = ["--inclination", "45", "--anteversion", "45", "--frames", "60", "--png", str(png)]
+    result = run_thrsim("ream", *args, "--out", str(out), "--json")
     assert result.returncode == 0, result.stderr
     summary = json.loads(result.stdout)
     assert summary["model"]["path"] == str(SHIPPED_MODEL)
@@ -241,6 +272,12 @@ def test_the_shipped_model_reams_a_tilted_case_through_and_stops_there(tmp_path)
     assert 6 <= summary["frames"] <= 24 and len(summary["removed_per_frame"]) == summary["frames"]
     assert summary["removed"] >= 0.9 * summary["elements"]
     assert (out / "ream.pvd").read_text().count("<DataSet") == 2 * (summary["frames"] + 1)
+    # the last frames hold little or no bone: the picture is of the last that still shows it
+    assert summary["removed_all"] and summary["png_frame"] < summary["frames"]
+    assert summary["png_bone_left"] >= 0.1 * summary["elements"]
+    picture = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    coloured = picture.max(axis=2) - picture.min(axis=2) > 40  # bone is drawn in colour on a grey background
+    assert coloured.mean() > 0.1 and picture.std() > 30  # the last frame, with no bone, drew 0 and 9
 
 
 @pytest.mark.parametrize("option", ["--start-stride", "--one-step-stride"])

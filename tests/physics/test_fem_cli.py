@@ -62,7 +62,7 @@ def test_fem_writes_a_valid_case(tmp_path):
         ({"material": {"density_kg_m3": -1700}}, [], "density_kg_m3"),
         ({"material": {"poisson_ratio": 0.5}}, [], "poisson_ratio"),
         ({}, ["--frames", "0"], "frames"),
-        ({}, ["--inclination", "120"], "inclination_deg"),
+        ({}, ["--inclination", "120"], "--inclination must lie in [0, 90]"),
         ({"solver": {"target_dt_s": 0}}, [], "target_dt_s"),
         ({}, ["--effective-mass", "0"], "effective_mass_kg"),
         ({}, ["--axial-damping", "-5"], "axial_damping_n_s_m"),

@@ -6,8 +6,8 @@ simulator (:class:`thrsim.learn.simulator.ReamingSimulator`) removes bone. Track
 cup angles and the safe zone are the navigation trainer's (:mod:`thrsim.app.navigation`),
 composed here, so the reamer is tracked, lost and measured exactly as in the navigation mode.
 
-Frames. The bone patch's frame (origin at the acetabular centre, +z out of the acetabulum) sits
-in the hip's APP frame (lateral, anterior, inferior) with its +z along the cup axis at the safe
+Frames (:mod:`thrsim.nav.bone_frame`). The bone patch's frame (origin at the acetabular centre, +z out of
+the acetabulum) sits in the hip's APP frame (lateral, anterior, inferior) with its +z along the cup axis at the safe
 zone's centre (40° inclination, 15° anteversion, radiographic), so reaming at the zone's centre
 is the dataset's γ = 0 and the model's trained range (γ ≤ 45°) spans every clinical aim. The
 APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
@@ -33,8 +33,8 @@ from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import SafeZone
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import INNER, OUTER
-from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot, angles_of
-from thrsim.nav.anatomy import local_axis_from_angles
+from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
+from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.session import CUP_AXIS_IN_REAMER
 from thrsim.session.reaming import ReamingRecord, write_reaming
 
@@ -46,20 +46,6 @@ SENSOR_FRESH_S = 0.5
 DEFAULT_FORCE_N = 230.0
 #: the model learned reamer axes up to this far from the patch's pole (the dataset's γ range)
 TRAINED_GAMMA_DEG = 45.0
-
-
-def patch_in_app(zone: SafeZone = SafeZone()) -> np.ndarray:
-    """3×3: the bone patch's axes (columns) in APP (lateral, anterior, inferior) components.
-
-    (lateral, anterior, inferior) is a left-handed triple for a right hip, so the patch's axes are
-    written left-handed in it: placed in a right pelvis the patch is then rotated, not mirrored,
-    and in a left pelvis (whose APP frame is the mirror) it is mirrored, as a left hip is.
-    """
-    z = local_axis_from_angles(zone.inclination_deg, zone.anteversion_deg)
-    inferior = np.array([0.0, 0.0, 1.0])
-    x = inferior - (inferior @ z) * z
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(x, z), z])
 
 
 @dataclass
@@ -148,8 +134,7 @@ class ReamingTrainer:
         if not (tools["Reamer"]["tracked"] and tools["Reference"]["tracked"]):
             return None
         nav = self.navigation
-        cup_axis_local = nav.app.to_local(nav.tools["Reamer"].pose[:3, :3] @ CUP_AXIS_IN_REAMER)
-        return -(self.patch_axes.T @ cup_axis_local)
+        return reamer_axis_from_cup(nav.app.to_local(nav.tools["Reamer"].pose[:3, :3] @ CUP_AXIS_IN_REAMER), self.zone)
 
     # ---- inputs -------------------------------------------------------------------------------
 

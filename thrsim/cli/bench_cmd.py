@@ -28,6 +28,7 @@ def bench(
         "--reaming-page",
         help="also time the reaming page (simulator frames delivered, bytes per frame, pose-to-page latency, drawing) with --model or the shipped model",
     ),
+    as_json: bool = typer.Option(True, "--json", help="print one JSON object on stdout (bench's only output, so the default)"),
 ) -> None:
     """Time mesh generation and the explicit solver (and the trainer pages); print one JSON object."""
     if browser_only:

@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
 from thrsim.cli.output import err_console, print_json, print_table
 from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
 from thrsim.errors import ThrsimInputError
@@ -19,8 +20,10 @@ _CONTACT = ContactConfig()
 
 
 def fem(
-    inclination: float = typer.Option(..., "--inclination", help="reamer inclination γ in degrees [0, 90]", metavar="DEG"),
-    anteversion: float = typer.Option(..., "--anteversion", help="reamer anteversion θ in degrees [0, 360]", metavar="DEG"),
+    inclination: Optional[float] = typer.Option(None, "--inclination", help=GAMMA_HELP, metavar="DEG"),
+    anteversion: Optional[float] = typer.Option(None, "--anteversion", help=THETA_HELP, metavar="DEG"),
+    cup_inclination: Optional[float] = CUP_INCLINATION,
+    cup_anteversion: Optional[float] = CUP_ANTEVERSION,
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
     frames: Optional[int] = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
     force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
@@ -73,7 +76,13 @@ def fem(
     ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Simulate one reaming case (the thesis's settings by default) and write its case file atomically."""
+    """Simulate one reaming case (the thesis's settings by default) and write its case file atomically.
+
+    Aim the reamer with the bone frame's --inclination/--anteversion (γ, θ, as the case file stores
+    them) or with the clinical --cup-inclination/--cup-anteversion (radiographic, anterior pelvic
+    plane, as the trainer shows them; see `thrsim ream --help`), one pair.
+    """
+    aim = resolve_aim(inclination, anteversion, cup_inclination, cup_anteversion)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ThrsimInputError(f"{out}: the case file must end in .h5")
     folder = out.parent if str(out.parent) else Path(".")
@@ -88,8 +97,8 @@ def fem(
     case = load_case_config(
         None if config is None else str(config),
         {
-            "inclination_deg": inclination,
-            "anteversion_deg": anteversion,
+            "inclination_deg": aim.inclination_deg,
+            "anteversion_deg": aim.anteversion_deg,
             "frames": frames,
             "force_n": force,
             "bone_kind": bone,
@@ -122,6 +131,7 @@ def fem(
     with Progress(*columns, console=err_console, transient=as_json) as bar:
         task = bar.add_task("frames", total=case.frames)
         summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone)
+    summary = {**aim.as_dict(), **summary}
     if as_json:
         print_json(summary)
     else:

@@ -3,46 +3,93 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
-from thrsim.cli.output import print_json, print_table
+from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
+from thrsim.cli.output import print_json
+
+#: the aim when none is given: the default case's γ, θ
+DEFAULT_AIM_DEG = (15.0, 30.0)
 
 
 def ream(
-    inclination: float = typer.Option(
-        15.0, "--inclination", help="reamer inclination γ in degrees [0, 90], from the patch's axis (the default case's)", metavar="DEG"
+    inclination: float | None = typer.Option(
+        None, "--inclination", help=f"{GAMMA_HELP} [default: {DEFAULT_AIM_DEG[0]:g}, the default case's]", metavar="DEG"
     ),
-    anteversion: float = typer.Option(
-        30.0, "--anteversion", help="reamer anteversion θ in degrees [0, 360] (the default case's)", metavar="DEG"
+    anteversion: float | None = typer.Option(
+        None, "--anteversion", help=f"{THETA_HELP} [default: {DEFAULT_AIM_DEG[1]:g}, the default case's]", metavar="DEG"
     ),
+    cup_inclination: float | None = CUP_INCLINATION,
+    cup_anteversion: float | None = CUP_ANTEVERSION,
     out: Path = typer.Option(
         Path("runs/ream"),
         "--out",
-        help="output folder (created, with its parents): ream.pvd, bone_*.vtu, reamer_*.vtu, ream.json",
+        help="output folder (created, with its parents): ream.pvd (open it in ParaView), bone_*.vtu, reamer_*.vtu, ream.json",
         metavar="DIR",
     ),
     force: float = typer.Option(230.0, "--force", help="axial push force in N", metavar="N"),
-    frames: int = typer.Option(120, "--frames", help="frames at 60 per second", metavar="N"),
+    frames: int = typer.Option(
+        120, "--frames", help="frames at 60 per second (the run stops earlier where the reamer goes through the bone)", metavar="N"
+    ),
     side: str = typer.Option("right", "--side", help="hip side: right or left"),
-    model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
+    model: Path | None = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
     threads: int = typer.Option(1, "--threads", help="PyTorch and BLAS threads", metavar="N"),
-    png: Optional[Path] = typer.Option(None, "--png", help="also draw the last frame (offscreen OpenGL) to this PNG", metavar="FILE.png"),
+    png: Path | None = typer.Option(
+        None,
+        "--png",
+        help="also draw (offscreen OpenGL) the last frame that still shows the bone to this PNG (a run that goes through the bone ends with little or none left)",
+        metavar="FILE.png",
+    ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
-    """Ream with the learned simulator (autonomous: the regressor advances the reamer) and write the series."""
+    """Ream with the learned simulator (autonomous: the regressor advances the reamer) and write the series.
+
+    Aim the reamer with the bone frame's --inclination/--anteversion (γ, θ: the reamer axis relative to
+    the socket axis, as the case files store it) or with the clinical --cup-inclination/--cup-anteversion
+    (radiographic, in the anterior pelvic plane, as the trainer shows them), not both. The trainer places
+    the bone with γ 0 at the safe zone's centre, cup 40°/15°: cup 45°/20° is γ 6.9°, θ 330.1°, and the
+    default γ 15°, θ 30° is cup 54.9°/11.2°.
+    """
     from thrsim.errors import ThrsimInputError
 
     if threads < 1:
         raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    aim = resolve_aim(inclination, anteversion, cup_inclination, cup_anteversion, default=DEFAULT_AIM_DEG)
     from thrsim.learn.ream import ream as run_ream
 
-    summary = run_ream(inclination, anteversion, force, frames, side, out, model, png, threads)
+    summary = run_ream(aim.inclination_deg, aim.anteversion_deg, force, frames, side, out, model, png, threads)
     if as_json:
         print_json(summary)
     else:
-        print_table(
-            f"learned reaming written to {out}",
-            {k: summary[k] for k in ("frames", "removed", "removed_volume_mm3", "depth_mm", "ms_per_frame_median")},
+        typer.echo("\n".join(describe(summary)))
+
+
+def describe(summary: dict) -> list[str]:
+    """The run in a few lines: the aim, why it stopped, what was removed, the picture, how to open the series."""
+    cup = summary["cup_inclination_deg"], summary["cup_anteversion_deg"]
+    cup_text = (
+        "no clinical angles: the cup axis points into the pelvis" if cup[0] is None else f"cup {cup[0]:.1f}°/{cup[1]:.1f}° radiographic"
+    )
+    removed, elements = summary["removed"], summary["elements"]
+    lines = [
+        f"learned reaming: γ {summary['inclination_deg']:g}°, θ {summary['anteversion_deg']:g}° ({cup_text}), "
+        f"{summary['force_n']:g} N, {summary['side']} hip",
+        f"stopped: {summary['end_reason_text']}",
+        f"frames: {summary['frames']} run of {summary['frames_requested']} asked (60 per second)",
+        f"removed: {removed} of {elements} elements ({100 * removed / elements:.1f}%, {summary['removed_volume_mm3']:.1f} mm³)"
+        + (": every element, the reamer went through the whole bone patch" if summary["removed_all"] else ""),
+        f"depth: {summary['depth_mm']:.2f} mm; {summary['ms_per_frame_median']:.1f} ms per frame (median)",
+    ]
+    if "png" in summary:
+        from thrsim.learn.ream import PICTURE_BONE_FRACTION
+
+        frame, last = summary["png_frame"], summary["frames"]
+        shown = (
+            "the last frame"
+            if frame == last
+            else f"frame {frame}, the last with {PICTURE_BONE_FRACTION:.0%} of the bone or more (frame {last} has {elements - removed} elements left)"
         )
+        lines.append(f"picture: {summary['png']} shows {shown}")
+    lines.append(f"open the series in {summary['open_with']}")
+    return lines

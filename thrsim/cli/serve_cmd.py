@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import signal
@@ -86,6 +87,11 @@ def serve(
         "--compile/--no-compile",
         help="compile the reaming network in the background (torch.compile; about 10 s, a minute on a first run; faster steps once done)",
     ),
+    as_json: bool = typer.Option(
+        False,
+        "--json",
+        help="announce the trainer as one JSON object on one line of stdout (url, ports, sessions folder) instead of a line of text",
+    ),
 ) -> None:
     """Serve the trainer: open the printed address in a browser; end a session there to get its report."""
     import uvicorn
@@ -130,10 +136,20 @@ def serve(
     app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
     bound_port = listener.getsockname()[1]
     shown_host = f"[{host}]" if ":" in host else host
-    app.state.announce = lambda igtl: print(
-        f"thrsim trainer: http://{shown_host}:{bound_port}/{'?token=…' if token else ''} · OpenIGTLink on {igtl[0]}:{igtl[1]} · sessions saved in {sessions}/",
-        flush=True,
-    )
+    url = f"http://{shown_host}:{bound_port}/"
+
+    def announce(igtl: tuple[str, int]) -> None:
+        if as_json:
+            off = igtl[1] == 0
+            where = {"igtl_host": None if off else igtl[0], "igtl_port": None if off else igtl[1]}
+            print(json.dumps({"url": url, "host": host, "port": bound_port, **where, "sessions": str(sessions)}))
+        else:
+            print(
+                f"thrsim trainer: {url}{'?token=…' if token else ''} · OpenIGTLink on {igtl[0]}:{igtl[1]} · sessions saved in {sessions}/"
+            )
+        sys.stdout.flush()
+
+    app.state.announce = announce
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     config = uvicorn.Config(app, log_level="warning", ws_max_size=64 * 1024, ws_ping_interval=20, ws_ping_timeout=20, lifespan="on")
     _uvicorn_server(config).run(sockets=[listener])

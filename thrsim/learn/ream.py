@@ -1,8 +1,10 @@
 """``thrsim ream``: a learned rollout at one orientation and force, written as a time series and a summary.
 
 The rollout ends early, as the solver's cases do, when the reamer perforates the bone or no bone
-is left in its path (``end_reason`` in the summary); frames past that would only move the reamer
-through empty space.
+is left in its path (``end_reason`` in the summary, said in words in ``end_reason_text``); frames
+past that would only move the reamer through empty space. The summary also says where the series
+is and how to open it, and which frame the picture shows: a run that went through the bone ends
+with little or none of it left, so the picture is of the last frame that still shows the bone.
 
 The output folder is assembled under a temporary name beside its target and renamed into place
 when complete, so a failed run leaves nothing (and a rerun replaces an earlier ream output).
@@ -20,11 +22,22 @@ import numpy as np
 from thrsim.atomic import atomic_folder
 from thrsim.config import Orientation
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.simulator import ReamingSimulator, check_force
+from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
 from thrsim.learn.vtk_series import write_frame, write_pvd
+from thrsim.nav.bone_frame import cup_angles_from_bone
 from thrsim.provenance import json_default, package_versions
 
 SUMMARY = "ream.json"
+SERIES = "ream.pvd"
+#: why a rollout stopped, in words (``end_reason`` → ``end_reason_text``)
+END_REASON_TEXT = {
+    PERFORATED: "perforated, the reamer's teeth passed the bone's outer face",
+    PASSED_THROUGH: "passed through, no bone was left in the reamer's path",
+    "completed": "completed, every frame asked for was run, with bone still in the reamer's path",
+}
+#: --png draws the last frame with at least this share of the elements left: the last frames of a
+#: run that went through the bone hold a few scattered elements or none, an almost empty picture
+PICTURE_BONE_FRACTION = 0.1
 
 
 def check_out(out: Path) -> None:
@@ -72,6 +85,7 @@ def ream(
     frame_dt = 1.0 / 60.0
     with atomic_folder(out) as staging:
         start = simulator.reamer_start(axis)
+        first_alpha = simulator.alpha
         entries = [(0.0, *write_frame(staging, 0, mesh, simulator.alpha, simulator.removed, start, axis, teeth))]
         step_ms, states = [], []
         for k in range(1, frames + 1):
@@ -82,7 +96,11 @@ def ream(
             entries.append((k * frame_dt, *write_frame(staging, k, mesh, state.alpha, state.removed, state.reamer_position, axis, teeth)))
             if state.end_reason is not None:  # as the solver's cases end: nothing is left to ream
                 break
-        write_pvd(staging / "ream.pvd", entries)
+        write_pvd(staging / SERIES, entries)
+        removed = int(states[-1].removed.sum())
+        end_reason = states[-1].end_reason or "completed"
+        cup = cup_angles_from_bone(inclination_deg, anteversion_deg)
+        series_path = out.resolve() / SERIES
         summary = {
             "inclination_deg": inclination_deg,
             "anteversion_deg": anteversion_deg,
@@ -90,9 +108,11 @@ def ream(
             "side": side,
             "frames": len(states),
             "frames_requested": frames,
-            "end_reason": states[-1].end_reason or "completed",
+            "end_reason": end_reason,
+            "end_reason_text": END_REASON_TEXT[end_reason],
             "elements": simulator.n_elements,
-            "removed": int(states[-1].removed.sum()),
+            "removed": removed,
+            "removed_all": removed == simulator.n_elements,
             "removed_volume_mm3": states[-1].removed_volume_m3 * 1e9,
             "depth_mm": simulator.depth_m * 1e3,
             "reamer_start_mm": (np.asarray(start) * 1e3).tolist(),
@@ -106,19 +126,31 @@ def ream(
                 "data_digest": simulator.model.card["data"]["digest"],
                 "created_utc": simulator.model.card.get("created_utc"),
             },
-            "series": "ream.pvd",
+            "series": SERIES,
+            "series_path": str(series_path),
+            "open_with": f"ParaView: File > Open {series_path}, Apply; the time steps are the frames, colour by alpha, Threshold removed = 0 shows the bone left",
+            "cup_inclination_deg": None if cup is None else cup[0],
+            "cup_anteversion_deg": None if cup is None else cup[1],
             "versions": package_versions(),
         }
         if png is not None:
-            summary["png"] = str(_picture(simulator, states[-1], axis, teeth, Path(png)))
+            alphas = [first_alpha] + [s.alpha for s in states]
+            positions = [start] + [s.reamer_position for s in states]
+            left = [simulator.n_elements] + [simulator.n_elements - int(s.removed.sum()) for s in states]
+            frame = max(k for k, n in enumerate(left) if n >= PICTURE_BONE_FRACTION * simulator.n_elements)
+            summary["png"] = str(_picture(simulator, alphas[frame], positions[frame], axis, teeth, Path(png)))
+            summary["png_frame"] = frame
+            summary["png_bone_left"] = left[frame]
         (staging / SUMMARY).write_text(json.dumps(summary, indent=2, default=json_default))
     return summary
 
 
-def _picture(simulator: ReamingSimulator, state, axis: np.ndarray, teeth_radius_m: float, png: Path) -> Path:
-    """The last frame seen along the reamer axis, the reamer a translucent dome (thrsim.render)."""
+def _picture(
+    simulator: ReamingSimulator, alpha: np.ndarray, reamer_position: np.ndarray, axis: np.ndarray, teeth_radius_m: float, png: Path
+) -> Path:
+    """One frame seen along the reamer axis, the reamer a translucent dome (thrsim.render)."""
     from thrsim.render import BoneRenderer, ReamerView, save_png
 
     with BoneRenderer(simulator.mesh, 1024, 768, threshold=simulator.model.threshold) as renderer:
-        image = renderer.image(state.alpha, reamer=ReamerView(state.reamer_position, axis, teeth_radius_m))
+        image = renderer.image(alpha, reamer=ReamerView(reamer_position, axis, teeth_radius_m))
     return save_png(image, png)

@@ -28,6 +28,7 @@ from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import BoneState, LearnedStep
+from thrsim.nav.bone_frame import angles_of
 from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
@@ -64,13 +65,6 @@ class SimulatorSnapshot:
     centre: np.ndarray | None
     start: np.ndarray | None
     impulse_n_s: float = 0.0
-
-
-def angles_of(axis: np.ndarray) -> tuple[float, float]:
-    """(γ, θ) in degrees of a unit axis D = (sin γ cos θ, sin γ sin θ, −cos γ), as in the case files."""
-    gamma = math.degrees(math.acos(float(np.clip(-axis[2], -1.0, 1.0))))
-    theta = math.degrees(math.atan2(axis[1], axis[0])) % 360.0 if gamma > 1e-9 else 0.0
-    return gamma, theta
 
 
 def start_position(nodes: np.ndarray, axis: np.ndarray, teeth_radius_m: float, gap_m: float = INITIAL_GAP_M) -> np.ndarray:

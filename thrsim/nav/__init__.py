@@ -1,5 +1,5 @@
-"""Navigation trainer core: APP frame and cup angles, safe zone, tracking model, landmark
-registration and frame calibration. Pure numerics; the OpenIGTLink edge lives in thrsim.io."""
+"""Navigation trainer core: APP frame and cup angles, the bone frame's place in it, safe zone,
+tracking model, landmark registration and frame calibration. Pure numerics; the OpenIGTLink edge lives in thrsim.io."""
 
 import importlib
 
@@ -24,9 +24,11 @@ _SOURCES = {
     "Visibility": "thrsim.nav.tracking",
     "angles_in_frame": "thrsim.nav.anatomy",
     "app_frame": "thrsim.nav.anatomy",
+    "bone_angles_from_cup": "thrsim.nav.bone_frame",
     "calibrate_frames": "thrsim.nav.calibration",
     "convert_angles": "thrsim.nav.anatomy",
     "cup_angles": "thrsim.nav.anatomy",
+    "cup_angles_from_bone": "thrsim.nav.bone_frame",
     "local_axis_from_angles": "thrsim.nav.anatomy",
     "look_at": "thrsim.nav.tracking",
     "safe_zone_status": "thrsim.nav.safe_zone",
@@ -59,9 +61,11 @@ __all__ = [
     "Visibility",
     "angles_in_frame",
     "app_frame",
+    "bone_angles_from_cup",
     "calibrate_frames",
     "convert_angles",
     "cup_angles",
+    "cup_angles_from_bone",
     "local_axis_from_angles",
     "look_at",
     "safe_zone_status",

@@ -5,6 +5,6 @@ session file (:mod:`thrsim.report.navigation`, :mod:`thrsim.report.reaming`), ea
 plots and its scoring criteria; the summary adds up every section's criteria.
 """
 
-from thrsim.report.document import Criterion, Section, build_report
+from thrsim.report.document import Assessment, Criterion, Section, assess, build_report
 
-__all__ = ["Criterion", "Section", "build_report"]
+__all__ = ["Assessment", "Criterion", "Section", "assess", "build_report"]

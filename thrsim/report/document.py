@@ -106,11 +106,32 @@ def render(session: SessionFile, sections: list[Section]) -> str:
     return f"<!doctype html><html lang=en><head><meta charset=utf-8><title>thrsim assessment report</title><style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>"
 
 
-def build_report(path: str | Path) -> str:
-    """The report of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
+@dataclass(frozen=True)
+class Assessment:
+    """A session's report page and the criteria it scores."""
+
+    html: str
+    criteria: list[Criterion]
+
+    @property
+    def score(self) -> float:
+        return sum(c.points for c in self.criteria)
+
+    @property
+    def max_score(self) -> float:
+        return sum(c.max_points for c in self.criteria)
+
+
+def assess(path: str | Path) -> Assessment:
+    """The report and criteria of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
     import matplotlib
 
     matplotlib.use("Agg")
     session = read_session(path)
     sections = [section for provider in _providers() for section in provider(session)]
-    return render(session, sections)
+    return Assessment(render(session, sections), [c for s in sections for c in s.criteria])
+
+
+def build_report(path: str | Path) -> str:
+    """The report page of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
+    return assess(path).html

@@ -1,4 +1,4 @@
-"""``thrsim report``: the assessment report of a recorded session, as one self-contained HTML file."""
+"""``thrsim report``: the assessment report of a recorded session, as one self-contained HTML file or as data."""
 
 from __future__ import annotations
 
@@ -7,16 +7,31 @@ from pathlib import Path
 import typer
 
 from thrsim.atomic import atomic_path
+from thrsim.errors import ThrsimInputError
 
 
 def report(
     session: Path = typer.Argument(..., help="session file (.h5) saved by thrsim serve"),
-    out: Path = typer.Option(..., "--out", help="HTML file to write", metavar="FILE"),
+    out: Path | None = typer.Option(None, "--out", help="HTML file to write", metavar="FILE"),
+    as_json: bool = typer.Option(
+        False, "--json", help="print the assessment as one JSON object (score, max_score, criteria, events, metrics)"
+    ),
 ) -> None:
-    """Write the assessment report (plots embedded, no external files) of SESSION to --out."""
-    from thrsim.report import build_report
+    """Write the assessment report (plots embedded, no external files) of SESSION to --out, or print it as data with --json.
 
-    html = build_report(session)
-    with atomic_path(out) as tmp:
-        tmp.write_text(html, encoding="utf-8")
-    typer.echo(f"report written: {out}")
+    A session where nothing was done that the trainer assesses is not scored (score and max_score null)."""
+    if out is None and not as_json:
+        raise ThrsimInputError("give --out FILE for the HTML report, --json for the data, or both")
+    if as_json:
+        from thrsim.cli.output import print_json
+        from thrsim.report import build_assessment
+
+        print_json(build_assessment(session).as_json())
+    if out is not None:
+        from thrsim.report import build_report
+
+        html = build_report(session)
+        with atomic_path(out) as tmp:
+            tmp.write_text(html, encoding="utf-8")
+        if not as_json:
+            typer.echo(f"report written: {out}")

@@ -69,7 +69,7 @@ class Assessment:
         return sum(c.max_points for c in self.criteria) if self.criteria else None
 
     def as_json(self) -> dict:
-        """``thrsim report --json``: score, max_score, criteria, events, metrics (SPEC §6)."""
+        """``thrsim report --json``: score, max_score, criteria, events, metrics."""
         return {
             "score": self.score,
             "max_score": self.max_score,

@@ -88,7 +88,7 @@ def _in_range(record: ReamingRecord) -> np.ndarray | None:
 
 
 def metrics(record: ReamingRecord) -> dict:
-    """The SPEC §6 metrics the patch model measures (the plan's, the reamer sequence's come with them)."""
+    """The metrics the bone patch measures (the plan's and the reamer sequence's come with them)."""
     kinds = [e["kind"] for e in record.events]
     steps = np.linalg.norm(np.diff(record.position_m, axis=0), axis=1) * 1e3
     consecutive = np.diff(record.frame) == 1  # an undo or a restore moves the reamer back: no travel

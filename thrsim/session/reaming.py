@@ -34,7 +34,7 @@ from thrsim.session.navigation import NavigationRecord, read_navigation, write_n
 _TEXT = h5py.string_dtype()
 _EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
 #: what goes wrong in the bone, scored however it was undone or restored: the bone patch reports
-#: perforations; the socket (SPEC §6) adds medial-wall breaches, and rim damage once a simulator reports it
+#: perforations; the whole socket adds medial-wall breaches, and rim damage once a simulator reports it
 BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")

@@ -203,15 +203,16 @@ def test_pack_on_a_full_disk(full_disk, small_dataset):
 
 
 def navigation_session(folder: Path):
-    """A short live navigation session with some input (a session worth saving)."""
+    """A short live navigation session with a landmark acquired (a session worth saving)."""
     from thrsim.app.live import LiveSession
     from thrsim.app.modes import MODES
 
     clock = iter(np.arange(100.0, 200.0, 1 / 60))
     session = LiveSession(MODES["navigation"], {"side": "right", "seed": 3}, lambda: next(clock), folder)
-    session.control({"type": "camera", "azimuth_deg": 40, "elevation_deg": 10, "distance_mm": 1600})
-    for _ in range(30):
+    session.control({"type": "probe", "action": "touch"})
+    for _ in range(45):
         session.tick()
+    assert session.trainer.registration.acquired
     return session
 
 
@@ -271,13 +272,15 @@ def test_server_keeps_a_session_it_cannot_save_and_retries(full_disk, tmp_path, 
     disk = full_disk(room=2_000)
     disk.make_room()  # the server starts (its sessions' journals open), then the disk fills
     hub = TrainerHub(ServeSettings(sessions_dir=disk.folder, igtl=False, compile=False))
+    seat = hub.open_seat("navigation", None)  # a trainee's page opened
     disk.fill()
     session = navigation_session(tmp_path)
-    hub.sessions["navigation"] = session
+    seat.session.discard()
+    seat.session = session
     with disk.full():
         with pytest.raises((ThrsimOutputError, ThrsimInputError)):
-            hub.end("navigation")
-        if hub.sessions["navigation"] is session:
+            hub.end(seat)
+        if seat.session is session:
             # no fresh session could start (its journal could not be created): this one goes on, nothing lost
             assert hub.unsaved == []
         else:  # ended, kept (journal and all) and retried
@@ -287,13 +290,14 @@ def test_server_keeps_a_session_it_cannot_save_and_retries(full_disk, tmp_path, 
     if hub.unsaved:
         assert hub.retry_unsaved() == [disk.folder / f"{session.id}.h5"] and hub.unsaved == []
     else:
-        assert hub.end("navigation") == disk.folder / f"{session.id}.h5"
+        assert hub.end(seat) == disk.folder / f"{session.id}.h5"
     assert read_session(disk.folder / f"{session.id}.h5").attrs["session_id"] == session.id
 
     # at shutdown, a disk still full: the session goes to the temporary folder (on another disk)
     # instead; under a file-size limit, which every folder shares, it is logged as lost
     monkeypatch.setattr("tempfile.gettempdir", lambda: str(tmp_path))
-    hub.sessions["navigation"] = second = navigation_session(tmp_path)
+    seat.session.discard()
+    seat.session = second = navigation_session(tmp_path)
     disk.fill()
     with disk.full():
         saved = hub.save_all(tries=2, pause_s=0.0)

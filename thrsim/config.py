@@ -500,6 +500,13 @@ class SessionEndLimit(_Frozen):
     refill_s: float = Field(10.0, gt=0, description="one more end allowed this often")
 
 
+class LiveSessionLimit(_Frozen):
+    """How many sessions the trainer runs at once, all modes together: every page that opens gets
+    its own (its trainee's), and a reaming session steps its simulator every tick."""
+
+    sessions: int = Field(8, ge=1)
+
+
 class SolverConfig(_Frozen):
     """Explicit central-difference settings of the ground-truth solver."""
 

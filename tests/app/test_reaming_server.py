@@ -75,31 +75,32 @@ def test_the_page_and_the_mesh_are_served(served):
 
 
 def test_reaming_streams_what_changed_and_every_viewer_ends_up_exact(served):
-    with connect(ws_url(served), open_timeout=10) as first, connect(ws_url(served), open_timeout=10) as second:
+    with connect(ws_url(served), open_timeout=10) as first:
         hello = next_of_type(first, "hello")
-        elements = load_model().mesh.n_tets
-        assert hello["scene"]["reaming"]["available"] and hello["scene"]["reaming"]["elements"] == elements
-        first.send(json.dumps({"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20}))
-        first.send(json.dumps({"type": "run", "action": "start"}))
-        levels_first, state, sizes = collect(first, 0, None, until=lambda state: state["reaming"]["frame"] > 20)
-        assert state["reaming"]["running"] and state["reaming"]["frame"] > 20
-        assert sizes and sizes[0] < elements // 4  # a compressed keyframe on connect
-        assert np.mean(sizes[1:]) < 0.05 * 4 * elements  # deltas: under 5 % of every element as float32
-        removed = int(np.sum(levels_first == 0))
-        assert removed > 0
-        first.send(json.dumps({"type": "run", "action": "pause"}))
-        levels_first = until_ack(first, levels_first)
-        time.sleep(0.3)
-        levels_first, state, _ = collect(first, 0.5, levels_first)
-        # the second viewer read nothing for 2 s: it still ends up with the same bone
-        levels_second, _, _ = collect(second, 1.0, None)
-        assert np.array_equal(levels_first, levels_second)
-        assert int(np.sum(levels_first == 0)) == state["reaming"]["removed"]
-        first.send(json.dumps({"type": "run", "action": "reset"}))
-        levels_first = until_ack(first, levels_first)
-        time.sleep(0.3)
-        levels_first, state, _ = collect(first, 0.5, levels_first)
-        assert state["reaming"]["removed"] == 0 and not np.any(levels_first == 0)
+        with connect(f"{ws_url(served)}?observe={hello['session']}", open_timeout=10) as second:  # an instructor watching
+            elements = load_model().mesh.n_tets
+            assert hello["scene"]["reaming"]["available"] and hello["scene"]["reaming"]["elements"] == elements
+            first.send(json.dumps({"type": "reamer", "inclination_deg": 45, "anteversion_deg": 20}))
+            first.send(json.dumps({"type": "run", "action": "start"}))
+            levels_first, state, sizes = collect(first, 0, None, until=lambda state: state["reaming"]["frame"] > 20)
+            assert state["reaming"]["running"] and state["reaming"]["frame"] > 20
+            assert sizes and sizes[0] < elements // 4  # a compressed keyframe on connect
+            assert np.mean(sizes[1:]) < 0.05 * 4 * elements  # deltas: under 5 % of every element as float32
+            removed = int(np.sum(levels_first == 0))
+            assert removed > 0
+            first.send(json.dumps({"type": "run", "action": "pause"}))
+            levels_first = until_ack(first, levels_first)
+            time.sleep(0.3)
+            levels_first, state, _ = collect(first, 0.5, levels_first)
+            # the second viewer read nothing for 2 s: it still ends up with the same bone
+            levels_second, _, _ = collect(second, 1.0, None)
+            assert np.array_equal(levels_first, levels_second)
+            assert int(np.sum(levels_first == 0)) == state["reaming"]["removed"]
+            first.send(json.dumps({"type": "run", "action": "reset"}))
+            levels_first = until_ack(first, levels_first)
+            time.sleep(0.3)
+            levels_first, state, _ = collect(first, 0.5, levels_first)
+            assert state["reaming"]["removed"] == 0 and not np.any(levels_first == 0)
 
 
 def test_a_force_sensor_drives_the_push_and_the_session_keeps_the_reaming(served):
@@ -113,6 +114,7 @@ def test_a_force_sensor_drives_the_push_and_the_session_keeps_the_reaming(served
         send_force(served.igtl_port, 310.0)
         assert wait_for(lambda: next_of_type(ws, "state")["reaming"]["force_source"] == "sensor", timeout=5)
         assert wait_for(lambda: next_of_type(ws, "state")["reaming"]["force_n"] == 120, timeout=5)
+        assert wait_for(lambda: next_of_type(ws, "state")["reaming"]["frame"] > 10, timeout=30)  # this page's own session
         ws.send(json.dumps({"type": "end_session"}))
         saved = next_of_type(ws, "session_saved")
     session = read_session(saved["file"])

@@ -124,7 +124,7 @@ def test_undo_goes_back_one_second_and_reset_restores_the_bone(clock):
     clock.control({"type": "run", "action": "reset"})
     state = clock.run(0.1)
     assert state["reaming"]["frame"] == 0 and state["reaming"]["removed"] == 0
-    assert [e["kind"] for e in trainer.events] == ["start", "undo", "reset"]
+    assert [e["kind"] for e in trainer.events] == ["start", "undo", "restore"]
 
 
 def test_a_force_sensor_overrides_the_page_while_it_streams(clock):
@@ -265,6 +265,7 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
             np.zeros(0),
             empty,
             [],
+            (150.0, 310.0),
             np.where(removed, 0.0, 0.8).astype(np.float32),
             0,
             nav,
@@ -291,8 +292,9 @@ def test_the_report_maps_the_cavity_against_the_planned_hemisphere(tmp_path):
         "Reaming: removal, depth and push",
         "Reaming: the final cavity",
         "Reaming: orientation while cutting",
-        "no perforation",
+        "no perforation or breach",
         "safe zone while cutting",
+        "Reaming: errors and corrections",
     ):
         assert title in report
     assert report.count("data:image/png;base64,") >= 2

@@ -113,6 +113,12 @@ def test_lost_tracking_during_registration_is_an_event_and_stops_the_dwell():
     assert clock.trainer.registration.acquired == {}
 
 
+def test_a_fresh_session_has_no_tracking_to_lose_before_the_probe_is_used():
+    clock = Clock(NavigationTrainer(seed=4))
+    events = [e["kind"] for _ in range(30) for e in clock.run(STEP)["events"]]
+    assert "tracking_lost" not in events and "target" in events  # no "tracking lost" toast on a new session's page
+
+
 def test_retake_and_restart_count_and_reset():
     clock = Clock(NavigationTrainer(seed=5))
     with pytest.raises(ThrsimInputError, match="nothing to retake"):

@@ -26,7 +26,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import connect
 
 from thrsim.app.navigation import NavigationTrainer
-from thrsim.app.server import ServeSettings, create_app
+from thrsim.app.server import NothingToSave, ServeSettings, SessionEndTooSoon, TrainerHub, create_app
 from thrsim.config import SessionEndLimit
 from thrsim.session import read_session
 
@@ -119,6 +119,28 @@ def test_ending_a_session_saves_it_and_serves_its_report(served):
     assert session_id in get(served.url + "/api/sessions")[1]
 
 
+def test_each_page_gets_its_own_session_and_an_observer_watches_without_steering(served):
+    with connect(ws_url(served), open_timeout=10) as trainee, connect(ws_url(served), open_timeout=10) as other:
+        one, two = next_of_type(trainee, "hello"), next_of_type(other, "hello")
+        assert one["session"] != two["session"] and one["role"] == two["role"] == "trainee"
+        assert one["observe"] == f"/?observe={one['session']}"
+        with connect(f"{ws_url(served)}?observe={one['session']}", open_timeout=10) as observer:
+            hello = next_of_type(observer, "hello")
+            assert hello["session"] == one["session"] and hello["role"] == "observer"
+            observer.send(json.dumps({"type": "reamer", "inclination_deg": 30, "anteversion_deg": 25}))
+            assert "observes session" in next_of_type(observer, "error")["message"]  # refused, not journaled
+            trainee.send(json.dumps({"type": "reamer", "inclination_deg": 42, "anteversion_deg": 12}))
+            assert wait_for(lambda: next_of_type(observer, "state")["angles"]["radiographic"][0] == pytest.approx(42.0, abs=0.01))
+            assert next_of_type(other, "state")["angles"]["radiographic"][0] != pytest.approx(42.0, abs=0.01)  # the other trainee's own aim
+            health = json.loads(get(served.url + "/api/health")[1])
+            assert health["sessions"]["navigation"] >= 2 and health["viewers"]["navigation"] >= 3
+            trainee.close()  # the trainee leaves: the observer is told, and its view closes
+            assert next_of_type(observer, "session_over")["message"].startswith(f"the trainee left session {one['session']}")
+    with connect(f"{ws_url(served)}?observe=20250101T000000Z-abcdef", open_timeout=10) as stray:
+        assert "no live navigation session" in next_of_type(stray, "refused")["message"]
+    assert not (served.sessions / f"{one['session']}.h5").exists()  # nothing assessed was done in it: not saved
+
+
 def handshake_status(served: ServedTrainer, host: str, origin: str | None = None, path: str = "/ws/navigation") -> int:
     """The HTTP status a WebSocket handshake gets (101: opened) with this Host and Origin, on a raw socket."""
     lines = [f"GET {path} HTTP/1.1", f"Host: {host}", "Upgrade: websocket", "Connection: Upgrade"]
@@ -142,28 +164,31 @@ def test_on_loopback_only_loopback_host_names_are_answered(served):
     assert handshake_status(served, f"localhost:{served.port}", origin="http://evil.example") == 403
 
 
-def test_ending_sessions_is_rate_limited(tmp_path):
-    served = ServedTrainer(tmp_path)
+def test_an_end_with_nothing_done_saves_nothing_and_ends_are_rate_limited(tmp_path):
+    now = [0.0]
+    hub = TrainerHub(ServeSettings(sessions_dir=tmp_path, igtl=False, compile=False), clock=lambda: now[0])
+    seat = hub.open_seat("navigation", None)
+
+    def acquire_a_landmark() -> None:
+        seat.session.control({"type": "probe", "action": "touch"})
+        for _ in range(45):  # held still for 0.75 s: acquired
+            now[0] += 1 / 60
+            hub.tick()
+
+    first = seat.session
+    with pytest.raises(NothingToSave, match="nothing to save"):  # a double click's second end, or an end before anything
+        hub.end_asked(seat)
+    assert seat.session is first and list(tmp_path.glob("*.h5")) == []  # the session goes on, no empty file scored 0
     burst = SessionEndLimit().burst
-    try:
-        with connect(ws_url(served), open_timeout=10) as ws:
-            next_of_type(ws, "hello")
-            for _ in range(100):
-                ws.send(json.dumps({"type": "end_session"}))
-            replies = []
-            while len(replies) < 100:
-                message = ws.recv(timeout=10)
-                if isinstance(message, str) and json.loads(message)["type"] in ("session_saved", "error"):
-                    replies.append(json.loads(message))
-            saved = [m for m in replies if m["type"] == "session_saved"]
-            refused = [m["message"] for m in replies if m["type"] == "error"]
-            assert burst <= len(saved) <= burst + 1 and len(saved) + len(refused) == 100  # one more if the bucket refilled meanwhile
-            assert all(m.startswith("session not saved: sessions ended too often") for m in refused)
-            ws.send(json.dumps({"type": "reamer", "inclination_deg": 40, "anteversion_deg": 15}))
-            assert next_of_type(ws, "ack")["message"] == "reamer steered"  # the session goes on
-    finally:
-        assert served.stop() == 0
-    assert len(list(tmp_path.glob("*.h5"))) == len(saved) + 1  # and the one saved at shutdown
+    for _ in range(burst):
+        acquire_a_landmark()
+        hub.end_asked(seat)
+    acquire_a_landmark()
+    with pytest.raises(SessionEndTooSoon, match="sessions ended too often"):
+        hub.end_asked(seat)
+    assert len(list(tmp_path.glob("*.h5"))) == burst
+    assert hub.leave(seat, None) is not None and hub.seats == []  # the trainee leaving saves what was done
+    assert len(list(tmp_path.glob("*.h5"))) == burst + 1
 
 
 @pytest.mark.parametrize("source", ["environment", "file"])
@@ -207,9 +232,10 @@ def test_stopping_the_server_saves_the_live_session(tmp_path):
     served = ServedTrainer(tmp_path)
     with connect(ws_url(served), open_timeout=10) as ws:
         session_id = next_of_type(ws, "hello")["session"]
-        ws.send(json.dumps({"type": "reamer", "inclination_deg": 42, "anteversion_deg": 12}))
+        ws.send(json.dumps({"type": "probe", "action": "touch"}))
         next_of_type(ws, "ack")
-    assert served.stop() == 0
+        time.sleep(0.8)  # a landmark acquired: a session worth saving
+        assert served.stop() == 0
     assert wait_for(lambda: (tmp_path / f"{session_id}.h5").is_file(), timeout=5)
     assert read_session(tmp_path / f"{session_id}.h5").inputs.controls
 

@@ -2,8 +2,8 @@
 
     python3 tests/app/trainer_benchmark.py [--viewers 10] [--seconds 20] [--soak 600]
 
-A real ``thrsim serve`` child process; N WebSocket viewers count the states they receive
-(updates per second, longest gap); a tracker streams ReamerToReference at 60 Hz over
+A real ``thrsim serve`` child process; N WebSocket viewers, one trainee and the others observing
+its session, count the states they receive (updates per second, longest gap); a tracker streams ReamerToReference at 60 Hz over
 OpenIGTLink; the server's resident memory is read from /proc at the start and the end;
 ``--soak S`` runs the whole load for S seconds. The page's drawing speed is ``thrsim bench
 --browser``.
@@ -43,6 +43,7 @@ class Viewer(threading.Thread):
         self.url, self.stop = url, stop
         self.states, self.max_gap_s, self.dropped, self.error = 0, 0.0, False, ""
         self.counting = False
+        self.session = ""  # from its hello
 
     def run(self) -> None:
         try:
@@ -51,6 +52,8 @@ class Viewer(threading.Thread):
                 while not self.stop.is_set():
                     message = ws.recv(timeout=5)
                     now = time.monotonic()
+                    if not self.session and message.startswith('{"type": "hello"'):
+                        self.session = json.loads(message)["session"]
                     if '"type": "state"' in message[:40] or '"type":"state"' in message[:40]:
                         if self.counting:
                             self.states += 1
@@ -95,9 +98,14 @@ def main() -> None:
         try:
             results: dict = {}
             stop = threading.Event()
-            viewers = [Viewer(f"ws://127.0.0.1:{served.port}/ws/navigation", stop) for _ in range(args.viewers)]
+            url = f"ws://127.0.0.1:{served.port}/ws/navigation"
+            trainee = Viewer(url, stop)
+            trainee.start()
+            while not trainee.session and trainee.is_alive():
+                time.sleep(0.05)
+            viewers = [trainee] + [Viewer(f"{url}?observe={trainee.session}", stop) for _ in range(args.viewers - 1)]
             tracker = Tracker(served.igtl_port, stop)
-            for thread in viewers + [tracker]:
+            for thread in viewers[1:] + [tracker]:
                 thread.start()
             time.sleep(5)  # warm up: connections open, caches filled
             memory_start = rss_mb(served.process.pid)

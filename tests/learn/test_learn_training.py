@@ -120,6 +120,8 @@ def test_model_directory_roundtrip_predicts_bit_for_bit(tiny_model, synthetic_da
     assert card["format"] == "thrsim-model" and card["data"]["split"]["train"]
     assert {"settings", "metrics", "versions", "training", "advance", "mesh", "data"} <= set(card)
     assert card["training"]["network_seconds"] > 0 and card["mesh"]["elements"] == model.mesh.n_tets
+    low, high = model.trained_force_n  # the push the reaming trainer calls out of range beyond
+    assert 0 < low <= high and [low, high] == card["data"]["force_range_n"]
     copy = tmp_path / "copy"
     shutil.copytree(tiny_model, copy)
     again = load_model(copy)

@@ -91,7 +91,7 @@ class EndSessionControl(_Control):
     type: Literal["end_session"]
 
 
-#: the largest push the reaming mode takes (the dataset spans 150–310 N)
+#: the largest push the reaming mode takes (the model card says which push it learned)
 MAX_FORCE_N = 400.0
 
 
@@ -100,6 +100,13 @@ class RunControl(_Control):
 
     type: Literal["run"]
     action: Literal["start", "pause", "reset", "undo"]
+
+
+class PageControl(_Control):
+    """Reaming: the trainee's page shown or hidden (the Page Visibility API); hidden holds reaming."""
+
+    type: Literal["page"]
+    visible: bool
 
 
 class ForceControl(_Control):
@@ -123,7 +130,7 @@ _NAVIGATION = (
     EndSessionControl,
 )
 # the reaming mode keeps the navigation trainer's controls (it composes that trainer) and adds its own
-_REAMING = (*_NAVIGATION, RunControl, ForceControl)
+_REAMING = (*_NAVIGATION, RunControl, ForceControl, PageControl)
 
 
 class _Parser:

@@ -85,11 +85,6 @@ class LiveSession:
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
 
-    @property
-    def received_inputs(self) -> bool:
-        """Whether anything but the ticker's steps reached the session."""
-        return self.journal.count > self.journal.ticks
-
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
 

@@ -90,6 +90,8 @@ class ReamingTrainer:
         self.trace = _Trace()
         self.events: list[dict] = []
         self._pending_events: list[dict] = []
+        self.page_hidden = False  # the trainee's page is hidden or left: reaming holds (a running reamer resumes when it shows)
+        self._push_outside = False  # the last frame's push was outside the range the model learned
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -154,6 +156,8 @@ class ReamingTrainer:
         if isinstance(control, c.ForceControl):
             self.page_force_n = control.newton
             return f"push {control.newton:g} N"
+        if isinstance(control, c.PageControl):
+            return self._page_control(control.visible, time_s)
         if isinstance(control, c.SideControl):
             ack = self.navigation.apply_control(control, time_s)
             self._reset_run()
@@ -174,8 +178,9 @@ class ReamingTrainer:
             self._event(time_s, "pause")
             return "paused"
         if action == "reset":
+            frames = self.frames_run
             self._reset_run()
-            self._event(time_s, "reset")
+            self._event(time_s, "restore", f"the intact bone restored after {frames} frames", frames=frames)
             return "bone restored"
         if not self._history:
             return "nothing to undo"
@@ -189,11 +194,19 @@ class ReamingTrainer:
         self._history.append(back)
         self.running = False
         self._publish()
-        self._event(time_s, "undo", f"{undone} frames")
+        self._event(time_s, "undo", f"{undone} frames", frames=undone)
         return f"undid {undone} frames"
 
-    def _event(self, time_s: float, kind: str, detail: str = "") -> None:
-        event = {"time_s": time_s, "kind": kind, "detail": detail, "frame": self.frames_run}
+    def _page_control(self, visible: bool, time_s: float) -> str:
+        """The trainee's page shown or hidden: a hidden page holds reaming (see :meth:`step`), never the record."""
+        if self.page_hidden == visible:
+            self.page_hidden = not visible
+            self._event(time_s, "page_shown" if visible else "page_hidden")
+        return "page shown" if visible else "page hidden: reaming holds"
+
+    def _event(self, time_s: float, kind: str, detail: str = "", **data) -> None:
+        """One event of the session (kept in its file): ``data`` holds its figures (JSON values)."""
+        event = {"time_s": time_s, "kind": kind, "detail": detail, "frame": self.frames_run, **data}
         self.events.append(event)
         self._pending_events.append(event)
 
@@ -207,7 +220,10 @@ class ReamingTrainer:
         axis = self.reamer_axis(nav_state)
         force, force_source = self.force_n(time_s)
         note = ""
-        if self.running and self.simulator is not None:
+        if self.running and self.simulator is not None and self.page_hidden:
+            self._last_tick = time_s  # the hidden time is not owed
+            note = "reaming paused while the page is hidden"
+        elif self.running and self.simulator is not None:
             if self._last_tick is not None:
                 self.running_s += max(0.0, time_s - self._last_tick)
             self._last_tick = time_s
@@ -251,11 +267,34 @@ class ReamingTrainer:
         trace.angles.append(
             (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"])
         )
+        self._check_push(time_s, force)
         if result.end_reason is not None:
             self.running = False
-            self._event(time_s, result.end_reason, "reaming paused: undo (U) or reset (R) to go on")
+            self._event(
+                time_s,
+                result.end_reason,
+                "reaming paused: undo (U) or restore (R) to go on",
+                depth_mm=trace.depth_mm[-1],
+                removed=trace.removed[-1],
+                angles_deg=[None if math.isnan(v) else v for v in trace.angles[-1][:2]],
+            )
             return False
         return True
+
+    def _check_push(self, time_s: float, force: float) -> None:
+        """An event where a frame's push leaves the range the model was trained on (once per stretch outside)."""
+        trained = self.simulator.model.trained_force_n
+        outside = trained is not None and not trained[0] <= force <= trained[1]
+        if outside and not self._push_outside:
+            low, high = trained
+            self._event(
+                time_s,
+                "push_out_of_range",
+                f"{force:g} N: outside the {low:g}–{high:g} N the simulator learned",
+                force_n=force,
+                trained_force_n=[low, high],
+            )
+        self._push_outside = outside
 
     def display_levels(self) -> np.ndarray:
         """uint8 per element for viewers: 0 removed, 1..DISPLAY_LEVELS α from the threshold to 1."""
@@ -292,6 +331,7 @@ class ReamingTrainer:
             "reamer_centre": None
             if self._reamer_position is None
             else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
+            "paused": "page hidden" if self.running and self.page_hidden else None,
             "note": note,
             "events": events,
         }
@@ -322,7 +362,12 @@ class ReamingTrainer:
             "undo_frames": self.undo_frames,
             "model": None
             if sim is None
-            else {"path": str(sim.model.path), "mesh_digest": sim.model.graph.digest, "data_digest": sim.model.card["data"]["digest"]},
+            else {
+                "path": str(sim.model.path),
+                "mesh_digest": sim.model.graph.digest,
+                "data_digest": sim.model.card["data"]["digest"],
+                "trained_force_n": sim.model.trained_force_n,
+            },
         }
 
     def record(self) -> ReamingRecord:
@@ -343,6 +388,7 @@ class ReamingTrainer:
             depth_mm=np.array(t.depth_mm, dtype=float),
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
             events=list(self.events),
+            trained_force_n=None if sim is None else sim.model.trained_force_n,
             final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
             behind_frames=self.behind_frames,
             navigation=self.navigation.record(),

@@ -1,15 +1,21 @@
-"""The trainer's web app: pages, a WebSocket per mode, the OpenIGTLink listener, the ticker.
+"""The trainer's web app: pages, a WebSocket per page, the OpenIGTLink listener, the ticker.
 
-One process serves everything. Every ``1/tick_hz`` s the ticker steps each mode's live session
-on a worker thread (a reaming frame costs tens of milliseconds; the event loop keeps serving
-meanwhile) and hands the state to each viewer's sender; a viewer's queue holds only the newest
-state, so a slow viewer skips frames instead of slowing the others or growing memory. The
-reaming mode's bone goes to each viewer as binary frames of what changed since what that viewer
-last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach
-the live sessions through the OpenIGTLink server's session object (its public ``session=``
-hook). While a session lives its inputs stream to its journal in ``sessions_dir``; it ends when
-a viewer asks (or the server stops): it is written atomically there and a fresh one starts at
-once. A session a crash left open is closed, marked interrupted, when the server next starts.
+One process serves everything. One trainee, one session: every page that opens a mode's
+WebSocket gets a seat of its own, with its own live session, unless it joins a live session as
+an observer (``/ws/<mode>?observe=SESSION_ID``, the page's ``?observe=``): an instructor's
+read-only view, whose controls are refused. Every ``1/tick_hz`` s the ticker steps every live
+session on a worker thread (a reaming frame costs tens of milliseconds; the event loop keeps
+serving meanwhile) and hands the state to each of its viewers' senders; a viewer's queue holds
+only the newest state, so a slow viewer skips frames instead of slowing the others or growing
+memory. The reaming mode's bone goes to each viewer as binary frames of what changed since what
+that viewer last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach every live
+session through the OpenIGTLink server's session object (its public ``session=`` hook). While a
+session lives its inputs stream to its journal in ``sessions_dir``; it ends when its trainee
+asks (a fresh one starts at once in the same seat, its observers stay), leaves the page (the
+seat closes; its observers are told), or the server stops: it is written atomically there. A
+session in which nothing assessed was done (:attr:`~thrsim.session.reaming.ReamingRecord.assessable`)
+is not saved: an end asked for it is refused and it goes on, one left or stopped is discarded.
+A session a crash left open is closed, marked interrupted, when the server next starts.
 A session that cannot be written (a full disk) is kept, journal and all, and written again every
 ``save_retry_s``; at shutdown, after a few more tries, into the temporary folder instead, and only
 then left to its journal, with a log line that says so.
@@ -24,8 +30,9 @@ Access (who may talk):
   token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
   a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``).
 * Origin: WebSocket handshakes from another site's page (a foreign ``Origin``) are refused.
-* Sessions: viewers may end sessions (each writes a file and starts a fresh session) at the rate
-  of :class:`~thrsim.config.SessionEndLimit`, all modes together.
+* Sessions: at most :class:`~thrsim.config.LiveSessionLimit` live at once (a page beyond is
+  refused and may observe one); viewers may end sessions (each writes a file and starts a fresh
+  session) at the rate of :class:`~thrsim.config.SessionEndLimit`, all modes together.
 * OpenIGTLink: the listener is on loopback unless ``igtl_host`` says otherwise, and serves peers
   in loopback and the ``igtl_allow`` networks only (:class:`~thrsim.config.IgtlConfig`).
 """
@@ -57,7 +64,7 @@ from starlette.concurrency import run_in_threadpool
 
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
-from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, SessionEndLimit
+from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.session import NavigationSession
 from thrsim.session.file import is_interrupted
@@ -67,6 +74,10 @@ log = logging.getLogger(__name__)
 
 class SessionEndTooSoon(ThrsimInputError):
     """A viewer asked to end sessions faster than :class:`~thrsim.config.SessionEndLimit` allows: the session goes on."""
+
+
+class NothingToSave(ThrsimInputError):
+    """A trainee asked to end a session in which nothing assessed was done (a second click on End session): it goes on."""
 
 
 TOKEN_COOKIE = "thrsim_token"
@@ -127,6 +138,7 @@ class ServeSettings:
     igtl_host: str | None = None  # the OpenIGTLink listener's address (None: loopback)
     igtl_allow: tuple[str, ...] = ()  # networks beyond loopback whose trackers are served
     session_ends: SessionEndLimit = SessionEndLimit()
+    live_sessions: LiveSessionLimit = LiveSessionLimit()
     save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
 
     def check(self) -> None:
@@ -254,14 +266,31 @@ class _Viewer:
         self.queue.put_nowait(text)
 
 
+@dataclass(eq=False)
+class Seat:
+    """One trainee's place: the live session of their page (a fresh one after each end), the page
+    (``owner``, None once it left) and the pages observing it."""
+
+    session: LiveSession
+    owner: _Viewer | None
+    observers: set[_Viewer] = field(default_factory=set)
+
+    @property
+    def viewers(self) -> list[_Viewer]:
+        return ([self.owner] if self.owner is not None else []) + list(self.observers)
+
+
 class TrainerHub:
-    """The live sessions of every mode, their viewers, and the save on end."""
+    """The seats (one per trainee's page), their live sessions and viewers, and the save on end."""
 
     def __init__(self, settings: ServeSettings, clock=time.monotonic):
         self.settings = settings
         self.clock = clock
-        self.sessions: dict[str, LiveSession] = {name: self._start(mode) for name, mode in MODES.items()}
-        self.viewers: dict[str, set[_Viewer]] = {name: set() for name in MODES}
+        # one trainer per mode made now, with no session: the reaming network loads (and compiles)
+        # before any page opens, and these answer what every session of the mode shares (the mesh, the network)
+        self.prototypes = {name: mode.make_trainer(self._settings(mode)) for name, mode in MODES.items()}
+        self.seats: list[Seat] = []
+        self._seating = threading.Lock()
         self.saved: list[Path] = []
         self.unsaved: list[LiveSession] = []  # ended, not yet written (a full disk): kept and retried
         self._saving = threading.Lock()
@@ -270,58 +299,109 @@ class TrainerHub:
         self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
         self.ends_counted_at = clock()
 
-    def _start(self, mode: Mode) -> LiveSession:
+    def _settings(self, mode: Mode) -> dict:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
         settings = {"side": self.settings.side, "seed": seed}
         if self.settings.model is not None:
             settings["model"] = str(self.settings.model)
         if self.settings.compile and mode.name == "reaming":
             settings["compile"] = True
-        return LiveSession(mode, settings, self.clock, self.settings.sessions_dir)
+        return settings
+
+    def _start(self, mode: Mode) -> LiveSession:
+        return LiveSession(mode, self._settings(mode), self.clock, self.settings.sessions_dir)
 
     def reaming_network(self) -> dict:
-        """How the reaming session's network runs: compiled, eager (with why, if compiling failed) or none."""
-        simulator = getattr(self.sessions["reaming"].trainer, "simulator", None)
+        """How the reaming sessions' network runs: compiled, eager (with why, if compiling failed) or none."""
+        simulator = getattr(self.prototypes["reaming"], "simulator", None)
         if simulator is None:
             return {"state": "none"}
         return {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}
 
+    def open_seat(self, mode_name: str, owner: _Viewer | None) -> Seat:
+        """A seat with a fresh session of the mode for a trainee's page; ThrsimInputError when
+        :class:`~thrsim.config.LiveSessionLimit` sessions are live already."""
+        with self._seating:
+            limit = self.settings.live_sessions.sessions
+            if len(self.seats) >= limit:
+                raise ThrsimInputError(
+                    f"{len(self.seats)} sessions are live, the most this trainer runs at once ({limit}): "
+                    "end one, or observe one (?observe=SESSION_ID)"
+                )
+            seat = Seat(self._start(MODES[mode_name]), owner)
+            self.seats.append(seat)
+            return seat
+
+    def observe(self, mode_name: str, session_id: str, viewer: _Viewer) -> Seat:
+        """Join the live session ``session_id`` of the mode as an observer; ThrsimInputError when there is none."""
+        for seat in list(self.seats):
+            if seat.session.id == session_id and seat.session.mode.name == mode_name:
+                seat.observers.add(viewer)
+                return seat
+        raise ThrsimInputError(f"no live {mode_name} session {session_id!r} to observe")
+
+    def leave(self, seat: Seat, viewer: _Viewer) -> Path | None:
+        """A viewer's page left. An observer just goes; the trainee's leaving closes the seat and ends
+        its session: saved (the path) when something assessed was done in it, else discarded (None)."""
+        if viewer is not seat.owner:
+            seat.observers.discard(viewer)
+            return None
+        seat.owner = None
+        with self._seating:
+            self.seats.remove(seat)
+        session = seat.session
+        if not session.trainer.record().assessable:
+            session.discard()
+            return None
+        try:
+            path = session.save(self.settings.sessions_dir)
+        except (ThrsimInputError, OSError) as error:
+            self.unsaved.append(session)
+            log.error("session %s kept, not saved yet: %s", session.id, error)
+            return None
+        self.saved.append(path)
+        return path
+
     def on_pose(self, device: str, pose, clock_time: float) -> None:
-        """A tracker pose for every mode's session (queued there: this never waits for a step)."""
-        for session in self.sessions.values():
-            session.pose(device, pose, clock_time)
+        """A tracker pose for every live session (queued there: this never waits for a step)."""
+        for seat in list(self.seats):
+            seat.session.pose(device, pose, clock_time)
 
     def on_force(self, newton: float, clock_time: float) -> None:
-        for session in self.sessions.values():
-            session.force(newton, clock_time)
+        for seat in list(self.seats):
+            seat.session.force(newton, clock_time)
 
-    def tick(self, publish_early: Callable[[str, str], None] | None = None) -> dict[str, str]:
-        """Step every mode's session (on the ticker's worker thread); the state texts to publish.
-        ``publish_early(mode, text)`` publishes a state a slow step hands out ahead of its end."""
+    def tick(self, publish_early: Callable[[Seat, str], None] | None = None) -> dict[Seat, str]:
+        """Step every live session (on the ticker's worker thread); the state texts to publish.
+        ``publish_early(seat, text)`` publishes a state a slow step hands out ahead of its end."""
         self.ticks += 1
         texts = {}
-        for name, session in list(self.sessions.items()):
+        for seat in list(self.seats):
 
-            def early(state: dict, name: str = name) -> None:
-                publish_early(name, json.dumps(state, allow_nan=False))
+            def early(state: dict, seat: Seat = seat) -> None:
+                publish_early(seat, json.dumps(state, allow_nan=False))
 
             try:
-                state = session.tick(early if publish_early is not None and self.viewers[name] else None)
-                if self.viewers[name]:
-                    texts[name] = json.dumps(state, allow_nan=False)
-            except Exception:  # a trainer bug must not stop the other modes or lose the session
-                log.exception("%s step failed", name)
+                state = seat.session.tick(early if publish_early is not None and seat.viewers else None)
+                if seat.viewers:
+                    texts[seat] = json.dumps(state, allow_nan=False)
+            except Exception:  # a trainer bug must not stop the other sessions or lose this one
+                log.exception("%s step failed", seat.session.mode.name)
         return texts
 
-    def publish(self, texts: dict[str, str]) -> None:
+    def publish(self, texts: dict[Seat, str]) -> None:
         """Hand the states to the viewers' senders (on the event loop)."""
-        for name, text in texts.items():
-            for viewer in self.viewers[name]:
+        for seat, text in texts.items():
+            for viewer in seat.viewers:
                 viewer.offer(text)
 
-    def end_asked(self, name: str) -> Path:
-        """A viewer's end of the mode's session, within :class:`~thrsim.config.SessionEndLimit`;
-        ThrsimInputError, the session going on, when ends come faster."""
+    def end_asked(self, seat: Seat) -> Path:
+        """The trainee's end of the seat's session: NothingToSave, the session going on, when nothing
+        assessed was done in it; within :class:`~thrsim.config.SessionEndLimit`, ThrsimInputError,
+        the session going on, when ends come faster."""
+        session = seat.session
+        if not session.trainer.record().assessable:
+            raise NothingToSave(f"nothing to save: nothing assessed was done in session {session.id} yet; it goes on")
         limit = self.settings.session_ends
         now = self.clock()
         self.ends_left = min(limit.burst, self.ends_left + (now - self.ends_counted_at) / limit.refill_s)
@@ -333,17 +413,17 @@ class TrainerHub:
                 f"this one goes on; end it again in {math.ceil(wait_s)} s"
             )
         self.ends_left -= 1
-        return self.end(name)
+        return self.end(seat)
 
-    def end(self, name: str) -> Path:
-        """Start a fresh session of the mode and save the one that ended.
+    def end(self, seat: Seat) -> Path:
+        """Start a fresh session in the seat and save the one that ended.
 
         A save that fails (ThrsimOutputError, or ThrsimInputError for a sessions folder gone) is
         raised after the session is put in :attr:`unsaved` (its journal kept), which
         :meth:`retry_unsaved` writes later.
         """
-        session = self.sessions[name]
-        self.sessions[name] = self._start(session.mode)  # where no fresh session can start (no journal), this one goes on
+        session = seat.session
+        seat.session = self._start(session.mode)  # where no fresh session can start (no journal), this one goes on
         try:
             path = session.save(self.settings.sessions_dir)
         except (ThrsimInputError, OSError):
@@ -369,12 +449,12 @@ class TrainerHub:
         return written
 
     def save_all(self, tries: int = 3, pause_s: float = 1.0) -> list[Path]:
-        """On shutdown: save every session that received anything (no fresh ones start), trying
-        ``tries`` times, then the temporary folder; discard the others. A session that cannot be
-        written anywhere keeps its journal, which the next start closes."""
+        """On shutdown: save every live session in which something assessed was done (no fresh ones
+        start), trying ``tries`` times, then the temporary folder; discard the others. A session that
+        cannot be written anywhere keeps its journal, which the next start closes."""
         written = []
-        for session in self.sessions.values():
-            if not session.received_inputs:
+        for session in [seat.session for seat in self.seats]:
+            if not session.trainer.record().assessable:
                 session.discard()
                 continue
             try:
@@ -404,9 +484,18 @@ class TrainerHub:
             )
         return written
 
-    def hello(self, name: str) -> dict:
-        session = self.sessions[name]
-        return {"type": "hello", "mode": name, "session": session.id, "scene": session.trainer.scene(), "igtl": self.igtl_address}
+    def hello(self, seat: Seat, viewer: _Viewer) -> dict:
+        """What a viewer gets first and after each end: the session, its role, the observers' link and the scene."""
+        session = seat.session
+        return {
+            "type": "hello",
+            "mode": session.mode.name,
+            "session": session.id,
+            "role": "trainee" if viewer is seat.owner else "observer",
+            "observe": f"{session.mode.path}?observe={session.id}",
+            "scene": session.trainer.scene(),
+            "igtl": self.igtl_address,
+        }
 
 
 class _ForwardingSession(NavigationSession):
@@ -437,8 +526,8 @@ async def _ticker(hub: TrainerHub, period: float) -> None:
     loop = asyncio.get_running_loop()
     deadline = loop.time()
 
-    def publish_early(name: str, text: str) -> None:  # on the worker thread: hand over to the event loop
-        loop.call_soon_threadsafe(hub.publish, {name: text})
+    def publish_early(seat: Seat, text: str) -> None:  # on the worker thread: hand over to the event loop
+        loop.call_soon_threadsafe(hub.publish, {seat: text})
 
     while True:
         hub.publish(await asyncio.to_thread(hub.tick, publish_early))
@@ -470,7 +559,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
         if settings.igtl:
             from thrsim.io.server import NavigationServer
 
-            first = next(iter(hub.sessions.values())).trainer
+            first = hub.prototypes["navigation"]
             igtl_session = _ForwardingSession(hub, side=first.side, landmarks=getattr(first, "targets", None))
             igtl_config = settings.igtl_config()
             igtl_server = NavigationServer(igtl_config, session=igtl_session, clock=hub.clock)
@@ -521,9 +610,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
     @app.get("/api/reaming/mesh")
     def reaming_mesh() -> Response:
-        simulator = getattr(hub.sessions["reaming"].trainer, "simulator", None)
+        simulator = getattr(hub.prototypes["reaming"], "simulator", None)
         if simulator is None:
-            raise HTTPException(404, hub.sessions["reaming"].trainer.unavailable or "no reaming model")
+            raise HTTPException(404, hub.prototypes["reaming"].unavailable or "no reaming model")
         if simulator.model.graph.digest not in mesh_bytes:
             from thrsim.app.bone_stream import mesh_payload
 
@@ -533,7 +622,8 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @app.get("/api/health")
     def health() -> dict:
         return {
-            "ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "viewers": {k: len(v) for k, v in hub.viewers.items()},
+            "ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "sessions": {name: sum(seat.session.mode.name == name for seat in hub.seats) for name in MODES},
+            "viewers": {name: sum(len(seat.viewers) for seat in hub.seats if seat.session.mode.name == name) for name in MODES},
             "reaming_network": hub.reaming_network(),
         }  # fmt: skip
 
@@ -576,27 +666,35 @@ def create_app(settings: ServeSettings) -> FastAPI:
             return
         await socket.accept()
         viewer = _Viewer(socket)
-        hub.viewers[mode_name].add(viewer)
-        sender = asyncio.create_task(_send_states(viewer, hub, mode_name))
+        observe = socket.query_params.get("observe")
         try:
-            await socket.send_text(json.dumps(hub.hello(mode_name)))
+            seat = hub.observe(mode_name, observe, viewer) if observe else await asyncio.to_thread(hub.open_seat, mode_name, viewer)
+        except ThrsimInputError as error:  # nothing to observe (4404), or the trainer is full (4429)
+            await socket.send_text(json.dumps({"type": "refused", "message": str(error)}))
+            await socket.close(code=4404 if observe else 4429, reason="refused")
+            return
+        sender = asyncio.create_task(_send_states(viewer, seat))
+        try:
+            await socket.send_text(json.dumps(hub.hello(seat, viewer)))
             while True:
                 message = await socket.receive()
                 if message["type"] == "websocket.disconnect":
                     break
-                reply = _handle(hub, mode_name, message.get("text"))
-                for kind, payload in reply:
-                    if kind == "all":
-                        for other in list(hub.viewers[mode_name]):
-                            with contextlib.suppress(Exception):
-                                await other.socket.send_text(json.dumps(payload))
-                    else:
-                        await socket.send_text(json.dumps(payload))
+                for kind, payload in _handle(hub, seat, viewer, message.get("text")):
+                    for other in seat.viewers if kind == "all" else [viewer]:
+                        with contextlib.suppress(Exception):
+                            await other.socket.send_text(json.dumps(hub.hello(seat, other) if payload == "hello" else payload))
         except WebSocketDisconnect:
             pass
         finally:
-            hub.viewers[mode_name].discard(viewer)
             sender.cancel()
+            observers = list(seat.observers) if viewer is seat.owner else []
+            path = await asyncio.to_thread(hub.leave, seat, viewer)
+            over = {"type": "session_over", "message": f"the trainee left session {seat.session.id}" + (" (saved)" if path else "")}
+            for other in observers:  # the seat is gone: so is what they observed
+                with contextlib.suppress(Exception):
+                    await other.socket.send_text(json.dumps(over))
+                    await other.socket.close(code=4410, reason="session over")
 
     return app
 
@@ -606,11 +704,14 @@ def _locked_report(build, path: Path) -> str:
         return build(path)
 
 
-def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str, dict]]:
-    """One viewer message → replies: ("one", payload) to the sender, ("all", payload) to every viewer."""
+def _handle(hub: TrainerHub, seat: Seat, viewer: _Viewer, text: str | None) -> list[tuple[str, dict | str]]:
+    """One viewer message → replies: ("one", payload) to the sender, ("all", payload) to every viewer
+    of the seat ("hello": each viewer's own)."""
+    if viewer is not seat.owner:
+        return [("one", {"type": "error", "message": f"this page observes session {seat.session.id}: its controls are the trainee's"})]
     if text is None:
         return [("one", {"type": "error", "message": "controls are JSON text messages, not binary"})]
-    session = hub.sessions[mode_name]
+    session = seat.session
     try:
         control, ack = session.control(text)
     except ThrsimInputError as error:
@@ -621,30 +722,30 @@ def _handle(hub: TrainerHub, mode_name: str, text: str | None) -> list[tuple[str
         return [("one", {"type": "error", "message": f"control failed: {error}"})]
     if control.type == "end_session":
         try:
-            path = hub.end_asked(mode_name)
-        except SessionEndTooSoon as error:
+            path = hub.end_asked(seat)
+        except (SessionEndTooSoon, NothingToSave) as error:
             return [("one", {"type": "error", "message": f"session not saved: {error}"})]
         except (ThrsimInputError, OSError) as error:  # the session ended; the hub keeps it and retries
             kept = {
                 "type": "error",
                 "message": f"session kept, not saved yet ({error}); saving it again every {hub.settings.save_retry_s:g} s",
             }
-            return [("all", kept), ("all", hub.hello(mode_name))]
+            return [("all", kept), ("all", "hello")]
         saved = {"type": "session_saved", "session": path.stem, "file": str(path), "report": f"/sessions/{path.stem}/report"}
-        return [("all", saved), ("all", hub.hello(mode_name))]
+        return [("all", saved), ("all", "hello")]
     if control.type == "side":
         return [("one", {"type": "ack", "message": ack}), ("all", {"type": "scene", "scene": session.trainer.scene()})]
     return [("one", {"type": "ack", "message": ack})]
 
 
-async def _send_states(viewer: _Viewer, hub: TrainerHub, mode_name: str) -> None:
+async def _send_states(viewer: _Viewer, seat: Seat) -> None:
     from thrsim.app.bone_stream import update
 
     with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
         while True:
             await viewer.socket.send_text(await viewer.queue.get())
             viewer.sent += 1
-            trainer = hub.sessions[mode_name].trainer
+            trainer = seat.session.trainer
             levels = getattr(trainer, "levels", None)
             if levels is None or len(levels) == 0:
                 continue

@@ -1,36 +1,38 @@
-"""``thrsim report``: the assessment report of a recorded session, as one self-contained HTML file."""
+"""``thrsim report``: the assessment report of a recorded session, as one self-contained HTML file or as data."""
 
 from __future__ import annotations
 
-from dataclasses import asdict
 from pathlib import Path
 
 import typer
 
 from thrsim.atomic import atomic_path
-from thrsim.cli.output import print_json
+from thrsim.errors import ThrsimInputError
 
 
 def report(
     session: Path = typer.Argument(..., help="session file (.h5) saved by thrsim serve"),
-    out: Path = typer.Option(..., "--out", help="HTML file to write", metavar="FILE"),
-    as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout: the report's path, score and criteria"),
+    out: Path | None = typer.Option(None, "--out", help="HTML file to write", metavar="FILE"),
+    as_json: bool = typer.Option(
+        False, "--json", help="print the assessment as one JSON object (score, max_score, criteria, events, metrics)"
+    ),
 ) -> None:
-    """Write the assessment report (plots embedded, no external files) of SESSION to --out."""
-    from thrsim.report import assess
+    """Write the assessment report (plots embedded, no external files) of SESSION to --out, or print it as data with --json.
 
-    assessment = assess(session)
-    with atomic_path(out) as tmp:
-        tmp.write_text(assessment.html, encoding="utf-8")
+    A session where nothing was done that the trainer assesses is not scored (score and max_score null)."""
+    if out is None and not as_json:
+        raise ThrsimInputError("give --out FILE for the HTML report, --json for the data, or both")
+    if out is not None:
+        from thrsim.report import build_report
+
+        html = build_report(session)
+        with atomic_path(out) as tmp:
+            tmp.write_text(html, encoding="utf-8")
+        if not as_json:
+            typer.echo(f"report written: {out}")
     if as_json:
-        print_json(
-            {
-                "report": str(out),
-                "session": str(session),
-                "score": assessment.score,
-                "max_score": assessment.max_score,
-                "criteria": [asdict(c) for c in assessment.criteria],
-            }
-        )
-    else:
-        typer.echo(f"report written: {out}")
+        from thrsim.cli.output import print_json
+        from thrsim.report import build_assessment
+
+        data = build_assessment(session).as_json()
+        print_json(data | ({"report": str(out)} if out is not None else {}))

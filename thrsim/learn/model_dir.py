@@ -114,6 +114,12 @@ class LoadedModel:
     def threshold(self) -> float:
         return float(self.card["labels"]["removed_threshold"])
 
+    @property
+    def trained_force_n(self) -> tuple[float, float] | None:
+        """The lowest and highest push of the training cases (None on a card written before cards recorded it)."""
+        found = self.card["data"].get("force_range_n")
+        return None if found is None else (float(found[0]), float(found[1]))
+
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""
         return ReamerFeed(self.advance, self.mesh, self.teeth_radius_m, self.threshold)

@@ -108,6 +108,7 @@ def train_model(
             "digest": data_identity(cases),
             "solver_versions": sorted({c.solver_version for c in cases}),
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
+            "force_range_n": [min(c.force_n for c in train), max(c.force_n for c in train)],
             "frame_pairs": int(len(trainer.samples)),
         },
         "training": {

@@ -94,6 +94,8 @@ class LandmarkRegistration:
         blocked = [f"{tool} {v.reason}" for tool, v in (("probe", probe), ("reference", reference)) if not v.tracked]
         if blocked or probe_tip is None:
             self._dwell = []
+            if probe.reason == "missing":
+                return events  # a probe not in use (none picked up yet, or put down) has no tracking to lose
             if not self._lost:
                 self._lost = True
                 events.append(RegistrationEvent("tracking_lost", time_s, self.current_target, ", ".join(blocked) or "probe not measured"))

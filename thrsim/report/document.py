@@ -1,8 +1,10 @@
-"""Report assembly: sections from providers, a criteria table, plots embedded as base64 PNG.
+"""Report assembly: the assessment as data (score, criteria, events, metrics) and the page built
+on it (sections from each mode, a criteria table, plots embedded as base64 PNG).
 
 The thesis's review of simulators found that open-surgery trainers lack a detailed
 assessment report [2.2.1, criterion i]; this page is that report. It embeds everything (no
-script, no external file), so it can be mailed or archived with the session.
+script, no external file), so it can be mailed or archived with the session. A session where
+nothing assessable was done (no landmark, no cup, no bone reamed) is not scored.
 """
 
 from __future__ import annotations
@@ -36,7 +38,45 @@ class Section:
     criteria: list[Criterion] = field(default_factory=list)
 
 
-SectionProvider = Callable[[SessionFile], list[Section]]
+@dataclass
+class Part:
+    """One mode's share of a session's assessment: its criteria, events and metrics as data, and
+    ``sections``, which builds its part of the page (plots take time: only the page asks)."""
+
+    criteria: list[Criterion]
+    events: list[dict]
+    metrics: dict
+    sections: Callable[[], list[Section]]
+
+
+PartProvider = Callable[[SessionFile], Part | None]
+
+
+@dataclass
+class Assessment:
+    """A session's assessment: ``score`` and ``max_score`` are None when nothing was done to score."""
+
+    criteria: list[Criterion]
+    events: list[dict]
+    metrics: dict
+
+    @property
+    def score(self) -> float | None:
+        return sum(c.points for c in self.criteria) if self.criteria else None
+
+    @property
+    def max_score(self) -> float | None:
+        return sum(c.max_points for c in self.criteria) if self.criteria else None
+
+    def as_json(self) -> dict:
+        """``thrsim report --json``: score, max_score, criteria, events, metrics."""
+        return {
+            "score": self.score,
+            "max_score": self.max_score,
+            "criteria": [vars(c) for c in self.criteria],
+            "events": self.events,
+            "metrics": self.metrics,
+        }
 
 
 def figure_png(figure) -> str:
@@ -56,11 +96,11 @@ def table(header: list[str], rows: list[list[object]]) -> str:
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
-def _providers() -> list[SectionProvider]:
-    from thrsim.report.navigation import navigation_sections
-    from thrsim.report.reaming import reaming_sections
+def _providers() -> list[PartProvider]:
+    from thrsim.report.navigation import navigation_part
+    from thrsim.report.reaming import reaming_part
 
-    return [navigation_sections, reaming_sections]
+    return [navigation_part, reaming_part]
 
 
 _STYLE = """
@@ -72,23 +112,24 @@ th{background:#f2f2f2}.score{font-size:2em;font-weight:bold}img{max-width:100%}
 """
 
 
-def render(session: SessionFile, sections: list[Section]) -> str:
-    criteria = [c for s in sections for c in s.criteria]
-    total, possible = sum(c.points for c in criteria), sum(c.max_points for c in criteria)
+def render(session: SessionFile, assessment: Assessment, sections: list[Section]) -> str:
     rows = []
-    for c in criteria:
+    for c in assessment.criteria:
         grade = "pass" if c.points == c.max_points else "partial" if c.points > 0 else "fail"
         rows.append(
             f'<tr class="{grade}"><td>{html.escape(c.name)}</td><td>{html.escape(c.measured)}</td>'
             f"<td>{html.escape(c.rule)}</td><td>{c.points:g} / {c.max_points:g}</td></tr>"
         )
-    summary = (
-        f'<p class="score">{total:g} / {possible:g}</p>'
-        "<table><thead><tr><th>criterion</th><th>measured</th><th>rule</th><th>points</th></tr></thead>"
-        f"<tbody>{''.join(rows)}</tbody></table>"
-        "<p>The criteria and their thresholds are thrsim's trainer defaults: the thesis asks for a detailed "
-        "assessment report [2.2.1] but gives no scoring rubric for it.</p>"
-    )
+    if assessment.score is None:
+        summary = '<p class="score">not scored</p><p>Nothing was done in this session that the trainer assesses.</p>'
+    else:
+        summary = (
+            f'<p class="score">{assessment.score:g} / {assessment.max_score:g}</p>'
+            "<table><thead><tr><th>criterion</th><th>measured</th><th>rule</th><th>points</th></tr></thead>"
+            f"<tbody>{''.join(rows)}</tbody></table>"
+            "<p>The criteria and their thresholds are thrsim's trainer defaults: the thesis asks for a detailed "
+            "assessment report [2.2.1] but gives no scoring rubric for it.</p>"
+        )
     attrs = session.attrs
     versions = ", ".join(f"{k} {v}" for k, v in session.versions.items())
     interrupted = " · <b>interrupted</b>: the server stopped before the session ended" if attrs.get("interrupted") else ""
@@ -106,32 +147,26 @@ def render(session: SessionFile, sections: list[Section]) -> str:
     return f"<!doctype html><html lang=en><head><meta charset=utf-8><title>thrsim assessment report</title><style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>"
 
 
-@dataclass(frozen=True)
-class Assessment:
-    """A session's report page and the criteria it scores."""
-
-    html: str
-    criteria: list[Criterion]
-
-    @property
-    def score(self) -> float:
-        return sum(c.points for c in self.criteria)
-
-    @property
-    def max_score(self) -> float:
-        return sum(c.max_points for c in self.criteria)
-
-
-def assess(path: str | Path) -> Assessment:
-    """The report and criteria of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
+def _parts(session: SessionFile) -> list[Part]:
     import matplotlib
 
     matplotlib.use("Agg")
-    session = read_session(path)
-    sections = [section for provider in _providers() for section in provider(session)]
-    return Assessment(render(session, sections), [c for s in sections for c in s.criteria])
+    return [part for provider in _providers() if (part := provider(session)) is not None]
+
+
+def _assessment(parts: list[Part]) -> Assessment:
+    return Assessment(
+        [c for p in parts for c in p.criteria], [e for p in parts for e in p.events], {k: v for p in parts for k, v in p.metrics.items()}
+    )
+
+
+def build_assessment(path: str | Path) -> Assessment:
+    """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be read)."""
+    return _assessment(_parts(read_session(path)))
 
 
 def build_report(path: str | Path) -> str:
-    """The report page of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
-    return assess(path).html
+    """The report of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
+    session = read_session(path)
+    parts = _parts(session)
+    return render(session, _assessment(parts), [section for part in parts for section in part.sections()])

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from thrsim.report.document import Criterion, Section, figure_png, table
+from thrsim.report.document import Criterion, Part, Section, figure_png, table
 from thrsim.session.file import SessionFile
 from thrsim.session.navigation import NavigationRecord, read_navigation
 
@@ -253,11 +253,17 @@ def _calibration(record: NavigationRecord) -> Section | None:
     )
 
 
-def navigation_sections(session: SessionFile) -> list[Section]:
+def navigation_part(session: SessionFile) -> Part | None:
+    """The navigation mode's assessment; its criteria come with its plots (built here, for the data too)."""
     if "navigation" not in session.groups:
-        return []
+        return None
     record = read_navigation(session.groups["navigation"])
+    if not record.assessable:
+        return Part(
+            [], record.events, {}, lambda: [Section("Navigation", "<p>No landmark was acquired and no cup confirmed in this session.</p>")]
+        )
     dt = _durations(record.time)
     sections = [_registration(record), _orientation(record, dt), _dropouts(record, dt)]
     calibration = _calibration(record)
-    return sections + ([calibration] if calibration else [])
+    sections += [calibration] if calibration else []
+    return Part([c for s in sections for c in s.criteria], record.events, {}, lambda: sections)

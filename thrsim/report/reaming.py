@@ -1,5 +1,10 @@
-"""Reaming sections of the report: removal, depth and push over time, the final cavity against
-the planned hemisphere (under- and over-reaming, perforation), orientation while cutting.
+"""Reaming part of the report: removal, depth and push over time, the final cavity against the
+planned hemisphere (under- and over-reaming, perforation), orientation while cutting, and the
+errors and corrections (every event, undone or not); the criteria and metrics as data.
+
+The record is the session, not the final bone: a perforation (or another of the
+:data:`~thrsim.session.reaming.BONE_ERRORS`) counts however it was undone or the bone restored
+after it, and a cavity reamed through is not a cavity prepared to plan.
 
 The planned cavity is the reamer's hemisphere (the teeth's reach) centred at the acetabular
 centre, where the cup is meant to sit. The final cavity is read per cell of a 0.5 mm grid over
@@ -17,15 +22,16 @@ import math
 
 import numpy as np
 
-from thrsim.report.document import Criterion, Section, figure_png, table
+from thrsim.report.document import Criterion, Part, Section, figure_png, table
 from thrsim.session.file import SessionFile
-from thrsim.session.reaming import ReamingRecord, read_reaming
+from thrsim.session.reaming import BONE_ERRORS, ReamingRecord, read_reaming
 
 FRAME_S = 1 / 60
 GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
-#: the push forces the simulator learned from (the dataset's 150–310 N)
-TRAINED_FORCE_N = (150.0, 310.0)
+_ERROR_WORDS = {"perforated": "perforated", "medial_wall_breached": "medial wall breached", "rim_damaged": "rim damaged"}
+#: the events listed under errors and corrections
+_LISTED = (*BONE_ERRORS, "passed_through", "push_out_of_range", "undo", "restore")
 CLASSES = ("not reached", "under-reamed", "on plan", "over-reamed", "perforated")
 _CLASS_COLOURS = ("#e8e8e8", "#f2c14e", "#2ca25f", "#d7301f", "#000000")
 
@@ -69,6 +75,116 @@ def cavity_map(record: ReamingRecord) -> dict:
     }
 
 
+def _tier(value: float, full: float, half: float) -> float:
+    return 1.0 if value >= full else 0.5 if value >= half else 0.0
+
+
+def _in_range(record: ReamingRecord) -> np.ndarray | None:
+    """Per frame: the push within the range the model learned (None when the session does not say it)."""
+    if record.trained_force_n is None:
+        return None
+    low, high = record.trained_force_n
+    return (record.force_n >= low) & (record.force_n <= high)
+
+
+def metrics(record: ReamingRecord) -> dict:
+    """The metrics the bone patch measures (the plan's and the reamer sequence's come with them)."""
+    kinds = [e["kind"] for e in record.events]
+    steps = np.linalg.norm(np.diff(record.position_m, axis=0), axis=1) * 1e3
+    consecutive = np.diff(record.frame) == 1  # an undo or a restore moves the reamer back: no travel
+    in_range = _in_range(record)
+    found = {
+        "perforations": kinds.count("perforated"),
+        "undos": kinds.count("undo"),
+        "restores": kinds.count("restore"),
+        "push_mean_n": float(np.mean(record.force_n)),
+        "reamer_path_length_mm": float(steps[consecutive].sum()),
+    }
+    if in_range is not None:
+        found["push_out_of_range_fraction"] = float(1.0 - np.mean(in_range))
+    return found
+
+
+def _errors(record: ReamingRecord) -> list[dict]:
+    return [e for e in record.events if e["kind"] in BONE_ERRORS]
+
+
+def _corrected(record: ReamingRecord, event: dict) -> str:
+    """How an error was gone back on: ", then undone" / ", then the bone restored" / ""."""
+    later = [e["kind"] for e in record.events if e["time_s"] >= event["time_s"] and e["kind"] in ("undo", "restore")]
+    return "" if not later else ", then undone" if later[0] == "undo" else ", then the bone restored"
+
+
+def criteria(record: ReamingRecord) -> list[Criterion]:
+    """The reaming criteria; none for a session that reamed no bone."""
+    if not record.assessable:
+        return []
+    errors = _errors(record)
+    found = cavity_map(record)["fractions"] if record.cavity else None
+    through = bool(found and found["perforated"] > 0)
+    said = [f"{_ERROR_WORDS[e['kind']]} at {e['time_s']:.1f} s{_corrected(record, e)}" for e in errors]
+    if through and not errors:
+        said.append("the final cavity is perforated")
+    failed = "; ".join(said)
+    out = [
+        Criterion(
+            "no perforation or breach",
+            failed or "the outer surface and the walls were never broken",
+            "none, undone or not: 2",
+            0.0 if failed else 2.0,
+            2.0,
+        )
+    ]
+    if found is not None:
+        beyond = found["over-reamed"] + found["perforated"]
+        prepared = found["on plan"] + found["over-reamed"]
+        out += [
+            Criterion("over-reaming", f"{100 * beyond:.0f} % of the patch beyond the plan" + (f"; {failed}" if failed else ""),
+                      "≤ 5 %, never through: 1; ≤ 15 %: 0.5", 0.0 if failed else 1.0 if beyond <= 0.05 else 0.5 if beyond <= 0.15 else 0.0, 1.0),
+            Criterion("cavity prepared",
+                      f"not a prepared cavity: {failed} (the final bone {100 * prepared:.0f} % reamed to the plan)" if failed
+                      else f"{100 * prepared:.0f} % of the patch reamed to the plan",
+                      "never through; ≥ 80 %: 1; ≥ 50 %: 0.5", 0.0 if failed else _tier(prepared, 0.8, 0.5), 1.0),
+        ]  # fmt: skip
+    in_range = _in_range(record)
+    if in_range is not None:
+        low, high = record.trained_force_n
+        share = float(np.mean(in_range))
+        out.append(
+            Criterion(
+                "push force",
+                f"{100 * share:.0f} % of reaming time in {low:g}–{high:g} N",
+                "≥ 90 %: 1; ≥ 60 %: 0.5",
+                _tier(share, 0.9, 0.6),
+                1.0,
+            )
+        )
+    kinds = [e["kind"] for e in record.events]
+    undos, restores = kinds.count("undo"), kinds.count("restore")
+    out.append(
+        Criterion(
+            "no undo or restore",
+            f"{undos} undo{'s' * (undos != 1)}, {restores} restore{'s' * (restores != 1)}",
+            "none: 1; one: 0.5",
+            1.0 if undos + restores == 0 else 0.5 if undos + restores == 1 else 0.0,
+            1.0,
+        )
+    )
+    measured = np.isfinite(record.angles[:, 2])
+    if measured.any():
+        share = float(np.sum(measured & (record.angles[:, 2] == 0.0)) / measured.sum())
+        out.append(
+            Criterion(
+                "safe zone while cutting",
+                f"{100 * share:.0f} % of reaming frames",
+                "≥ 90 %: 2; ≥ 70 %: 1",
+                2.0 if share >= 0.9 else 1.0 if share >= 0.7 else 0.0,
+                2.0,
+            )
+        )
+    return out
+
+
 def _course(record: ReamingRecord) -> Section:
     import matplotlib.pyplot as plt
 
@@ -82,43 +198,31 @@ def _course(record: ReamingRecord) -> Section:
     depth_axis.plot(t, record.depth_mm, color="tab:blue", label="depth")
     depth_axis.set_ylabel("depth along the reamer axis (mm)")
     axes[0].set_title("Bone removed and reamer depth")
-    low, high = TRAINED_FORCE_N
-    axes[1].axhspan(low, high, color="tab:green", alpha=0.12, label=f"learned range {low:g}–{high:g} N")
+    if record.trained_force_n is not None:
+        low, high = record.trained_force_n
+        axes[1].axhspan(low, high, color="tab:green", alpha=0.12, label=f"learned range {low:g}–{high:g} N")
     axes[1].plot(t, record.force_n, color="tab:red", lw=1.2, label="push")
     axes[1].set_xlabel("reaming time (s)")
     axes[1].set_ylabel("push force (N)")
     axes[1].legend(fontsize=8)
     axes[1].set_title("Push force")
     frames = len(record.frame)
-    in_range = float(np.mean((record.force_n >= low) & (record.force_n <= high))) if frames else math.nan
-    rate = record.removed_volume_mm3[-1] / (frames * FRAME_S) if frames else 0.0
+    in_range = _in_range(record)
+    rate = record.removed_volume_mm3[-1] / (frames * FRAME_S)
     body = figure_png(figure) + table(
         ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
         [
             [
                 f"{frames * FRAME_S:.1f} s",
-                f"{record.removed_volume_mm3[-1]:.1f} mm³" if frames else "0 mm³",
-                f"{record.depth_mm[-1]:.2f} mm" if frames else "0 mm",
+                f"{record.removed_volume_mm3[-1]:.1f} mm³",
+                f"{record.depth_mm[-1]:.2f} mm",
                 f"{rate:.0f} mm³/s",
-                "—" if math.isnan(in_range) else f"{100 * in_range:.0f} %",
+                "— (not recorded)" if in_range is None else f"{100 * np.mean(in_range):.0f} %",
                 record.behind_frames,
             ]
         ],
     )
-    criteria = (
-        []
-        if not frames
-        else [
-            Criterion(
-                "push force",
-                f"{100 * in_range:.0f} % of reaming time in {low:g}–{high:g} N",
-                "≥ 90 %: 1; ≥ 60 %: 0.5",
-                1.0 if in_range >= 0.9 else 0.5 if in_range >= 0.6 else 0.0,
-                1.0,
-            )
-        ]
-    )
-    return Section("Reaming: removal, depth and push", body, criteria)
+    return Section("Reaming: removal, depth and push", body)
 
 
 def _cavity(record: ReamingRecord) -> Section:
@@ -148,23 +252,14 @@ def _cavity(record: ReamingRecord) -> Section:
         ax.set_xlabel("x (mm, patch frame)")
         ax.set_ylabel("y (mm)")
         ax.set_aspect("equal")
-    perforated = fractions["perforated"] > 0
+    restored = any(e["kind"] in ("undo", "restore") for e in record.events)
     body = figure_png(figure) + (
         "<p>Seen along the acetabular opening. The plan is the reamer's hemisphere at the acetabular centre; a cell is "
-        "on plan within one element (0.45 mm) of it.</p>"
-    )
-    criteria = [
-        Criterion("no perforation", "perforated" if perforated else "the outer surface is intact", "intact: 2", 0.0 if perforated else 2.0, 2.0),
-        Criterion("over-reaming", f"{100 * (fractions['over-reamed'] + fractions['perforated']):.0f} % of the patch beyond the plan", "≤ 5 %: 1; ≤ 15 %: 0.5",
-                  1.0 if fractions["over-reamed"] + fractions["perforated"] <= 0.05 else 0.5 if fractions["over-reamed"] + fractions["perforated"] <= 0.15 else 0.0, 1.0),
-        Criterion("cavity prepared", f"{100 * (fractions['on plan'] + fractions['over-reamed'] + fractions['perforated']):.0f} % of the patch reamed to the plan", "≥ 80 %: 1; ≥ 50 %: 0.5",
-                  _tier(fractions["on plan"] + fractions["over-reamed"] + fractions["perforated"], 0.8, 0.5), 1.0),
-    ]  # fmt: skip
-    return Section("Reaming: the final cavity", body, criteria)
-
-
-def _tier(value: float, full: float, half: float) -> float:
-    return 1.0 if value >= full else 0.5 if value >= half else 0.0
+        "on plan within one element (0.45 mm) of it."
+        + (" This is the bone as the session ended: what was undone or restored is gone from it, not from the record "
+           "(see errors and corrections).</p>" if restored else "</p>")
+    )  # fmt: skip
+    return Section("Reaming: the final cavity", body)
 
 
 def _orientation_while_cutting(record: ReamingRecord) -> Section:
@@ -176,29 +271,30 @@ def _orientation_while_cutting(record: ReamingRecord) -> Section:
         [[len(record.frame), int(measured.sum()), "—" if math.isnan(share) else f"{100 * share:.0f} %",
           f"{np.nanmax(record.angles[:, 2]):.1f}°" if measured.any() else "—"]],
     )  # fmt: skip
-    criteria = (
-        []
-        if math.isnan(share)
-        else [
-            Criterion(
-                "safe zone while cutting",
-                f"{100 * share:.0f} % of reaming frames",
-                "≥ 90 %: 2; ≥ 70 %: 1",
-                2.0 if share >= 0.9 else 1.0 if share >= 0.7 else 0.0,
-                2.0,
-            )
-        ]
+    return Section("Reaming: orientation while cutting", body)
+
+
+def _errors_and_corrections(record: ReamingRecord) -> Section:
+    listed = [e for e in record.events if e["kind"] in _LISTED]
+    body = (
+        table(["time", "event", "what"], [[f"{e['time_s']:.1f} s", e["kind"].replace("_", " "), e["detail"]] for e in listed])
+        if listed
+        else "<p>No perforation, no push outside the learned range, nothing undone or restored.</p>"
     )
-    return Section("Reaming: orientation while cutting", body, criteria)
+    return Section("Reaming: errors and corrections", body)
 
 
-def reaming_sections(session: SessionFile) -> list[Section]:
-    if "reaming" not in session.groups:
-        return []
-    record = read_reaming(session.groups["reaming"])
-    if len(record.frame) == 0:
+def _sections(record: ReamingRecord) -> list[Section]:
+    if not record.assessable:
         return [Section("Reaming", "<p>No bone was reamed in this session.</p>")]
-    sections = [_course(record), _orientation_while_cutting(record)]
+    sections = [_course(record), _orientation_while_cutting(record), _errors_and_corrections(record)]
     if record.cavity:
         sections.insert(1, _cavity(record))
     return sections
+
+
+def reaming_part(session: SessionFile) -> Part | None:
+    if "reaming" not in session.groups:
+        return None
+    record = read_reaming(session.groups["reaming"])
+    return Part(criteria(record), record.events, metrics(record) if record.assessable else {}, lambda: _sections(record))

@@ -47,6 +47,11 @@ class NavigationRecord:
     calibrations: list[dict]
     confirmations: list[dict]
 
+    @property
+    def assessable(self) -> bool:
+        """Whether there is anything to score: a landmark acquired, a cup confirmed or a calibration tried."""
+        return bool(np.isfinite(self.acquired).any() or self.confirmations or self.calibrations)
+
 
 def write_navigation(group: h5py.Group, record: NavigationRecord, settings: dict) -> None:
     group.attrs.update(

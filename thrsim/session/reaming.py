@@ -7,7 +7,12 @@ model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), `
 ``force_n``, ``axis`` (F×3, reamer axis D in the patch frame), ``position_m`` (F×3, reamer
 centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
 (F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
-the reamer was not measured); ``events/`` ``time``, ``kind``, ``detail``, ``frame``;
+the reamer was not measured); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
+(JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
+``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
+(``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
+``push_out_of_range`` (``force_n``, ``trained_force_n``), the simulator's end reasons
+(``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
 ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
 needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
 face on the bone's outer surface), attrs ``inner_radius_m``, ``outer_radius_m`` (the shell),
@@ -27,6 +32,11 @@ from thrsim.errors import ThrsimInputError
 from thrsim.session.navigation import NavigationRecord, read_navigation, write_navigation
 
 _TEXT = h5py.string_dtype()
+_EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
+#: what goes wrong in the bone, scored however it was undone or restored: the bone patch reports
+#: perforations; the whole socket adds medial-wall breaches, and rim damage once a simulator reports it
+BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
+_RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
 
 
@@ -45,11 +55,17 @@ class ReamingRecord:
     removed_volume_mm3: np.ndarray
     depth_mm: np.ndarray
     angles: np.ndarray
-    events: list[dict]
+    events: list[dict]  # time_s, kind, detail, frame and the event's data
+    trained_force_n: tuple[float, float] | None  # the push the model learned (settings' model), None when unknown
     final_alpha: np.ndarray
     behind_frames: int
     navigation: NavigationRecord
     cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold (empty without a model)
+
+    @property
+    def assessable(self) -> bool:
+        """Whether there is anything to score: bone was reamed."""
+        return len(self.frame) > 0
 
 
 def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> None:
@@ -69,6 +85,8 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     events.create_dataset("frame", data=np.array([e["frame"] for e in record.events], dtype=np.int64))
     for key in ("kind", "detail"):
         events.create_dataset(key, data=np.array([e[key] for e in record.events], dtype=object).astype(_TEXT))
+    data = [json.dumps({k: v for k, v in e.items() if k not in _EVENT_FIELDS}) for e in record.events]
+    events.create_dataset("data", data=np.array(data, dtype=object).astype(_TEXT))
     group.create_dataset("final_alpha", data=np.asarray(record.final_alpha, dtype=np.float32), compression="gzip")
     cavity = group.create_group("cavity")
     if record.cavity:
@@ -82,6 +100,8 @@ def read_reaming(group: dict) -> ReamingRecord:
     """The reaming group as read by :func:`thrsim.session.read_session` (nested dicts)."""
     try:
         attrs, trace, events = group["attrs"], group["trace"], group["events"]
+        data = [json.loads(d) for d in events["data"]] if "data" in events else [{}] * len(events["kind"])
+        trained = (json.loads(attrs["settings"]).get("model") or {}).get("trained_force_n")
         return ReamingRecord(
             side=str(attrs["side"]),
             zone=json.loads(attrs["zone"]),
@@ -89,9 +109,10 @@ def read_reaming(group: dict) -> ReamingRecord:
             patch_to_model=np.asarray(group["patch_to_model"], dtype=float).reshape(4, 4),
             **{name: np.asarray(trace[name]) for name in _TRACE},
             events=[
-                {"time_s": float(t), "kind": str(k), "detail": str(d), "frame": int(f)}
-                for t, k, d, f in zip(events["time"], events["kind"], events["detail"], events["frame"])
+                {"time_s": float(t), "kind": _RENAMED.get(str(k), str(k)), "detail": str(d), "frame": int(f), **extra}
+                for t, k, d, f, extra in zip(events["time"], events["kind"], events["detail"], events["frame"], data)
             ],
+            trained_force_n=None if trained is None else (float(trained[0]), float(trained[1])),
             final_alpha=np.asarray(group["final_alpha"], dtype=np.float32),
             behind_frames=int(attrs["behind_frames"]),
             navigation=read_navigation(group["navigation"]),

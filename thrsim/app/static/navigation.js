@@ -1,7 +1,7 @@
 // The navigation trainer page: connects to /ws/navigation, draws each state, sends controls.
 // The server owns the session (and records it); this page only shows and asks.
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
-import { $, commonMessage, connectMode, setText, showAngles, showTools, toast } from "./page.js";
+import { $, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
 const canvas = $("view");
@@ -10,7 +10,7 @@ const orbit = new OrbitControls(view.camera, canvas);
 orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
-const stats = { frames: 0, states: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false };
+const stats = { frames: 0, states: 0, errors: [], acks: [], events: [], last: null, hello: null, saved: null, connected: false };
 window.trainer = { stats, view, send: (message) => send(message) };
 
 let state = null;
@@ -52,10 +52,8 @@ function receive(message) {
     showState(message);
     for (const e of message.events) feedback(e);
   } else if (message.type === "hello") {
-    stats.hello = message;
+    showHello(message, stats);
     view.build(message.scene);
-    $("session-id").textContent = `session ${message.session}`;
-    $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
     $("side").value = message.scene.side;
     sendSteer(); // a new session starts from the server's default aim: keep the page's
   } else if (message.type === "scene") {
@@ -68,6 +66,7 @@ function receive(message) {
 }
 
 function feedback(event) {
+  stats.events.push(event.kind);
   if (event.kind === "acquired") {
     beep(880);
     toast(`acquired ${event.landmark} (${(event.value * 1000).toFixed(1)} mm from target)`, "good");
@@ -154,7 +153,7 @@ $("retake").addEventListener("click", () => send({ type: "registration", action:
 $("restart").addEventListener("click", () => send({ type: "registration", action: "restart" }));
 $("confirm").addEventListener("click", () => send({ type: "confirm_cup" }));
 $("calibrate").addEventListener("click", () => { sendViewer(); send({ type: "calibration", action: "start" }); });
-$("end").addEventListener("click", () => send({ type: "end_session" }));
+$("end").addEventListener("click", () => { $("end").disabled = true; send({ type: "end_session" }); }); // again once the server answers
 $("definition").addEventListener("change", (e) => send({ type: "definition", value: e.target.value }));
 $("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
 $("show-volume").addEventListener("change", (e) => { view.setVolumeVisible(e.target.checked); dirty = true; });

@@ -1,7 +1,10 @@
 // What every trainer page shares: the WebSocket to its mode (reconnecting), toasts, panel text
-// written only when it changed, the tracking list and the "session saved" link.
+// written only when it changed, the tracking list, the session's label and the "session saved" link.
+// Each page is its trainee's own session; `?observe=SESSION_ID` watches another's, read-only.
 
 export const $ = (id) => document.getElementById(id);
+
+export const OBSERVE = new URLSearchParams(location.search).get("observe");
 
 export function toast(text, kind = "") {
   const item = document.createElement("div");
@@ -63,14 +66,16 @@ export function showSaved(message) {
   toast("session saved", "good");
 }
 
-// Opens /ws/<mode>, retrying every second after a drop. `onText` gets each decoded JSON message,
+// Opens /ws/<mode> (this page's own session, or the one it observes), retrying every second after a
+// drop (a new session: the server ends a session whose page left), every 5 s while the trainer is
+// full, never once the observed session is over. `onText` gets each decoded JSON message,
 // `onBinary` each binary frame (ArrayBuffer), `onOpen` runs on every (re)connection.
-// Returns send(message), which drops messages while disconnected.
+// Returns send(message), which drops messages while disconnected and on an observer's page.
 export function connectMode(mode, stats, { onText, onBinary = null, onOpen = null }) {
   let socket = null;
   const connect = () => {
     const scheme = location.protocol === "https:" ? "wss" : "ws";
-    socket = new WebSocket(`${scheme}://${location.host}/ws/${mode}`);
+    socket = new WebSocket(`${scheme}://${location.host}/ws/${mode}` + (OBSERVE ? `?observe=${encodeURIComponent(OBSERVE)}` : ""));
     socket.binaryType = "arraybuffer";
     socket.onopen = () => {
       stats.connected = true;
@@ -78,11 +83,15 @@ export function connectMode(mode, stats, { onText, onBinary = null, onOpen = nul
       $("connection").className = "pill ok";
       if (onOpen) onOpen();
     };
-    socket.onclose = () => {
+    socket.onclose = (event) => {
       stats.connected = false;
-      $("connection").textContent = "disconnected — retrying";
       $("connection").className = "pill bad";
-      setTimeout(connect, 1000);
+      if (event.code === 4404 || event.code === 4410) { // nothing (more) to observe
+        $("connection").textContent = "session over";
+        return;
+      }
+      $("connection").textContent = event.code === 4429 ? "trainer full — retrying" : "disconnected — retrying";
+      setTimeout(connect, event.code === 4429 ? 5000 : 1000);
     };
     socket.onmessage = (event) => {
       if (event.data instanceof ArrayBuffer) {
@@ -94,17 +103,45 @@ export function connectMode(mode, stats, { onText, onBinary = null, onOpen = nul
   };
   connect();
   return (message) => {
+    if (stats.role === "observer") return; // the server refuses an observer's controls
     if (socket && socket.readyState === WebSocket.OPEN) socket.send(JSON.stringify(message));
   };
+}
+
+// A hello: the session and this page's role in it. An observer's controls are disabled; a
+// trainee's page offers the link an instructor opens to observe it.
+export function showHello(message, stats) {
+  stats.hello = message;
+  stats.role = message.role;
+  const observer = message.role === "observer";
+  document.body.classList.toggle("observer", observer);
+  for (const control of document.querySelectorAll("#steps button, #steps input, #steps select, #end")) control.disabled = observer;
+  const label = $("session-id");
+  label.innerHTML = "";
+  if (observer) {
+    label.append(`observing session ${message.session} (read-only)`);
+  } else {
+    const link = document.createElement("a");
+    link.href = message.observe;
+    link.target = "_blank";
+    link.id = "observe-link";
+    link.textContent = "observe";
+    label.append(`session ${message.session} · `, link);
+  }
+  $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
 }
 
 // The messages every mode answers alike: acknowledgements, errors and the saved session.
 export function commonMessage(message, stats) {
   if (message.type === "ack") {
     stats.acks.push(message.message);
-  } else if (message.type === "error") {
+  } else if (message.type === "error" || message.type === "refused") {
     stats.errors.push(message.message);
     toast(message.message, "error");
+    if (stats.role !== "observer") $("end").disabled = false;
+  } else if (message.type === "session_over") {
+    stats.over = message.message;
+    toast(message.message);
   } else if (message.type === "session_saved") {
     stats.saved = message;
     showSaved(message);

@@ -4,7 +4,7 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
-import { $, commonMessage, connectMode, setText, showAngles, showTools, toast } from "./page.js";
+import { $, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
 const canvas = $("view");
@@ -13,7 +13,7 @@ const orbit = new OrbitControls(view.camera, canvas);
 orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
-const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], acks: [], last: null, hello: null, saved: null, connected: false, visibleFaces: 0, removed: 0 };
+const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], acks: [], events: [], last: null, hello: null, saved: null, connected: false, visibleFaces: 0, removed: 0 };
 // Latency probe (`thrsim bench --reaming-page`): when the measured inclination changes, when that
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
@@ -113,9 +113,8 @@ function receive(message) {
     dirty = true;
   } else if (message.type === "hello" || message.type === "scene") {
     if (message.type === "hello") {
-      stats.hello = message;
-      $("session-id").textContent = `session ${message.session}`;
-      $("tracker").textContent = message.igtl ? `OpenIGTLink ${message.igtl[0]}:${message.igtl[1]}` : "";
+      showHello(message, stats);
+      if (document.visibilityState !== "visible") sendVisibility(); // a session that starts while the page is hidden holds too
     }
     view.build(message.scene);
     translucentReamer();
@@ -147,12 +146,15 @@ function placeReamer(reaming) {
 }
 
 function feedback(event) {
+  stats.events.push(event.kind);
   const text = {
-    start: "reaming", pause: "paused", reset: "bone restored", undo: `undone: ${event.detail}`, side_changed: `${event.detail} hip`,
+    start: "reaming", pause: "paused", restore: "bone restored (the report keeps what went before)",
+    undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
+    push_out_of_range: `push ${event.detail}`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
-  if (text) toast(text, event.kind === "start" ? "good" : event.kind === "perforated" ? "error" : "");
+  if (text) toast(text, event.kind === "start" ? "good" : event.kind === "perforated" || event.kind === "push_out_of_range" ? "error" : "");
 }
 
 function showState(s) {
@@ -161,7 +163,7 @@ function showState(s) {
   setText("removed-volume", `${r.removed_volume_mm3.toFixed(1)} mm³ (${r.removed} elements)`);
   setText("depth", `${r.depth_mm.toFixed(2)} mm`);
   setText("push", `${r.force_n.toFixed(0)} N (${r.force_source})`);
-  setText("sim-time", `${r.time_s.toFixed(1)} s` + (r.behind_frames ? ` · ${r.behind_frames} frames behind` : ""));
+  setText("sim-time", `${r.time_s.toFixed(1)} s` + (r.behind_frames ? ` · ${r.behind_frames} frames behind` : "") + (r.paused ? ` · paused (${r.paused})` : ""));
   setText("step-ms", r.step_ms === null ? "—" : `${r.step_ms.toFixed(1)} ms per frame`);
   setText("note", r.note || (s.zone ? s.note : ""));
   running = r.running;
@@ -265,7 +267,11 @@ $("force").addEventListener("input", (e) => { force = Number(e.target.value); se
 $("run").addEventListener("click", () => send({ type: "run", action: running ? "pause" : "start" }));
 $("undo").addEventListener("click", () => send({ type: "run", action: "undo" }));
 $("reset").addEventListener("click", () => send({ type: "run", action: "reset" }));
-$("end").addEventListener("click", () => send({ type: "end_session" }));
+$("end").addEventListener("click", () => { $("end").disabled = true; send({ type: "end_session" }); }); // again once the server answers
+// Hiding or leaving the page pauses reaming: the server holds this session's simulator while the
+// page is hidden, and a running reamer goes on when it shows again.
+const sendVisibility = () => send({ type: "page", visible: document.visibilityState === "visible" });
+document.addEventListener("visibilitychange", sendVisibility);
 $("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
 $("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
 $("help-close").addEventListener("click", () => $("help").classList.add("hidden"));

@@ -12,6 +12,12 @@ Both run the default case (default 0.45 mm mesh, γ 15°, θ 30°, 230 N) from f
   reaming is quasi-static, so the push, not the mass, sets the feed). Mass scaling keeps the
   contact's ω·Δt fixed when Δt is halved, which is why the penalty factor gets its own study.
 
+* ``reaming-active-zone``: the active zone (integrate only the elements the reamer can reach soon,
+  hold the rest) against integrating everything, on the default patch over ``CONVERGENCE_FRAMES``
+  frames and on a small socket (``ZONE_SOCKET_ELEMENT_MM`` elements, a reamer one size up on the
+  native socket, ``ZONE_SOCKET_FRAMES`` frames): removed volume and mean advance within 5 %, and
+  the zone's energy balance still within 5 % of the external work.
+
 Removal is a threshold process (element deletion) driven by a chaotic cut, so both figures are
 taken over many frames: the removed volume at the end and the axial advance averaged over the
 frames after first contact (within-frame means, not frame-end samples).
@@ -29,6 +35,9 @@ ANTEVERSION_DEG = 30.0
 ENERGY_FRAMES = 20
 ENERGY_TOLERANCE = 0.05
 CONVERGENCE_FRAMES = 30
+ZONE_TOLERANCE = 0.05
+ZONE_SOCKET_ELEMENT_MM = 1.0
+ZONE_SOCKET_FRAMES = 10
 #: variant → (settings changed from the default case, tolerance on removed volume and advance)
 VARIANTS = {
     "contact-factor-half": (lambda c: {"contact": c.contact.model_copy(update={"penalty_factor": c.contact.penalty_factor / 2})}, 0.10),
@@ -102,9 +111,57 @@ def reaming_convergence() -> list[CheckResult]:
     return records
 
 
+def _zone_cases():
+    """(name, case with the zone off) pairs the active-zone check compares."""
+    from thrsim.config import ReamerConfig, SocketConfig, SolverConfig, head_diameter_for_size
+
+    patch = default_case(CONVERGENCE_FRAMES).model_copy(update={"solver": SolverConfig(active_zone="off")})
+    socket = ReamingCaseConfig(
+        inclination_deg=0.0, anteversion_deg=0.0, bone_kind="socket", frames=ZONE_SOCKET_FRAMES,
+        socket=SocketConfig(element_size_mm=ZONE_SOCKET_ELEMENT_MM), reamer=ReamerConfig(head_diameter_mm=head_diameter_for_size(48.0)),
+        solver=SolverConfig(active_zone="off"),
+    )  # fmt: skip
+    return (("patch", patch), ("socket", socket))
+
+
+def reaming_active_zone() -> list[CheckResult]:
+    from thrsim.physics.reaming import bone_mesh
+
+    records = []
+    with Stopwatch() as watch:
+        for name, whole in _zone_cases():
+            mesh = bone_mesh(whole)
+            reference = _run(whole, mesh)
+            zoned = _run(whole.model_copy(update={"solver": whole.solver.model_copy(update={"active_zone": "on"})}), mesh)
+            details = {
+                "elements": reference["elements"],
+                "active_elements_median": zoned["active_elements_median"],
+                "seconds_per_frame": [reference["seconds_per_frame"], zoned["seconds_per_frame"]],
+                "removed_volume_mm3": [reference["removed_volume_mm3"], zoned["removed_volume_mm3"]],
+                "mean_advance_mm": [reference["mean_advance_mm"], zoned["mean_advance_mm"]],
+            }
+            for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-advance", "mean_advance_mm", "mm")):
+                records.append(result(
+                    f"reaming-active-zone-{name}-{figure}", f"{key} with the active zone vs integrating everything ({name})",
+                    value=zoned[key], reference=reference[key], tolerance=ZONE_TOLERANCE, units=units, details=details,
+                    seconds=watch.seconds,
+                ))  # fmt: skip
+            records.append(result(
+                f"reaming-active-zone-{name}-energy-balance", f"|energy balance error| ÷ external work with the active zone ({name})",
+                value=zoned["energy_balance_error"], reference=None, tolerance=ENERGY_TOLERANCE, details=details, seconds=watch.seconds,
+            ))  # fmt: skip
+            for record in records[-3:]:
+                record.passed = record.passed and reference["removed"] > 0
+    return records
+
+
 CHECKS = [
     Check("reaming-energy-balance", f"default case, {ENERGY_FRAMES} frames: energy balance error ≤ {ENERGY_TOLERANCE:.0%} of the external work",
           reaming_energy_balance, ("reaming-energy-balance-error",), slow=True),
+    Check("reaming-active-zone", "the active zone against integrating everything: default patch and a small socket, removed volume "
+          f"and mean advance within {ZONE_TOLERANCE:.0%}, energy balance within {ENERGY_TOLERANCE:.0%}", reaming_active_zone,
+          tuple(f"reaming-active-zone-{bone}-{figure}" for bone in ("patch", "socket")
+                for figure in ("removed-volume", "mean-advance", "energy-balance")), slow=True),
     Check("reaming-convergence", f"default case, {CONVERGENCE_FRAMES} frames: removed volume and mean advance vs half contact factor, "
           "half Δt, half and double reamer mass", reaming_convergence,
           tuple(f"reaming-convergence-{name}-{figure}" for name in VARIANTS for figure in ("removed-volume", "mean-advance")), slow=True),

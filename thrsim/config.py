@@ -532,6 +532,9 @@ class ReamingCaseConfig(_Frozen):
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
     force_n: float = Field(230.0, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
+    feed_mm_s: float | None = Field(
+        None, gt=0, le=100, description="feed control: the reamer advances at this rate and the push is what it takes (None: force control)"
+    )
     frames: FrameCount = 120
     frame_rate_hz: FrameRateHz = 60.0
     bone_kind: Literal["patch", "socket"] = Field("patch", description="the thesis's patch, or the layered socket")
@@ -539,6 +542,9 @@ class ReamingCaseConfig(_Frozen):
         None, gt=0, description="the socket starts reamed geometrically to this diameter (a previous reamer's cavity); None: native"
     )
     pre_ream_centre_mm: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="the prepared cavity's centre in the bone frame")
+    start_from: str | None = Field(
+        None, description="a case file whose last frame this case starts from (its removed bone, damage and PEEQ; same mesh and solver)"
+    )
     bone: BonePatchConfig = BonePatchConfig()
     socket: SocketConfig = SocketConfig()
     cancellous: CancellousBone = CancellousBone()
@@ -564,6 +570,8 @@ class ReamingCaseConfig(_Frozen):
 
     @model_validator(mode="after")
     def _preparation_fits(self) -> "ReamingCaseConfig":
+        if self.pre_ream_mm is not None and self.start_from is not None:
+            raise ValueError("give pre_ream_mm or start_from, not both: a chained case starts from the previous case's bone")
         if self.pre_ream_mm is None:
             return self
         if self.bone_kind != "socket":

@@ -75,3 +75,43 @@ def test_socket_options_on_the_patch_are_refused(tmp_path):
     out = tmp_path / "case.h5"
     result = run_thrsim("fem", "--inclination", "0", "--anteversion", "0", "--pre-ream", "46", "--out", str(out))
     assert result.returncode == 2 and "socket" in result.stderr and not out.exists()
+
+
+def test_a_chain_of_sizes_carries_the_bone_and_refuses_another_mesh(tmp_path):
+    first, second = tmp_path / "r48.h5", tmp_path / "r50.h5"
+    common = ["--inclination", "0", "--anteversion", "0", "--frames", "1", "--json"]
+    done = run_thrsim("fem", *COARSE, "--reamer-diameter", "48", *common, "--out", str(first), timeout=900)
+    assert done.returncode == 0, done.stderr[-2000:]
+    chained = run_thrsim("fem", *COARSE, "--reamer-diameter", "50", "--start-from", str(first), *common, "--out", str(second), timeout=900)
+    assert chained.returncode == 0, chained.stderr[-2000:]
+    with h5py.File(first, "r") as f:
+        removed_before = f["frames/status"][-1] == 0
+        damage_before = f["frames/damage"][-1]
+    with h5py.File(second, "r") as f:
+        start = f["frames/status"][0]
+        assert f.attrs["start_from"] and len(f.attrs["start_from"]) == 64
+        # what the 48 mm reamer took is gone from frame 0 of the 50 mm case; what it damaged stays damaged
+        assert removed_before.sum() > 0 and np.array_equal(start == 0, removed_before)
+        kept = ~removed_before
+        assert np.array_equal(f["frames/damage"][0][kept], damage_before[kept])
+    other_mesh = run_thrsim(
+        "fem", "--bone", "socket", "--element-size", "3", "--reamer-diameter", "50", "--start-from", str(first), *common,
+        "--out", str(tmp_path / "other.h5"),
+    )  # fmt: skip
+    assert other_mesh.returncode == 2 and "mesh is not this case's" in other_mesh.stderr
+    assert not (tmp_path / "other.h5").exists()
+
+
+def test_feed_control_advances_at_the_set_rate_and_records_the_push(tmp_path):
+    out = tmp_path / "feed.h5"
+    done = run_thrsim(
+        "fem", *COARSE, "--reamer-diameter", "48", "--inclination", "0", "--anteversion", "0", "--feed", "6", "--frames", "2",
+        "--out", str(out), "--json", timeout=900,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads(done.stdout)
+    simulated_s = 2 * summary["steps_per_frame"] * summary["dt_s"]  # whole steps: a frame is 4167 × 4 µs
+    assert summary["feed_mm_s"] == 6.0 and summary["reamer_advance_mm"] == pytest.approx(6.0 * simulated_s, rel=1e-6)
+    with h5py.File(out, "r") as f:
+        push = f["frames/push_force"][()]
+        assert push[0] == 0 and push[-1] > 0  # the bone resists the prescribed feed: the push it takes is positive

@@ -27,6 +27,15 @@ def fem(
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
     frames: Optional[int] = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
     force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
+    feed: Optional[float] = typer.Option(
+        None,
+        "--feed",
+        help="feed control instead: the reamer advances at this rate in mm/s and the push it takes is recorded",
+        metavar="MM_S",
+    ),
+    start_from: Optional[Path] = typer.Option(
+        None, "--start-from", help="start from this case's last frame (same bone mesh, same thrsim): chains reamer sizes", metavar="CASE.h5"
+    ),
     bone: str = typer.Option("patch", "--bone", help="which bone: patch (the thesis's 2 mm shell) or socket (the layered acetabulum)"),
     reamer_diameter: Optional[float] = typer.Option(
         None,
@@ -82,6 +91,10 @@ def fem(
     them) or with the clinical --cup-inclination/--cup-anteversion (radiographic, anterior pelvic
     plane, as the trainer shows them; see `thrsim ream --help`), one pair.
     """
+    if force is not None and feed is not None:
+        raise ThrsimInputError("give --force (force control) or --feed (feed control), not both")
+    if start_from is not None and not start_from.is_file():
+        raise ThrsimInputError(f"--start-from {start_from}: no such case file")
     aim = resolve_aim(inclination, anteversion, cup_inclination, cup_anteversion)
     if out.suffix.lower() not in (".h5", ".hdf5"):
         raise ThrsimInputError(f"{out}: the case file must end in .h5")
@@ -101,6 +114,8 @@ def fem(
             "anteversion_deg": aim.anteversion_deg,
             "frames": frames,
             "force_n": force,
+            "feed_mm_s": feed,
+            "start_from": None if start_from is None else str(start_from),
             "bone_kind": bone,
             f"{'socket' if bone == 'socket' else 'bone'}.element_size_mm": element_size,
             f"{'socket' if bone == 'socket' else 'bone'}.side": side,

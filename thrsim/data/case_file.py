@@ -20,6 +20,7 @@ Layout::
     /frames/contact_force_axial (T,) float64 N, within-frame mean of the contact force along D (optional)
     /frames/reaction_force (T,3) float64 N, within-frame mean of the bone's force on the reamer (optional)
     /frames/motor_torque (T,) float64 N·m, within-frame mean torque the motor delivers about D (optional)
+    /frames/push_force (T,) float64 N, within-frame mean push along D: the set force, or what a prescribed feed takes (optional)
     /mesh/material (E,) uint8, per-element material, attribute names: JSON list (optional; none: all cortical)
     /frames/contact_fraction (T,) float64, fraction of the frame's steps with contact (optional)
     /frames/damage (T,E) float32, damage D in [0, 1]: Johnson–Cook evolution plus the teeth's
@@ -67,6 +68,7 @@ OPTIONAL_PER_FRAME = {
     "contact_fraction": (),
     "reaction_force": (3,),
     "motor_torque": (),
+    "push_force": (),
 }
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 #: the small per-frame datasets a reader takes whole, with their trailing shape
@@ -89,6 +91,7 @@ class CaseFrames:
     contact_force_axial: np.ndarray | None = None  # (T,) N
     reaction_force: np.ndarray | None = None  # (T,3) N on the reamer
     motor_torque: np.ndarray | None = None  # (T,) N·m about D
+    push_force: np.ndarray | None = None  # (T,) N along D: the set push, or what a prescribed feed takes
     contact_fraction: np.ndarray | None = None  # (T,)
     damage: np.ndarray | None = None  # (T,E) float32
     damage_initiation: np.ndarray | None = None  # (T,E) float32

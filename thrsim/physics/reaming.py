@@ -59,7 +59,7 @@ from numba import njit
 
 from thrsim.config import ReamingCaseConfig
 from thrsim import portable_math as pm
-from thrsim.errors import SimulationError
+from thrsim.errors import SimulationError, ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, SIDE, SUPPORTED, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
@@ -82,8 +82,8 @@ POSITION, SPEED = 0, 1
 SPIN, CONTACT_ON_BONE, FRICTION, CONTACT_NORMAL, PUSH, GRAVITY, ARM_DAMPING, AXIAL_REACTION = range(8)
 LEDGER_SIZE = 8
 # within-frame statistics, reset every frame
-SUM_POSITION, MIN_POSITION, MAX_POSITION, SUM_AXIAL_FORCE, CONTACT_STEPS, SUM_FX, SUM_FY, SUM_FZ = range(8)
-FRAME_STATS_SIZE = 8
+SUM_POSITION, MIN_POSITION, MAX_POSITION, SUM_AXIAL_FORCE, CONTACT_STEPS, SUM_FX, SUM_FY, SUM_FZ, SUM_PUSH = range(9)
+FRAME_STATS_SIZE = 9
 
 ENERGY_NAMES = (
     "kinetic",
@@ -109,12 +109,15 @@ GRAVITY_DIRECTION = np.array([0.0, 0.0, -1.0])
 
 
 class ReamerDrive(NamedTuple):
-    """The hand-held reamer's axial loads: M·s̈ = push + gravity − F_contact·D − damping·ṡ."""
+    """The hand-held reamer's axial loads: M·s̈ = push + gravity − F_contact·D − damping·ṡ (force
+    control); or, with ``feed`` set (m/s, NaN: force control), the reamer advances at that rate and the
+    push is whatever the bone's reaction takes: push = F_contact·D − gravity (a rig's feed, no arm)."""
 
     mass: float
     damping: float
     push: float
     gravity: float
+    feed: float
 
 
 @dataclass
@@ -134,6 +137,7 @@ class FrameLog:
     energy: list = field(default_factory=list)
     contact_force: list = field(default_factory=list)
     reaction_force: list = field(default_factory=list)  # within-frame mean of the bone's force on the reamer (N)
+    push_force: list = field(default_factory=list)  # within-frame mean of the push along D (N): set, or what the feed takes
     motor_torque: list = field(default_factory=list)  # within-frame mean torque the motor delivers about D (N·m)
 
     def arrays(self) -> dict[str, np.ndarray]:
@@ -152,6 +156,7 @@ class FrameLog:
             "energy": np.array(self.energy),
             "contact_force": np.array(self.contact_force),
             "reaction_force": np.array(self.reaction_force),
+            "push_force": np.array(self.push_force),
             "motor_torque": np.array(self.motor_torque),
         }
 
@@ -185,12 +190,17 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
         contact_totals(contact, solid.contact_nodes, totals)
         axial_force = totals[0] * axis[0] + totals[1] * axis[1] + totals[2] * axis[2]
         solid_step(solid, constants)
-        # reamer: M·s̈ = push + gravity − F_contact·D − c·ṡ, same central difference as the bone
-        damper = drive.damping * speed
-        reamer[SPEED] = speed + dt * (drive.push + drive.gravity - axial_force - damper) / drive.mass
+        if drive.feed == drive.feed:  # feed control: the advance is prescribed, the push follows
+            damper = 0.0
+            push = axial_force - drive.gravity
+            reamer[SPEED] = drive.feed
+        else:  # force control: M·s̈ = push + gravity − F_contact·D − c·ṡ, same central difference as the bone
+            damper = drive.damping * speed
+            push = drive.push
+            reamer[SPEED] = speed + dt * (drive.push + drive.gravity - axial_force - damper) / drive.mass
         advance = dt * reamer[SPEED]
         reamer[POSITION] = position + advance
-        ledger[PUSH] += drive.push * advance
+        ledger[PUSH] += push * advance
         ledger[GRAVITY] += drive.gravity * advance
         ledger[ARM_DAMPING] += damper * advance
         ledger[AXIAL_REACTION] += axial_force * advance
@@ -202,6 +212,7 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
         stats[SUM_FX] += totals[0]
         stats[SUM_FY] += totals[1]
         stats[SUM_FZ] += totals[2]
+        stats[SUM_PUSH] += push
         if contacts > 0:
             stats[CONTACT_STEPS] += 1.0
         time += dt
@@ -226,6 +237,7 @@ class ReamingSimulation:
         self.solid = ExplicitSolid(
             self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others
         )
+        self.start_from_digest: str | None = None
         self.prepared = self._prepare(case)
         self.reamer = build_reamer(case.reamer)
         self.axis = np.array(case.orientation.reamer_axis)
@@ -266,7 +278,11 @@ class ReamingSimulation:
 
     def _prepare(self, case: ReamingCaseConfig) -> np.ndarray:
         """Ream the socket geometrically to ``pre_ream_mm`` (every element whose centroid lies in the
-        sphere goes, then the chips it frees); the elements gone before the case starts."""
+        sphere goes, then the chips it frees), or start from another case's last frame; the elements
+        gone before the case starts."""
+        if case.start_from is not None:
+            self._carry_over(case.start_from)
+            return self.solid.active == 0
         if case.pre_ream_mm is None:
             return np.zeros(self.mesh.n_tets, dtype=bool)
         centre = np.array(case.pre_ream_centre_mm) * 1e-3
@@ -276,6 +292,33 @@ class ReamingSimulation:
         self.solid.detached_count = 0
         self.solid.debris[:] = 0.0
         return self.solid.active == 0
+
+    def _carry_over(self, path: str) -> None:
+        """Take the bone of ``path``'s last frame: its removed elements stay removed, its damage, damage
+        initiation and PEEQ carry on; stresses start at zero (the bone unloads while reamers change).
+        A case from another mesh or another thrsim version is refused."""
+        from thrsim import __version__
+        from thrsim.data.case_file import CaseReader, file_sha256
+
+        with CaseReader(path) as source:
+            version = source.attrs.get("thrsim_version")
+            if version != __version__:
+                raise ThrsimInputError(f"{path}: written by thrsim {version}, not this thrsim {__version__}: its bone state may differ")
+            mesh = source.mesh
+            if mesh.n_tets != self.mesh.n_tets or not (
+                np.array_equal(mesh.nodes, self.mesh.nodes) and np.array_equal(mesh.tets, self.mesh.tets)
+            ):
+                raise ThrsimInputError(f"{path}: its mesh is not this case's ({mesh.n_tets} elements against {self.mesh.n_tets})")
+            last = source.frame(-1)
+        removed = last["status"] == 0
+        alive = ~removed
+        self.solid.peeq[alive] = last["peeq"][alive]
+        if "damage" in last:
+            self.solid.damage[alive] = last["damage"][alive]
+        if "damage_initiation" in last:
+            self.solid.initiation[alive] = last["damage_initiation"][alive]
+        self.solid.remove_elements(removed)
+        self.start_from_digest = file_sha256(path)
 
     def breached(self) -> str | None:
         """For a socket: ``medial_wall_breached`` when an element on the medial wall's pelvic face has
@@ -289,7 +332,8 @@ class ReamingSimulation:
 
     @property
     def drive(self) -> ReamerDrive:
-        return ReamerDrive(self.mass, self.case.hold.axial_damping_n_s_m, float(self.force_n), self.gravity_load)
+        feed = math.nan if self.case.feed_mm_s is None else self.case.feed_mm_s * 1e-3
+        return ReamerDrive(self.mass, self.case.hold.axial_damping_n_s_m, float(self.force_n), self.gravity_load, feed)
 
     @property
     def contact_omega_dt(self) -> float:
@@ -454,6 +498,7 @@ class ReamingSimulation:
             log.contact_fraction.append(0.0)
             log.contact_force.append(np.zeros(3))
             log.reaction_force.append(np.zeros(3))
+            log.push_force.append(0.0)
             log.motor_torque.append(0.0)
             return
         steps = self.steps_per_frame
@@ -463,6 +508,7 @@ class ReamingSimulation:
         contact_force = np.array([stats[SUM_FX], stats[SUM_FY], stats[SUM_FZ]]) / steps
         log.contact_force.append(contact_force)
         log.reaction_force.append(-contact_force)
+        log.push_force.append(stats[SUM_PUSH] / steps)
         # the motor's power is the spin work over the frame; its torque about D, that power over ω
         spin_work = float(self.ledger[SPIN])
         frame_time = steps * self.solid.dt
@@ -559,7 +605,10 @@ class ReamingSimulation:
             },
             "bone": self.case.bone_kind,
             "reamer_diameter_mm": self.case.reamer.size_mm,
+            "feed_mm_s": self.case.feed_mm_s,
+            "push_mean_n": float(records["push_force"][after].mean()) if records["push_force"][after].size else None,
             "pre_ream_mm": self.case.pre_ream_mm,
+            "start_from": self.start_from_digest,
             "reamer_teeth": self.reamer.tooth_count,
             "mean_peeq_active": float(self.solid.peeq[~removed_now].mean()) if (~removed_now).any() else None,
             "reamer_advance_mm": float(axial[-1] * 1e3),

@@ -27,7 +27,7 @@ def session_naming_a_folder(tmp_path_factory):
     elsewhere = folder / "elsewhere"
     shutil.copytree(SHIPPED_MODEL, elsewhere)
     now = [0.0]
-    live = LiveSession(MODES["reaming"], {"side": "right", "seed": 5}, lambda: now[0])
+    live = LiveSession(MODES["reaming"], {"side": "right", "seed": 5}, lambda: now[0], folder)
     live.control('{"type": "run", "action": "start"}')
     for _ in range(6):
         now[0] += STEP

@@ -17,7 +17,7 @@ def report(
         False, "--json", help="print the assessment as one JSON object (score, max_score, criteria, events, metrics)"
     ),
 ) -> None:
-    """Write the assessment report (plots embedded, no external files) of SESSION to --out, or print it as data with --json.
+    """Write the assessment report (plots embedded, no external files) of SESSION to --out, or print it as one JSON object.
 
     A session where nothing was done that the trainer assesses is not scored (score and max_score null)."""
     if out is None and not as_json:

@@ -41,7 +41,7 @@ from thrsim.nav.pelvis import (
 from thrsim.nav.registration import LandmarkRegistration
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status
-from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.nav.tracking import (
     PROBE,
     REAMER,

@@ -35,7 +35,7 @@ from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import INNER, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
-from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.session.reaming import ReamingRecord, write_reaming
 
 FRAME_RATE_HZ = 60.0

@@ -66,7 +66,7 @@ from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
 from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
-from thrsim.nav.session import NavigationSession
+from thrsim.nav.tracker_state import TrackerState
 from thrsim.session.file import is_interrupted
 
 log = logging.getLogger(__name__)
@@ -498,7 +498,7 @@ class TrainerHub:
         }
 
 
-class _ForwardingSession(NavigationSession):
+class _ForwardingTracker(TrackerState):
     """The OpenIGTLink server's navigation session, also forwarding each reading to the trainer."""
 
     def __init__(self, hub: TrainerHub, **kwargs):
@@ -560,9 +560,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
             from thrsim.io.server import NavigationServer
 
             first = hub.prototypes["navigation"]
-            igtl_session = _ForwardingSession(hub, side=first.side, landmarks=getattr(first, "targets", None))
+            igtl_tracker = _ForwardingTracker(hub, side=first.side, landmarks=getattr(first, "targets", None))
             igtl_config = settings.igtl_config()
-            igtl_server = NavigationServer(igtl_config, session=igtl_session, clock=hub.clock)
+            igtl_server = NavigationServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:

@@ -43,7 +43,7 @@ def bench_solver(bone: BonePatchConfig, frames: int, inclination_deg: float = 15
         simulation.advance(simulation.steps_per_frame)
     seconds = (time.perf_counter() - started) / frames
     return {
-        "case": f"inclination {inclination_deg} deg, anteversion {anteversion_deg} deg, 230 N",
+        "case": f"inclination {inclination_deg} deg, anteversion {anteversion_deg} deg, {case.force_n:g} N",
         "elements": simulation.mesh.n_tets,
         "frames_timed": frames,
         "seconds_per_frame": seconds,

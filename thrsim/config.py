@@ -11,13 +11,23 @@ raises pydantic's ``ValidationError``, which the CLI reports as one line.
 from __future__ import annotations
 
 import math
-from typing import Annotated, ClassVar, Literal
+from typing import Annotated, ClassVar, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, field_validator, model_validator
 
 from thrsim import portable_math as pm
 
+#: the operated hip; a left hip is the mirror of a right one (:func:`thrsim.nav.bone_frame.on_side`)
 Side = Literal["right", "left"]
+SIDES: tuple[Side, ...] = get_args(Side)
+
+
+#: frames per second of reaming: the thesis's cases, the learned simulator's steps and the trainer's
+#: tick (:class:`ReamingCaseConfig`, :class:`SweepConfig`, ``thrsim serve``, ``thrsim ream``)
+FRAME_RATE_HZ = 60.0
+#: the surgeon's axial push along the reamer axis, the thesis's mean [5.3.2]: the default of a case,
+#: a sweep, ``thrsim ream`` and the trainer's force control
+PUSH_FORCE_N = 230.0
 
 
 class _Frozen(BaseModel):
@@ -382,11 +392,11 @@ class SweepConfig(_Frozen):
 
     inclinations_deg: tuple[float, ...] = (0.0, 15.0, 30.0, 45.0)
     anteversions_deg: tuple[float, ...] = tuple(float(a) for a in range(0, 181, 15))
-    forces_n: tuple[float, ...] = Field((230.0,), description="the thesis's mean push force [5.3.2]")
+    forces_n: tuple[float, ...] = Field((PUSH_FORCE_N,), description="the thesis's mean push force [5.3.2]")
     extra_forces_n: tuple[float, ...] = (150.0, 310.0)
     extra_force_anteversions_deg: tuple[float, ...] = (0.0, 90.0, 180.0)
     frames: FrameCount = 120
-    frame_rate_hz: FrameRateHz = 60.0
+    frame_rate_hz: FrameRateHz = FRAME_RATE_HZ
 
     @field_validator("inclinations_deg")
     @classmethod
@@ -531,12 +541,12 @@ class ReamingCaseConfig(_Frozen):
 
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
-    force_n: float = Field(230.0, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
+    force_n: float = Field(PUSH_FORCE_N, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
     feed_mm_s: float | None = Field(
         None, gt=0, le=100, description="feed control: the reamer advances at this rate and the push is what it takes (None: force control)"
     )
     frames: FrameCount = 120
-    frame_rate_hz: FrameRateHz = 60.0
+    frame_rate_hz: FrameRateHz = FRAME_RATE_HZ
     bone_kind: Literal["patch", "socket"] = Field("patch", description="the thesis's patch, or the layered socket")
     pre_ream_mm: float | None = Field(
         None, gt=0, description="the socket starts reamed geometrically to this diameter (a previous reamer's cavity); None: native"

@@ -10,7 +10,7 @@ import pytest
 
 from thrsim.app.controls import parse_reaming_control
 from thrsim.app.modes import MODES
-from thrsim.app.reaming import DISPLAY_LEVELS, FRAME_RATE_HZ, ReamingTrainer
+from thrsim.app.reaming import DISPLAY_LEVELS, ReamingTrainer
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator
 from thrsim.nav.anatomy import local_axis_from_angles
@@ -53,7 +53,7 @@ def test_frames_follow_the_running_time_and_bone_is_removed(clock):
     assert clock.control({"type": "run", "action": "start"}) == "reaming"
     state = clock.run(1.0)
     reaming = state["reaming"]
-    assert abs(reaming["frame"] - FRAME_RATE_HZ) <= 1 and reaming["behind_frames"] == 0
+    assert abs(reaming["frame"] - clock.trainer.frame_rate_hz) <= 1 and reaming["behind_frames"] == 0
     volumes = clock.trainer.trace.removed_volume_mm3
     assert volumes[-1] > 0 and all(b >= a for a, b in zip(volumes, volumes[1:]))  # removal never undoes itself
     assert reaming["removed"] > 0 and reaming["depth_mm"] > 0 and reaming["removed_volume_mm3"] == pytest.approx(volumes[-1])

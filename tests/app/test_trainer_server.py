@@ -243,12 +243,12 @@ def test_stopping_the_server_saves_the_live_session(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--host", "0.0.0.0"], "access token"),
+        (["--host", "0.0.0.0"], "--host: 0.0.0.0 is reachable from other machines: give an access token (--token-file or THRSIM_TOKEN)"),
         (["--host", "0.0.0.0", "--token-file", "/nonexistent/token"], "cannot read the access token from /nonexistent/token"),
         (["--token", "s3cret-token", "--token-file", "/nonexistent/token"], "give the access token once"),
         (["--igtl-allow", "10.0.0.0/8"], "--igtl-host"),
         (["--igtl-host", "0.0.0.0"], "--igtl-allow"),
-        (["--igtl-host", "0.0.0.0", "--igtl-allow", "10.0.0.0/33"], "--igtl-allow 10.0.0.0/33: not an address or network"),
+        (["--igtl-host", "0.0.0.0", "--igtl-allow", "10.0.0.0/33"], "--igtl-allow: 10.0.0.0/33: not an address or network"),
         (["--sessions", "/nonexistent/deeper/sessions"], "cannot create sessions folder"),
     ],
 )

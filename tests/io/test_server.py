@@ -1,5 +1,5 @@
 """The asyncio navigation server over real sockets on 127.0.0.1: pyigtl as the real peer,
-several clients at once, header versions 1 and 2, SENSOR force, the simulator hook, and
+several clients at once, header versions 1 and 2, SENSOR force, and
 robustness against malformed input of our own making (bad CRC, truncated header, huge
 declared body, unknown and wrong types, random bytes, a garbage burst beside a valid client)."""
 
@@ -24,7 +24,7 @@ from checkout_cli import checkout_env
 from igtl_helpers import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
 from thrsim.config import IgtlConfig
 from thrsim.io import igtl
-from thrsim.io.server import NAVIGATION_STATE, SIMULATED_REAMER
+from thrsim.io.server import NAVIGATION_STATE
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -238,77 +238,6 @@ def test_valid_client_keeps_being_served_during_a_garbage_burst(nav_server, pyig
     print(f"garbage burst: {sent} hostile connections, {served_during_burst} valid round trips interleaved; server stats {stats}")
     assert client.round_trip(reamer_pose_mm(), timeout=5.0) is not None
     assert wait_until(lambda: nav_server.server.clients == 1, 10)  # every hostile connection was let go
-
-
-def test_simulator_hook_sends_back_the_simulated_reamer(make_server):
-    calls = []
-
-    def simulator(reamer_to_reference: np.ndarray, force_n: float | None) -> np.ndarray:
-        calls.append(force_n)
-        advanced = reamer_to_reference.copy()
-        advanced[:3, 3] -= 0.001 * reamer_to_reference[:3, 2]  # 1 mm along D, into the bone
-        return advanced
-
-    server = make_server(simulator=simulator)
-    with server.connect() as sock:
-        sock.sendall(igtl.encode_message(igtl.Message("SENSOR", "ReamerForce", igtl.pack_sensor([230.0]))))
-        read_message(sock)
-        sock.sendall(transform_message(reamer_pose_mm()))
-        messages = [read_message(sock), read_message(sock)]
-    by_type = {m.type_name: m for m in messages}
-    assert by_type["TRANSFORM"].device_name == SIMULATED_REAMER
-    simulated = igtl.unpack_transform(by_type["TRANSFORM"].content)
-    expected = reamer_pose_mm()
-    expected[:3, 3] = expected[:3, 3] * 1e-3 - 0.001 * expected[:3, 2]
-    assert simulated == pytest.approx(expected, abs=1e-6)
-    assert calls == [230.0]
-
-
-def test_simulator_returning_none_or_a_bad_pose(make_server):
-    answers = [None, np.full((4, 4), np.nan)]
-    calls = []
-
-    def simulator(pose, force):
-        calls.append(force)
-        return answers[len(calls) - 1]
-
-    server = make_server(simulator=simulator)
-    with server.connect() as sock:
-        sock.sendall(transform_message(reamer_pose_mm()))
-        assert read_message(sock).type_name == "STRING"  # None: nothing sent back
-        assert wait_until(lambda: len(calls) == 1)
-        sock.sendall(transform_message(reamer_pose_mm()))
-        assert read_message(sock).type_name == "STRING"
-        assert "NaN" in igtl.unpack_status(read_message(sock).content)[2]
-    assert server.server.stats["simulator_errors"] == 1
-
-
-def test_slow_or_failing_simulator_never_blocks_replies(make_server):
-    """The hook is held in its thread until the test lets it go; replies go on meanwhile, and only
-    the connection whose pose made the model fail gets the STATUS."""
-    failing_pose = reamer_pose_mm(30.0, 10.0)
-    entered, release = threading.Event(), threading.Event()
-
-    def held_then_failing(reamer_to_reference, force_n):
-        entered.set()
-        release.wait(20)
-        if np.allclose(reamer_to_reference[:3, :3], failing_pose[:3, :3], atol=1e-5):
-            raise RuntimeError("model diverged")
-        return None  # the other connection's poses: nothing to send back
-
-    server = make_server(simulator=held_then_failing)
-    with server.connect() as sock, server.connect() as other:
-        sock.sendall(transform_message(failing_pose))
-        assert state_of(read_message(sock))["inclination_deg"] == pytest.approx(30.0, abs=1e-3)
-        assert entered.wait(10)
-        for _ in range(10):
-            assert still_served(other)  # while the hook is held
-        assert server.server.stats["simulator_errors"] == 0
-        release.set()
-        status = read_message(sock)
-        assert igtl.unpack_status(status.content)[2] == "model diverged"
-        assert still_served(other)  # and nothing but its own replies reached the other connection
-    assert wait_until(lambda: server.server.stats["simulator_errors"] == 1)
 
 
 def test_reply_header_fields_are_standard(nav_server):

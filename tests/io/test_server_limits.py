@@ -132,7 +132,7 @@ def test_invented_device_names_cannot_grow_the_session(make_server):
         assert all(status_of(m)[:2] == (igtl.STATUS_CONFIGURATION_ERROR, "UnknownDevice") for m in refused)
         assert refused[0].device_name == names[8]
         assert served(sock)  # a known device name still counts
-    session = server.server.session
+    session = server.server.tracker
     assert len(session.poses) <= len(config.known_devices) + config.max_other_devices
     assert set(session.poses) == set(names[:8]) | {"ReamerToReference"}
     assert server.server.stats["unknown_devices"] == 2000 - 8
@@ -145,7 +145,7 @@ def test_configured_device_names_are_accepted(make_server):
         assert read_message(sock).type_name == "STRING"
         sock.sendall(transform_message(reamer_pose_mm(), device="ReamerToReference"))
         assert status_of(read_message(sock))[1] == "UnknownDevice"
-    assert set(server.server.session.poses) == {"CupImpactor"}
+    assert set(server.server.tracker.poses) == {"CupImpactor"}
 
 
 def test_a_non_ascii_device_name_on_a_bad_crc_gets_its_status(nav_server):
@@ -163,7 +163,7 @@ def test_a_non_ascii_device_name_on_a_bad_crc_gets_its_status(nav_server):
 
 
 def test_an_error_inside_the_server_is_answered_and_stays_in_its_connection(nav_server, monkeypatch):
-    session = nav_server.server.session
+    session = nav_server.server.tracker
     real_state = session.state
     calls = []
 
@@ -300,4 +300,4 @@ def test_peers_outside_the_allowed_networks_are_closed_at_once(make_server, capl
     assert refusals == ["OpenIGTLink connection from 127.0.0.1 refused: not in the allowed networks"] * 3
     with socket.create_connection((server.host, server.port), timeout=5, source_address=("127.0.0.2", 0)) as insider:
         assert served(insider)
-    assert server.server.session.poses.keys() == {"ReamerToReference"} and server.server.stats["transforms"] == 1
+    assert server.server.tracker.poses.keys() == {"ReamerToReference"} and server.server.stats["transforms"] == 1

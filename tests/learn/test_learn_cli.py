@@ -223,7 +223,7 @@ def test_ream_takes_clinical_cup_angles(tiny_model, tmp_path):
     "args, message",
     [
         (["--force", "-5"], "non-negative"),
-        (["--side", "middle"], "unknown side"),
+        (["--side", "middle"], "--side: must be right or left"),
         (["--inclination", "95"], "--inclination"),
         (["--frames", "0"], "--frames"),
         (["--png", "last.jpg"], "--png"),

@@ -105,7 +105,7 @@ def test_bad_input_is_refused(simulator, axis, force, message):
 
 
 def test_unknown_side_and_wrong_model_dir_are_refused(simulator, tmp_path):
-    with pytest.raises(ThrsimInputError, match="unknown side"):
+    with pytest.raises(ThrsimInputError, match="side: must be right or left"):
         simulator.reset("middle")
     with pytest.raises(ThrsimInputError, match="not a thrsim model"):
         ReamingSimulator(tmp_path)

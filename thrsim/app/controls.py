@@ -13,6 +13,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
+from thrsim.config import Side
 from thrsim.errors import ThrsimInputError
 
 MAX_MESSAGE_BYTES = 16 * 1024
@@ -59,7 +60,7 @@ class DefinitionControl(_Control):
 
 class SideControl(_Control):
     type: Literal["side"]
-    value: Literal["right", "left"]
+    value: Side
 
 
 class OccluderControl(_Control):

@@ -1,5 +1,7 @@
-"""Trainer modes: each is a page, a trainer class and its controls. The app serves every mode
-registered here; the reaming mode (``/reaming``) joins by adding one entry.
+"""Trainer modes: each is a page, a trainer class, its controls, its report and its hooks into the
+server. The app serves every mode registered here and names none: a mode's own routes (the reaming
+mesh), binary stream (the bone), serve settings (the model, compiling) and health figures come
+from its :class:`Mode`; the reaming mode (``/reaming``) joins by adding one entry.
 
 A trainer (see :class:`Trainer`) is pure logic: it takes validated controls, tracker poses and
 force readings, steps at the server's tick, returns the JSON state viewers receive, and writes
@@ -23,15 +25,26 @@ log = logging.getLogger(__name__)
 
 class Trainer(Protocol):
     mode: str
+    side: str
+    targets: dict[str, np.ndarray]  # the pelvic landmarks in the reference frame (a tracker's session checks them)
 
     def apply_control(self, control: Any, time_s: float) -> str: ...
     def apply_pose(self, device: str, pose: np.ndarray, time_s: float) -> None: ...
     def apply_force(self, newton: float, time_s: float) -> None: ...
     def step(self, time_s: float, early: Callable[[dict], None] | None = None) -> dict: ...
+    def defaults(self) -> dict: ...
     def scene(self) -> dict: ...
     def settings(self) -> dict: ...
     def record(self) -> Any: ...
     def write(self, group: Any) -> None: ...
+
+
+def _none(*_: Any) -> dict:
+    return {}
+
+
+def _no_routes(_: Trainer) -> list:
+    return []
 
 
 @dataclass(frozen=True)
@@ -40,9 +53,18 @@ class Mode:
     path: str  # where its page is served
     page: str  # HTML file in thrsim/app/static
     title: str
-    make_trainer: Callable[[dict], Trainer]  # from the session settings (side, seed)
+    make_trainer: Callable[[dict], Trainer]  # from the session settings (side, seed, and the mode's own)
     parse_control: Callable[[Any], Any]  # raises ThrsimInputError with the reason
     read_record: Callable[[dict], Any]  # the mode's group of a session file → its record (events, trace)
+    report_part: Callable[[Any], Any]  # a session file → the mode's part of its report (None: the file has no such group)
+    #: the mode's own session settings from the server's (``thrsim serve``'s options)
+    session_settings: Callable[[Any], dict] = _none
+    #: (path, handler) of the mode's GET routes, given the mode's trainer every session shares data with
+    routes: Callable[[Trainer], list[tuple[str, Callable[[], Any]]]] = _no_routes
+    #: (trainer, what a viewer last received) → (binary message, what it then holds), None when nothing to send
+    binary: Callable[[Trainer, Any], tuple[bytes, Any] | None] | None = None
+    #: figures for ``/api/health``, given the mode's shared trainer
+    health: Callable[[Trainer], dict] = _none
 
 
 def _navigation(settings: dict) -> Trainer:
@@ -61,6 +83,12 @@ def _read_navigation(group: dict) -> Any:
     from thrsim.session.navigation import read_navigation
 
     return read_navigation(group)
+
+
+def _navigation_report(session: Any) -> Any:
+    from thrsim.report.navigation import navigation_part
+
+    return navigation_part(session)
 
 
 #: loaded once per model folder and network kind: a new session reuses it (compiling changes a
@@ -101,7 +129,73 @@ def _read_reaming(group: dict) -> Any:
     return read_reaming(group)
 
 
+def _reaming_report(session: Any) -> Any:
+    from thrsim.report.reaming import reaming_part
+
+    return reaming_part(session)
+
+
+def _reaming_settings(serve: Any) -> dict:
+    """The model folder (None: the shipped one) and whether to compile its network."""
+    settings: dict = {} if serve.model is None else {"model": str(serve.model)}
+    return settings | ({"compile": True} if serve.compile else {})
+
+
+def _reaming_routes(trainer: Trainer) -> list[tuple[str, Callable[[], Any]]]:
+    """``GET /api/reaming/mesh``: the model's mesh the page draws the bone on (404 without a model)."""
+    from fastapi import HTTPException
+    from fastapi.responses import Response
+
+    from thrsim.app.bone_stream import mesh_payload
+
+    payload: list[bytes] = []
+
+    def mesh() -> Any:
+        simulator = trainer.simulator
+        if simulator is None:
+            raise HTTPException(404, trainer.unavailable or "no reaming model")
+        if not payload:
+            payload.append(mesh_payload(simulator.right_mesh))
+        return Response(payload[0], media_type="application/octet-stream")
+
+    return [("/api/reaming/mesh", mesh)]
+
+
+def _reaming_bone(trainer: Trainer, sent: Any) -> tuple[bytes, Any] | None:
+    """The bone's levels as they changed since ``sent`` (the trainer replaces its array, never mutates it)."""
+    from thrsim.app.bone_stream import update
+
+    levels = trainer.levels
+    if len(levels) == 0:
+        return None
+    message = update(trainer.frames_run, sent, levels)
+    return None if message is None else (message, levels)
+
+
+def _reaming_health(trainer: Trainer) -> dict:
+    """How the reaming sessions' network runs: compiled, eager (with why, if compiling failed) or none."""
+    simulator = trainer.simulator
+    if simulator is None:
+        return {"reaming_network": {"state": "none"}}
+    return {"reaming_network": {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}}
+
+
 MODES: dict[str, Mode] = {
-    "navigation": Mode("navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation, _read_navigation),
-    "reaming": Mode("reaming", "/reaming", "reaming.html", "Reaming", _reaming, _parse_reaming, _read_reaming),
+    "navigation": Mode(
+        "navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation, _read_navigation, _navigation_report
+    ),
+    "reaming": Mode(
+        "reaming",
+        "/reaming",
+        "reaming.html",
+        "Reaming",
+        _reaming,
+        _parse_reaming,
+        _read_reaming,
+        _reaming_report,
+        session_settings=_reaming_settings,
+        routes=_reaming_routes,
+        binary=_reaming_bone,
+        health=_reaming_health,
+    ),  # fmt: skip
 }

@@ -32,6 +32,7 @@ from thrsim.nav.anatomy import (
     app_frame,
     local_axis_from_angles,
 )
+from thrsim.nav.bone_frame import on_side, other_side
 from thrsim.nav.calibration import calibrate_frames
 from thrsim.nav.pelvis import (
     ACETABULUM_RIM_RADIUS,
@@ -41,7 +42,7 @@ from thrsim.nav.pelvis import (
 from thrsim.nav.registration import LandmarkRegistration
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status
-from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.nav.tracking import (
     PROBE,
     REAMER,
@@ -70,7 +71,8 @@ TOOL_STATES: tuple[str, ...] = REASONS + ("stale", "missing")
 # Default camera: at the foot end, lateral and anterior of the operated hip, looking at it, so
 # that the reference array, the probe and a reamer inside the safe zone all face it (< 45°).
 DEFAULT_CAMERA = {"azimuth_deg": 50.0, "elevation_deg": -37.0, "distance_mm": 1600.0}
-DEFAULT_REAMER = {"inclination_deg": 60.0, "anteversion_deg": 10.0}  # outside the zone, in view
+#: where the page's reamer starts (radiographic): outside the zone, in view, so aiming is the trainee's
+DEFAULT_REAMER = {"inclination_deg": 60.0, "anteversion_deg": 10.0}
 # A hand holding a probe on a landmark: a steady offset within the acquisition tolerance, and a
 # tremor well inside the still tolerance (so a touch is acquired after the dwell). The offset is
 # shortened to a fraction of the tolerance: a touch from the page is meant to be on the landmark,
@@ -83,7 +85,7 @@ _HAND_TREMOR_SD_M = 0.2e-3
 # tracker's (0.25 mm RMS); it averages one second of paired samples at 60 Hz [3.3].
 _HEADSET_NOISE = (math.radians(0.3), 2e-3)
 _TRACKER_NOISE_M = 0.25e-3
-CALIBRATION_SAMPLES = 60
+CALIBRATION_SAMPLES = int(TrackingVolumeConfig().rate_hz)
 # The image target both the tracker and the display observe, on the drape beside the pelvis.
 _CALIBRATION_TARGET_MODEL = np.array([0.0, 0.12, -0.02])
 # A surgeon's arm and shoulder: a box between the camera and the tools, on the camera side.
@@ -94,10 +96,6 @@ _OCCLUDER_STANDOFF_M = 0.45
 def _spherical(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
     azimuth, elevation = math.radians(azimuth_deg), math.radians(elevation_deg)
     return np.array([math.cos(elevation) * math.cos(azimuth), math.cos(elevation) * math.sin(azimuth), math.sin(elevation)])
-
-
-def _mirror_azimuth(azimuth_deg: float, side: str) -> float:
-    return azimuth_deg if side == "right" else (180.0 - azimuth_deg + 180.0) % 360.0 - 180.0
 
 
 def _frame_with_z(z_axis: np.ndarray, hint: np.ndarray) -> np.ndarray:
@@ -150,8 +148,10 @@ class NavigationTrainer:
         zone: SafeZone = SafeZone(),
         tracking: TrackingVolumeConfig = TrackingVolumeConfig(),
         stale_after_s: float = 0.5,
+        reamer_start: dict[str, float] = DEFAULT_REAMER,
     ):
         self.seed = seed
+        self.reamer_start = dict(reamer_start)
         self.zone = zone
         self.tracking = tracking
         self.stale_after_s = stale_after_s
@@ -174,8 +174,8 @@ class NavigationTrainer:
         self.true_app_model = app_frame(self.model_landmarks, side=side)
         self.acetabulum_model = acetabulum_centre(side)
         crest = self.model_landmarks[f"iliac_tubercle_{side}"] + np.array([0.0, 0.02, 0.03])
-        camera = dict(DEFAULT_CAMERA, azimuth_deg=_mirror_azimuth(DEFAULT_CAMERA["azimuth_deg"], side))
-        facing = _spherical(camera["azimuth_deg"], camera["elevation_deg"])
+        facing = on_side(_spherical(DEFAULT_CAMERA["azimuth_deg"], DEFAULT_CAMERA["elevation_deg"]), side)
+        camera = dict(DEFAULT_CAMERA, azimuth_deg=math.degrees(math.atan2(facing[1], facing[0])))
         # T_model←array: the array on the crest, its markers facing the default camera.
         array_in_model = make_pose(_frame_with_z(facing, np.array([0.0, 0.0, 1.0])), crest)
         self.model_to_reference = invert(array_in_model)
@@ -184,7 +184,7 @@ class NavigationTrainer:
         self.true_app = app_frame(self.targets, side=side)
         self.tools: dict[str, _ToolPose] = {"Reference": _ToolPose(np.eye(4), "page", time_s)}
         self.tracker_camera: _ToolPose | None = None
-        self._reamer_angles = dict(DEFAULT_REAMER)
+        self._reamer_angles = dict(self.reamer_start)
         self._set_page_reamer(time_s)
         self._probe_on: str | None = None
         self._probe_offset = np.zeros(3)
@@ -488,9 +488,13 @@ class NavigationTrainer:
 
     # ---- output -------------------------------------------------------------------------------
 
+    def defaults(self) -> dict:
+        """Where the page's controls start (a new session's): the reamer's aim (radiographic, degrees)."""
+        return {"reamer": dict(self.reamer_start)}
+
     def scene(self) -> dict:
         """What the page needs once per side: landmarks and pelvis geometry (model frame, metres)."""
-        other = "left" if self.side == "right" else "right"
+        other = other_side(self.side)
         return {
             "side": self.side,
             "landmarks": {name: p.tolist() for name, p in self.model_landmarks.items()},

@@ -9,11 +9,11 @@ composed here, so the reamer is tracked, lost and measured exactly as in the nav
 Frames (:mod:`thrsim.nav.bone_frame`). The bone patch's frame (origin at the acetabular centre, +z out of
 the acetabulum) sits in the hip's APP frame (lateral, anterior, inferior) with its +z along the cup axis at the safe
 zone's centre (40° inclination, 15° anteversion, radiographic), so reaming at the zone's centre
-is the dataset's γ = 0 and the model's trained range (γ ≤ 45°) spans every clinical aim. The
+is the dataset's γ = 0 and the model's trained range (the card's, γ ≤ 45° for the shipped model) spans every clinical aim. The
 APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
 sides; only the placement in the pelvis (``patch_to_model``) is mirrored.
 
-Time. The simulator steps 1/60 s of reaming per frame, as the solver's cases do. While running,
+Time. The simulator steps the model's frame time of reaming per frame (its card's: the training cases', 1/60 s). While running,
 every tick steps the frames that are due by the running time (at most ``max_frames_per_tick``;
 beyond that the simulation falls behind real time and says so). Frames are driven by the tick
 times, which the session logs, so a replay steps the same frames. No I/O here.
@@ -30,22 +30,18 @@ import numpy as np
 
 from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
-from thrsim.config import SafeZone
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import INNER, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
-from thrsim.nav.session import CUP_AXIS_IN_REAMER
+from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.session.reaming import ReamingRecord, write_reaming
 
-FRAME_RATE_HZ = 60.0
 #: α is sent to viewers in this many levels above the removal threshold (0 = removed)
 DISPLAY_LEVELS = 32
 #: a force sensor reading counts for this long; then the page's force control applies again
 SENSOR_FRESH_S = 0.5
-DEFAULT_FORCE_N = 230.0
-#: the model learned reamer axes up to this far from the patch's pole (the dataset's γ range)
-TRAINED_GAMMA_DEG = 45.0
 
 
 @dataclass
@@ -76,15 +72,20 @@ class ReamingTrainer:
         undo_s: float = 1.0,
         zone: SafeZone = SafeZone(),
     ):
-        self.navigation = NavigationTrainer(side=side, seed=seed, zone=zone)
+        # the reamer starts at the zone's centre, γ = 0 (the module docstring), where the page's aim starts too
+        self.navigation = NavigationTrainer(
+            side=side, seed=seed, zone=zone, reamer_start={"inclination_deg": zone.inclination_deg, "anteversion_deg": zone.anteversion_deg}
+        )
         self.simulator = simulator
         self.unavailable = unavailable if simulator is None else None
         self.max_frames_per_tick = max_frames_per_tick
-        self.undo_frames = max(1, int(round(undo_s * FRAME_RATE_HZ)))
+        #: simulated frames per second of reaming: the model's (its card's frame time)
+        self.frame_rate_hz = FRAME_RATE_HZ if simulator is None else 1.0 / simulator.model.frame_dt_s
+        self.undo_frames = max(1, int(round(undo_s * self.frame_rate_hz)))
         self.zone = zone
         self._cavity_geometry: dict | None = None
         self.patch_axes = patch_in_app(zone)
-        self.page_force_n = DEFAULT_FORCE_N
+        self.page_force_n = PUSH_FORCE_N
         self.sensor_force_n: float | None = None
         self._sensor_time = -math.inf
         self.trace = _Trace()
@@ -116,6 +117,10 @@ class ReamingTrainer:
     @property
     def side(self) -> str:
         return self.navigation.side
+
+    @property
+    def targets(self) -> dict[str, np.ndarray]:
+        return self.navigation.targets
 
     @property
     def patch_to_model(self) -> np.ndarray:
@@ -189,7 +194,7 @@ class ReamingTrainer:
         self._reamer_position = None if back.centre is None else back.centre.copy()
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
-        self.running_s = self.frames_run / FRAME_RATE_HZ
+        self.running_s = self.frames_run / self.frame_rate_hz
         self._history.clear()
         self._history.append(back)
         self.running = False
@@ -227,10 +232,10 @@ class ReamingTrainer:
             if self._last_tick is not None:
                 self.running_s += max(0.0, time_s - self._last_tick)
             self._last_tick = time_s
-            due = int(self.running_s * FRAME_RATE_HZ + 1e-9) - self.frames_run
+            due = int(self.running_s * self.frame_rate_hz + 1e-9) - self.frames_run
             if axis is None:
                 note = "reamer not measured: reaming holds"
-                self.running_s = self.frames_run / FRAME_RATE_HZ  # the held time is not owed
+                self.running_s = self.frames_run / self.frame_rate_hz  # the held time is not owed
             else:
                 if due > 0 and early is not None:
                     early(self._state(time_s, nav_state, axis, force, force_source, note))
@@ -241,7 +246,7 @@ class ReamingTrainer:
                     self._publish()
                 if due > self.max_frames_per_tick:
                     self.behind_frames += due - self.max_frames_per_tick
-                    self.running_s = self.frames_run / FRAME_RATE_HZ  # do not burst to catch up
+                    self.running_s = self.frames_run / self.frame_rate_hz  # do not burst to catch up
         return self._state(time_s, nav_state, axis, force, force_source, note)
 
     def _step_frame(self, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> bool:
@@ -310,15 +315,16 @@ class ReamingTrainer:
         gamma = theta = None
         if axis is not None:
             gamma, theta = angles_of(axis)
-            if gamma > TRAINED_GAMMA_DEG:
-                note = note or f"reamer {gamma:.0f}° off the acetabular axis: beyond what the model learned ({TRAINED_GAMMA_DEG:g}°)"
+            trained = None if sim is None else sim.model.trained_inclination_deg
+            if trained is not None and gamma > trained[1]:
+                note = note or f"reamer {gamma:.0f}° off the acetabular axis: beyond what the model learned ({trained[1]:g}°)"
         events, self._pending_events = self._pending_events, []
         reaming = {
             "available": sim is not None,
             "unavailable": self.unavailable,
             "running": self.running,
             "frame": self.frames_run,
-            "time_s": self.frames_run / FRAME_RATE_HZ,
+            "time_s": self.frames_run / self.frame_rate_hz,
             "behind_frames": self.behind_frames,
             "force_n": force,
             "force_source": force_source,
@@ -339,6 +345,10 @@ class ReamingTrainer:
 
     # ---- what the page and the session file get -----------------------------------------------
 
+    def defaults(self) -> dict:
+        """Where the page's controls start (a new session's): the aim, the push and its most, and the frame rate."""
+        return {**self.navigation.defaults(), "force_n": PUSH_FORCE_N, "max_force_n": c.MAX_FORCE_N, "frame_rate_hz": self.frame_rate_hz}
+
     def scene(self) -> dict:
         scene = self.navigation.scene()
         sim = self.simulator
@@ -350,7 +360,6 @@ class ReamingTrainer:
             "mesh": "/api/reaming/mesh",
             "display_levels": DISPLAY_LEVELS,
             "teeth_radius_m": None if sim is None else sim.model.teeth_radius_m,
-            "trained_gamma_deg": TRAINED_GAMMA_DEG,
         }
         return scene
 
@@ -367,6 +376,8 @@ class ReamingTrainer:
                 "mesh_digest": sim.model.graph.digest,
                 "data_digest": sim.model.card["data"]["digest"],
                 "trained_force_n": sim.model.trained_force_n,
+                "trained_inclination_deg": sim.model.trained_inclination_deg,
+                "frame_dt_s": sim.model.frame_dt_s,
             },
         }
 
@@ -389,6 +400,7 @@ class ReamingTrainer:
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
             events=list(self.events),
             trained_force_n=None if sim is None else sim.model.trained_force_n,
+            frame_dt_s=1.0 / self.frame_rate_hz,
             final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
             behind_frames=self.behind_frames,
             navigation=self.navigation.record(),

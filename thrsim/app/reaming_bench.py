@@ -32,6 +32,7 @@ import numpy as np
 
 from thrsim.app.drawing_bench import CHROMIUM, chromium_cpu_seconds, served_page
 from thrsim.app.navigation import NavigationTrainer
+from thrsim.config import TrackingVolumeConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
 
@@ -118,11 +119,13 @@ def time_reaming_page(
         tracker = _Tracker(int(page.evaluate("trainer.stats.hello.igtl[1]")))
         streaming = {"pose": poses[40.0], "on": True}
 
-        def stream() -> None:  # a 60 Hz tracker: samples on a fixed schedule, whatever the replies take
+        period_s = 1.0 / TrackingVolumeConfig().rate_hz
+
+        def stream() -> None:  # a tracker at its rate: samples on a fixed schedule, whatever the replies take
             next_sample = time.monotonic()
             while streaming["on"]:
                 tracker.send(streaming["pose"])
-                next_sample = max(next_sample + 1 / 60, time.monotonic() - 1 / 60)  # late: no burst to catch up
+                next_sample = max(next_sample + period_s, time.monotonic() - period_s)  # late: no burst to catch up
                 time.sleep(max(0.0, next_sample - time.monotonic()))
 
         thread = threading.Thread(target=stream, daemon=True)

@@ -120,7 +120,8 @@ def _model_to_use(path, recorded: object, given: str | Path | None) -> str | Non
         return None
     raise ThrsimInputError(
         f"{path}: reamed with the model folder {recorded!r}, not the shipped model; a replay loads only a model you name: "
-        f"add --model MODEL_DIR (that folder, if you trust it)"
+        "name that folder, if you trust it (model_dir)",
+        mentions=("model_dir",),
     )
 
 

@@ -7,9 +7,10 @@ read-only view, whose controls are refused. Every ``1/tick_hz`` s the ticker ste
 session on a worker thread (a reaming frame costs tens of milliseconds; the event loop keeps
 serving meanwhile) and hands the state to each of its viewers' senders; a viewer's queue holds
 only the newest state, so a slow viewer skips frames instead of slowing the others or growing
-memory. The reaming mode's bone goes to each viewer as binary frames of what changed since what
-that viewer last received (:mod:`thrsim.app.bone_stream`). Tracker poses reach every live
-session through the OpenIGTLink server's session object (its public ``session=`` hook). While a
+memory. A mode's binary stream (the reaming bone: what changed since what that viewer last
+received, :mod:`thrsim.app.bone_stream`) follows each state; routes, streams and settings of one
+mode are its :class:`~thrsim.app.modes.Mode` hooks, so nothing here names a mode. Tracker poses
+reach every live session through the OpenIGTLink server's tracker state (its ``tracker=``). While a
 session lives its inputs stream to its journal in ``sessions_dir``; it ends when its trainee
 asks (a fresh one starts at once in the same seat, its observers stay), leaves the page (the
 seat closes; its observers are told), or the server stops: it is written atomically there. A
@@ -54,9 +55,9 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
-import numpy as np
 from fastapi import FastAPI, HTTPException, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
@@ -64,9 +65,10 @@ from starlette.concurrency import run_in_threadpool
 
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
-from thrsim.config import LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
+from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
-from thrsim.nav.session import NavigationSession
+from thrsim.nav.bone_frame import check_side
+from thrsim.nav.tracker_state import TrackerState
 from thrsim.session.file import is_interrupted
 
 log = logging.getLogger(__name__)
@@ -117,7 +119,7 @@ def _networks(values: tuple[str, ...]) -> tuple[ipaddress.IPv4Network | ipaddres
         try:
             networks.append(ipaddress.ip_network(value, strict=False))
         except ValueError:
-            raise ThrsimInputError(f"--igtl-allow {value}: not an address or network (ADDR or ADDR/PREFIX)") from None
+            raise ThrsimInputError(f"{value}: not an address or network (ADDR or ADDR/PREFIX)", "igtl_allow") from None
     return tuple(networks)
 
 
@@ -130,7 +132,7 @@ class ServeSettings:
     sessions_dir: Path = Path("sessions")
     side: str = "right"
     seed: int | None = None  # None: a fresh one per session
-    tick_hz: float = 60.0
+    tick_hz: float = FRAME_RATE_HZ  # the states' rate: a frame of reaming per tick
     igtl: bool = True
     model: Path | None = None  # the reaming mode's model folder (None: the shipped model)
     compile: bool = True  # run the reaming network compiled (thrsim.learn.compiled), compiled at start
@@ -143,24 +145,25 @@ class ServeSettings:
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
-            raise ThrsimInputError(
-                f"--host {self.host} is reachable from other machines: give an access token (THRSIM_TOKEN or --token-file)"
-            )
+            raise ThrsimInputError(f"{self.host} is reachable from other machines: give an access token (token)", "host", ("token",))
         if self.token is not None and len(self.token) < 8:
             raise ThrsimInputError("the access token must be at least 8 characters")
         if self.token is not None and not _TOKEN.fullmatch(self.token):
             raise ThrsimInputError("the access token may hold letters, digits and . _ ~ - only (it travels in URLs and a cookie)")
-        if self.side not in ("right", "left"):
-            raise ThrsimInputError(f"--side must be right or left, got {self.side!r}")
+        check_side(self.side)
         if not self.sessions_dir.is_dir():
             raise ThrsimInputError(f"sessions folder {self.sessions_dir} does not exist")
         if self.model is not None and not self.model.is_dir():
-            raise ThrsimInputError(f"--model {self.model}: no such model folder")
+            raise ThrsimInputError(f"{self.model}: no such model folder", "model_dir")
         _networks(self.igtl_allow)
         if self.igtl_allow and is_loopback(self.igtl_config().host):
-            raise ThrsimInputError("--igtl-allow admits trackers from other machines: give the address to listen on as well (--igtl-host)")
+            raise ThrsimInputError(
+                "admits trackers from other machines: give the address to listen on as well (igtl_host)", "igtl_allow", ("igtl_host",)
+            )
         if not self.igtl_allow and not is_loopback(self.igtl_config().host):
-            raise ThrsimInputError(f"--igtl-host {self.igtl_host} serves no other machine without --igtl-allow ADDR/NET")
+            raise ThrsimInputError(
+                f"{self.igtl_host} serves no other machine without networks to admit (igtl_allow)", "igtl_host", ("igtl_allow",)
+            )
 
     def igtl_config(self) -> IgtlConfig:
         """The OpenIGTLink listener: on loopback (this host's, when it is loopback) unless ``igtl_host``."""
@@ -257,8 +260,8 @@ class _Viewer:
     socket: WebSocket
     queue: asyncio.Queue = field(default_factory=lambda: asyncio.Queue(maxsize=1))
     sent: int = 0
-    levels_sent: np.ndarray | None = None  # the bone as this viewer last received it (reaming)
-    bone_bytes: int = 0
+    binary_held: Any = None  # what the mode's binary messages gave this viewer so far (reaming: the bone's levels)
+    binary_bytes: int = 0
 
     def offer(self, text: str) -> None:
         if self.queue.full():
@@ -301,22 +304,10 @@ class TrainerHub:
 
     def _settings(self, mode: Mode) -> dict:
         seed = self.settings.seed if self.settings.seed is not None else secrets.randbits(31)
-        settings = {"side": self.settings.side, "seed": seed}
-        if self.settings.model is not None:
-            settings["model"] = str(self.settings.model)
-        if self.settings.compile and mode.name == "reaming":
-            settings["compile"] = True
-        return settings
+        return {"side": self.settings.side, "seed": seed, **mode.session_settings(self.settings)}
 
     def _start(self, mode: Mode) -> LiveSession:
         return LiveSession(mode, self._settings(mode), self.clock, self.settings.sessions_dir)
-
-    def reaming_network(self) -> dict:
-        """How the reaming sessions' network runs: compiled, eager (with why, if compiling failed) or none."""
-        simulator = getattr(self.prototypes["reaming"], "simulator", None)
-        if simulator is None:
-            return {"state": "none"}
-        return {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}
 
     def open_seat(self, mode_name: str, owner: _Viewer | None) -> Seat:
         """A seat with a fresh session of the mode for a trainee's page; ThrsimInputError when
@@ -494,12 +485,14 @@ class TrainerHub:
             "role": "trainee" if viewer is seat.owner else "observer",
             "observe": f"{session.mode.path}?observe={session.id}",
             "scene": session.trainer.scene(),
+            "defaults": session.trainer.defaults(),
+            "tick_hz": self.settings.tick_hz,
             "igtl": self.igtl_address,
         }
 
 
-class _ForwardingSession(NavigationSession):
-    """The OpenIGTLink server's navigation session, also forwarding each reading to the trainer."""
+class _ForwardingTracker(TrackerState):
+    """The OpenIGTLink server's tracker state, also forwarding each reading to the trainer's live sessions."""
 
     def __init__(self, hub: TrainerHub, **kwargs):
         super().__init__(**kwargs)
@@ -559,10 +552,10 @@ def create_app(settings: ServeSettings) -> FastAPI:
         if settings.igtl:
             from thrsim.io.server import NavigationServer
 
-            first = hub.prototypes["navigation"]
-            igtl_session = _ForwardingSession(hub, side=first.side, landmarks=getattr(first, "targets", None))
+            first = next(iter(hub.prototypes.values()))  # every mode's pelvis is the same synthetic one
+            igtl_tracker = _ForwardingTracker(hub, side=first.side, landmarks=first.targets)
             igtl_config = settings.igtl_config()
-            igtl_server = NavigationServer(igtl_config, session=igtl_session, clock=hub.clock)
+            igtl_server = NavigationServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:
@@ -606,26 +599,19 @@ def create_app(settings: ServeSettings) -> FastAPI:
     def modes() -> dict:
         return {"modes": [{"name": m.name, "path": m.path, "title": m.title} for m in MODES.values()]}
 
-    mesh_bytes: dict[str, bytes] = {}
-
-    @app.get("/api/reaming/mesh")
-    def reaming_mesh() -> Response:
-        simulator = getattr(hub.prototypes["reaming"], "simulator", None)
-        if simulator is None:
-            raise HTTPException(404, hub.prototypes["reaming"].unavailable or "no reaming model")
-        if simulator.model.graph.digest not in mesh_bytes:
-            from thrsim.app.bone_stream import mesh_payload
-
-            mesh_bytes[simulator.model.graph.digest] = mesh_payload(simulator.right_mesh)
-        return Response(mesh_bytes[simulator.model.graph.digest], media_type="application/octet-stream")
+    for mode in MODES.values():
+        for path, handler in mode.routes(hub.prototypes[mode.name]):
+            app.add_api_route(path, handler, methods=["GET"], include_in_schema=False)
 
     @app.get("/api/health")
     def health() -> dict:
-        return {
+        figures = {
             "ok": True, "ticks": hub.ticks, "igtl": hub.igtl_address, "sessions": {name: sum(seat.session.mode.name == name for seat in hub.seats) for name in MODES},
             "viewers": {name: sum(len(seat.viewers) for seat in hub.seats if seat.session.mode.name == name) for name in MODES},
-            "reaming_network": hub.reaming_network(),
         }  # fmt: skip
+        for mode in MODES.values():
+            figures.update(mode.health(hub.prototypes[mode.name]))
+        return figures
 
     @app.get("/api/sessions")
     def sessions() -> dict:
@@ -715,7 +701,7 @@ def _handle(hub: TrainerHub, seat: Seat, viewer: _Viewer, text: str | None) -> l
     try:
         control, ack = session.control(text)
     except ThrsimInputError as error:
-        log.warning("%s control refused: %s", mode_name, error)  # one line per bad message, never a traceback
+        log.warning("%s control refused: %s", session.mode.name, error)  # one line per bad message, never a traceback
         return [("one", {"type": "error", "message": str(error)})]
     except Exception as error:  # a trainer bug: refuse this control, keep the session and the server
         log.exception("control failed")
@@ -739,18 +725,14 @@ def _handle(hub: TrainerHub, seat: Seat, viewer: _Viewer, text: str | None) -> l
 
 
 async def _send_states(viewer: _Viewer, seat: Seat) -> None:
-    from thrsim.app.bone_stream import update
-
+    """Each state the viewer's queue offers, then the mode's binary message for it, if any (the reaming bone)."""
     with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
         while True:
             await viewer.socket.send_text(await viewer.queue.get())
             viewer.sent += 1
-            trainer = seat.session.trainer
-            levels = getattr(trainer, "levels", None)
-            if levels is None or len(levels) == 0:
-                continue
-            message = update(trainer.frames_run, viewer.levels_sent, levels)
-            if message is not None:
+            binary = seat.session.mode.binary
+            found = None if binary is None else binary(seat.session.trainer, viewer.binary_held)
+            if found is not None:
+                message, viewer.binary_held = found
                 await viewer.socket.send_bytes(message)
-                viewer.levels_sent = levels  # the trainer replaces its array, never mutates it
-                viewer.bone_bytes += len(message)
+                viewer.binary_bytes += len(message)

@@ -18,7 +18,7 @@ from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
 from thrsim.cli import evaluate_cmd, ream_cmd, replay_cmd, report_cmd, review_cmd, serve_cmd, train_cmd
-from thrsim.cli.output import command_group, describe_os_error, format_validation_error
+from thrsim.cli.output import command_group, describe_os_error, format_validation_error, user_message
 from thrsim.errors import SimulationError, ThrsimInputError
 
 app = command_group("Physically-based and learned simulation of acetabular reaming (total hip replacement training).", name="thrsim")
@@ -59,7 +59,7 @@ def main() -> None:
     try:
         app()
     except ThrsimInputError as error:
-        typer.echo(f"thrsim: error: {error}", err=True)
+        typer.echo(f"thrsim: error: {user_message(error)}", err=True)
         sys.exit(2)
     except ValidationError as error:
         typer.echo(f"thrsim: error: {format_validation_error(error)}", err=True)

@@ -11,7 +11,7 @@ from pydantic import ValidationError
 from rich.console import Console
 from rich.table import Table
 
-from thrsim.errors import ThrsimOutputError
+from thrsim.errors import ThrsimInputError, ThrsimOutputError
 from thrsim.provenance import json_default
 
 console = Console()
@@ -41,6 +41,29 @@ def print_table(title: str, rows: dict[str, Any]) -> None:
     for key, value in rows.items():
         table.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value))
     console.print(table)
+
+
+#: settings whose flag is not ``--`` and the name with ``-`` for ``_``
+FLAGS = {
+    "inclination_deg": "--inclination",
+    "anteversion_deg": "--anteversion",
+    "model_dir": "--model",
+    "sessions_dir": "--sessions",
+    "token": "--token-file or THRSIM_TOKEN",
+}
+
+
+def flag_of(setting: str) -> str:
+    """The command-line flag that sets a library setting (``igtl_allow`` → ``--igtl-allow``)."""
+    return FLAGS.get(setting, "--" + setting.replace("_", "-"))
+
+
+def user_message(error: ThrsimInputError) -> str:
+    """A library error worded for the command line: the settings it names as their flags."""
+    text = error.message
+    for name in error.mentions:
+        text = text.replace(f"({name})", f"({flag_of(name)})")
+    return text if error.setting is None else f"{flag_of(error.setting)}: {text}"
 
 
 def format_validation_error(error: ValidationError) -> str:

@@ -8,6 +8,7 @@ import typer
 
 from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
 from thrsim.cli.output import print_json
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N
 
 #: the aim when none is given: the default case's γ, θ
 DEFAULT_AIM_DEG = (15.0, 30.0)
@@ -28,9 +29,12 @@ def ream(
         help="output folder (created, with its parents): ream.pvd (open it in ParaView), bone_*.vtu, reamer_*.vtu, ream.json",
         metavar="DIR",
     ),
-    force: float = typer.Option(230.0, "--force", help="axial push force in N", metavar="N"),
+    force: float = typer.Option(PUSH_FORCE_N, "--force", help="axial push force in N", metavar="N"),
     frames: int = typer.Option(
-        120, "--frames", help="frames at 60 per second (the run stops earlier where the reamer goes through the bone)", metavar="N"
+        120,
+        "--frames",
+        help=f"frames at {FRAME_RATE_HZ:g} per second (the run stops earlier where the reamer goes through the bone)",
+        metavar="N",
     ),
     side: str = typer.Option("right", "--side", help="hip side: right or left"),
     model: Path | None = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
@@ -76,7 +80,7 @@ def describe(summary: dict) -> list[str]:
         f"learned reaming: γ {summary['inclination_deg']:g}°, θ {summary['anteversion_deg']:g}° ({cup_text}), "
         f"{summary['force_n']:g} N, {summary['side']} hip",
         f"stopped: {summary['end_reason_text']}",
-        f"frames: {summary['frames']} run of {summary['frames_requested']} asked (60 per second)",
+        f"frames: {summary['frames']} run of {summary['frames_requested']} asked ({summary['frame_rate_hz']:g} per second)",
         f"removed: {removed} of {elements} elements ({100 * removed / elements:.1f}%, {summary['removed_volume_mm3']:.1f} mm³)"
         + (": every element, the reamer went through the whole bone patch" if summary["removed_all"] else ""),
         f"depth: {summary['depth_mm']:.2f} mm; {summary['ms_per_frame_median']:.1f} ms per frame (median)",

@@ -105,7 +105,7 @@ class LocalExecutor:
 
     def __init__(self, workers: int = 1):
         if workers < 1:
-            raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
+            raise ThrsimInputError(f"must be at least 1, got {workers}", "workers")
         self.workers = workers
         cores = os.cpu_count() or 1
         self.threads_per_worker = max(1, cores // workers)
@@ -161,11 +161,11 @@ class DaskExecutor:
             address = f"tcp://{address}"
         scheme, _, rest = address.partition("://")
         if scheme not in ("tcp", "tls", "inproc", "ucx", "ws", "wss") or ":" not in rest:
-            raise ThrsimInputError(f"--scheduler must look like tcp://HOST:PORT, got {address!r}")
+            raise ThrsimInputError(f"must look like tcp://HOST:PORT, got {address!r}", "scheduler")
         try:
             from distributed import Client
         except ImportError:  # pragma: no cover - dask[distributed] is a dependency
-            raise ThrsimInputError("--scheduler needs dask[distributed] installed") from None
+            raise ThrsimInputError("needs dask[distributed] installed", "scheduler") from None
         import dask
 
         try:

@@ -262,7 +262,7 @@ def check_directory(root: Path, identity: dict) -> dict | None:
     if manifest.get("identity_hash") != config_hash(identity):
         diffs = _differences(manifest.get("identity", {}), identity)
         shown = "; ".join(diffs[:3]) + (f"; and {len(diffs) - 3} more" if len(diffs) > 3 else "")
-        raise ThrsimInputError(f"{root}: made by a different configuration ({shown or 'identity differs'}); use another --out")
+        raise ThrsimInputError(f"{root} was made by a different configuration ({shown or 'identity differs'}); use another", "out")
     return manifest
 
 

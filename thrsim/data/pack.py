@@ -24,14 +24,10 @@ Layout::
         time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
                                as in the case file
 
-α is stored in levels of 1/50 and read back at the level's centre: the error (≤ 0.01) is half the
-noise σ 0.02 that training adds to α, and since the removal threshold 0.3 is a level boundary,
-every element is on the same side of it as in the case file. Damage and its initiation, both in
-[0, 1], are rounded to levels of 1/100, so that 0 (undamaged) and 1 (deleted) stay exact. The levels are what makes a pack
-small: between contact and removal α carries the bone's ringing stress (its term saturates at
-26 MPa), which does not compress; at 1/50 it costs about 4 bits per active element and frame
-(a 95-frame γ 15° case: 0.54 MB, against 12.3 MB for its case file and 0.80 MB at 1/250). The labels' constants are
-fixed when the pack is made; reading it with other constants is refused.
+α is stored in levels of 1/50, read back at the level's centre (error ≤ 0.01, half the training
+noise; the removal threshold 0.3 is a level boundary), damage in levels of 1/100 (0 and 1 exact):
+the levels are what makes a pack small (sizes: docs, "Benchmarks and validation"). The labels'
+constants are fixed when the pack is made; reading it with other constants is refused.
 """
 
 from __future__ import annotations
@@ -200,7 +196,7 @@ def _check_same_source(existing: h5py.File, attrs: dict[str, Any], out: Path) ->
         have = existing.attrs.get(key)
         have = have.decode() if isinstance(have, bytes) else have
         if have != attrs[key]:
-            raise ThrsimInputError(f"{out}: an existing pack of another dataset or format ({key} differs); give another --out")
+            raise ThrsimInputError(f"{out} is an existing pack of another dataset or format ({key} differs); give another", "out")
 
 
 def write_pack(
@@ -239,7 +235,7 @@ def write_pack(
     held: dict[str, str] = {}
     for shard in shards:
         if not _is_pack_file(shard):
-            raise ThrsimInputError(f"{shard}: is not a learning pack; give another --out")
+            raise ThrsimInputError(f"{shard} is not a learning pack; give another", "out")
         with h5py.File(shard, "r") as existing:
             _check_same_source(existing, attrs, shard)
             held.update({case_id: existing["cases"][case_id].attrs["source_data_digest"] for case_id in existing["cases"]})
@@ -286,7 +282,7 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
         mesh = None
         if out.exists():
             if not _is_pack_file(out):
-                raise ThrsimInputError(f"{out}: exists and is not a learning pack; give another --out")
+                raise ThrsimInputError(f"{out} exists and is not a learning pack; give another", "out")
             with h5py.File(out, "r") as existing:
                 mesh = read_mesh_group(existing["mesh"])
                 _check_same_source(existing, attrs, out)

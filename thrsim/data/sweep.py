@@ -214,7 +214,7 @@ def plan_sweep(
         if not (math.isfinite(f) and f > 0):
             raise ThrsimInputError(f"push forces must be positive newtons, got {f:g}")
     if frames < 1:
-        raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
+        raise ThrsimInputError(f"must be at least 1, got {frames}", "frames")
     sizes = tuple(element_sizes_mm) or (None,)
     for h in sizes:
         if h is not None and not (math.isfinite(h) and h > 0):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from thrsim.config import ReamingCaseConfig
+from thrsim.config import PUSH_FORCE_N, ReamingCaseConfig
 from thrsim.data.case_file import CaseFrames, write_case
 from thrsim.geometry.mesh import TetMesh
 
@@ -68,7 +68,7 @@ def synthetic_run_case(
     axis = np.array(case.orientation.reamer_axis)
     t_frames = case.frames
     radius = 3e-3
-    speed = 2e-4 * case.force_n / 230.0  # m per frame
+    speed = 2e-4 * case.force_n / PUSH_FORCE_N  # m per frame
     start = np.array([0.0, 0.0, -22e-3]) - axis * radius  # head touching the face at frame 0
     centroids = mesh.centroids
     status = np.ones((t_frames, mesh.n_tets), dtype=np.uint8)

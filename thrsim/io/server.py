@@ -5,13 +5,13 @@ connection: any error while serving it (ours included) ends at that connection, 
 reply where the stream allows one. Per message:
 
 * TRANSFORM (``ReamerToReference``, ``ReferenceToTracker``, ...; translation in mm) and SENSOR
-  (force in N) update the shared :class:`~thrsim.nav.session.NavigationSession`, and the sender
+  (force in N) update the shared :class:`~thrsim.nav.tracker_state.TrackerState`, and the sender
   gets a STRING message named ``NavigationState`` with the state as JSON;
 * a bad CRC-64 or unusable content gets a STATUS reply (code 9 checksum error, 10
   configuration error) and the connection goes on: its framing is intact;
 * a well-formed message of a type the trainer does not use is counted and ignored;
 * a TRANSFORM under a device name beyond the known ones and ``max_other_devices`` others gets a
-  STATUS reply (10) and is not stored: the shared session stays bounded;
+  STATUS reply (10) and is not stored: the shared tracker state stays bounded;
 * an unsupported header version, a non-ASCII type, a body above ``max_body_bytes`` or a message
   that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
   where possible, then that connection (only) is closed.
@@ -28,13 +28,7 @@ one gets STATUS 7); with neither, the newcomer gets STATUS 6 (busy) and is close
 stay idle, or talk without tracking anything, cannot lock a tracker out, and a tracker keeps
 its slot through a pause (an occluded tool) shorter than the idle timeout.
 
-Large bodies are checksummed in a worker thread and the simulator hook runs in a worker thread,
-so the event loop never waits on computation.
-
-Simulator hook: pass ``simulator=`` any callable matching :class:`ReamerSimulator`. Whenever a
-client's reamer pose updates, the hook is called (in a thread, at most one call in flight per
-connection, always with the newest pose — older ones are skipped) and a non-None result is sent
-back to that client as a TRANSFORM named ``SimReamerToReference``.
+Large bodies are checksummed in a worker thread, so the event loop never waits on computation.
 """
 
 from __future__ import annotations
@@ -45,39 +39,23 @@ import ipaddress
 import json
 import logging
 import time
-from typing import Callable, Protocol
+from typing import Callable
 
-import numpy as np
 
 from thrsim.config import IgtlConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
-from thrsim.nav.rigid import check_pose
-from thrsim.nav.session import REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE_TO_TRACKER, NavigationSession
+from thrsim.nav.tracker_state import TrackerState
 
 log = logging.getLogger(__name__)
 
 NAVIGATION_STATE = "NavigationState"
-SIMULATED_REAMER = "SimReamerToReference"  # device names are at most 20 bytes
 # Above this a pure-Python CRC takes milliseconds: hand it to a thread.
 _CRC_IN_THREAD_BYTES = 64 * 1024
-_REAMER_DEVICES = (REAMER_TO_REFERENCE, REAMER_TO_TRACKER, REFERENCE_TO_TRACKER)
-
-
-class ReamerSimulator(Protocol):
-    """Hook for a learned reaming simulator.
-
-    Called with the tracked reamer pose in the reference frame (4×4, metres) and the latest
-    force in newtons (None before any reading); returns the simulated reamer pose (4×4,
-    metres, same frame) to send back, or None for nothing. Runs in a worker thread: it may take
-    as long as a model step takes, but must be thread-safe with respect to its own state.
-    """
-
-    def __call__(self, reamer_to_reference: np.ndarray, force_n: float | None) -> np.ndarray | None: ...
 
 
 class _Connection:
-    """One peer: its writer, the header version to answer in, and its simulator feed."""
+    """One peer: its writer and the header version to answer in."""
 
     def __init__(self, server: "NavigationServer", writer: asyncio.StreamWriter):
         self.server = server
@@ -87,18 +65,8 @@ class _Connection:
         self.earned_at: float | None = None  # when it last sent a pose or force the trainer uses (loop time)
         self.version = 1
         self.send_lock = asyncio.Lock()
-        self.pending: tuple[np.ndarray, float | None] | None = None
-        self.wake = asyncio.Event()
-        self.simulator_task: asyncio.Task | None = None
-        self.closed = False
 
     def close(self) -> None:
-        # A flag as well as cancel(): Python 3.11's wait_for can swallow a cancellation that
-        # lands as the awaited drain completes, and the loop below must still end.
-        self.closed = True
-        self.wake.set()
-        if self.simulator_task is not None:
-            self.simulator_task.cancel()
         self.writer.close()
 
     async def send(self, type_name: str, device: str, content: bytes) -> None:
@@ -121,34 +89,6 @@ class _Connection:
                 )
         self.close()
 
-    def offer_to_simulator(self, pose: np.ndarray, force_n: float | None) -> None:
-        self.pending = (pose, force_n)
-        self.wake.set()
-        if self.simulator_task is None:
-            self.simulator_task = asyncio.create_task(self._run_simulator())
-
-    async def _run_simulator(self) -> None:
-        simulator = self.server.simulator
-        while True:
-            await self.wake.wait()
-            if self.closed:
-                return
-            self.wake.clear()
-            pose, force_n = self.pending
-            try:
-                result = await asyncio.to_thread(simulator, pose, force_n)
-                reply = None if result is None else ("TRANSFORM", igtl.pack_transform(check_pose(result, "simulated reamer pose")))
-            except Exception as error:  # a faulty model must not take the server down
-                self.server.stats["simulator_errors"] += 1
-                log.warning("simulator hook failed: %s", error)
-                reply = ("STATUS", igtl.pack_status(igtl.STATUS_UNKNOWN_ERROR, "SimulatorError", str(error)[:200]))
-            if reply is None:
-                continue
-            try:
-                await self.send(reply[0], SIMULATED_REAMER, reply[1])
-            except (ConnectionError, asyncio.TimeoutError):
-                return
-
 
 class NavigationServer:
     """Serve many OpenIGTLink clients at once; see the module docstring for the protocol."""
@@ -156,17 +96,15 @@ class NavigationServer:
     def __init__(
         self,
         config: IgtlConfig = IgtlConfig(),
-        session: NavigationSession | None = None,
-        simulator: ReamerSimulator | None = None,
+        tracker: TrackerState | None = None,
         clock: Callable[[], float] = time.monotonic,
     ):
         self.config = config
-        self.session = session if session is not None else NavigationSession(stale_after_s=config.stale_pose_s)
-        self.simulator = simulator
+        self.tracker = tracker if tracker is not None else TrackerState(stale_after_s=config.stale_pose_s)
         self.clock = clock
         self.stats = dict.fromkeys(
             ("connections", "rejected_connections", "messages", "transforms", "sensors", "replies", "sent", "bad_crc",
-             "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts", "simulator_errors"),
+             "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts"),
             0,
         )  # fmt: skip
         self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors", "refused_peers"), 0))
@@ -190,7 +128,7 @@ class NavigationServer:
         if self._server is None:
             return
         self._server.close()
-        tasks = list(self._handlers) + [c.simulator_task for c in self._connections if c.simulator_task]
+        tasks = list(self._handlers)
         for connection in list(self._connections):
             connection.close()  # the handler's next read sees end of stream and returns
         if tasks:
@@ -201,7 +139,7 @@ class NavigationServer:
 
     def snapshot(self) -> dict:
         """Navigation state, client count and counters, for logs."""
-        return {"state": self.session.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
+        return {"state": self.tracker.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
 
     def _peer_allowed(self, writer: asyncio.StreamWriter) -> bool:
         """Whether the peer's address lies in ``allowed_peers``; refused peers are logged, one line each."""
@@ -333,7 +271,7 @@ class NavigationServer:
                         f"{self.config.max_other_devices} other name(s) allowed are taken; pose ignored", message.device_name,
                     )  # fmt: skip
                     return
-                self.session.update_pose(message.device_name, pose, now)
+                self.tracker.update_pose(message.device_name, pose, now)
                 self.stats["transforms"] += 1
                 if message.device_name in self.config.known_devices:
                     connection.earned_at = asyncio.get_running_loop().time()
@@ -341,7 +279,7 @@ class NavigationServer:
                 values, unit = igtl.unpack_sensor(message.content)
                 if unit not in (0, igtl.UNIT_NEWTON):
                     raise igtl.IgtlProtocolError(f"SENSOR unit {unit:#x} is not newton", igtl.STATUS_CONFIGURATION_ERROR)
-                self.session.update_force(values, now)
+                self.tracker.update_force(values, now)
                 self.stats["sensors"] += 1
                 connection.earned_at = asyncio.get_running_loop().time()
             else:
@@ -352,10 +290,6 @@ class NavigationServer:
             self.stats["bad_content"] += 1
             await connection.send_status(igtl.STATUS_CONFIGURATION_ERROR, "BadContent", str(error), message.device_name)
             return
-        state = self.session.state(now)
+        state = self.tracker.state(now)
         await connection.send("STRING", NAVIGATION_STATE, igtl.pack_string(json.dumps(state, allow_nan=False)))
         self.stats["replies"] += 1
-        if self.simulator is not None and message.device_name in _REAMER_DEVICES:
-            pose = self.session.reamer_to_reference(now)
-            if pose is not None:
-                connection.offer_to_simulator(pose, state["force_n"])

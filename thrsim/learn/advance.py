@@ -1,45 +1,21 @@
 """The reamer-advance regressor [7.3.4, eq. 50]: how far the reamer moves along D in the next frame.
 
-Δposition = Φ(depth, γ, θ, push force, push impulse). The thesis's eq. 50 also takes the absolute
-position and the count removed in the last frame; both made autonomous rollouts unstable,
-measured on the held-out cases of the default dataset. In absolute coordinates a rollout that
-drifts a little deeper than its training cases lands where only steeper inclinations were seen,
-borrows their larger advances and runs away (the default case lost the whole patch in 30
-frames); so the position enters as the depth along D from where the reamer was placed. The
-removed volume closes a loop through the network (less removed → less advance → less removed)
-that stalled γ 15° rollouts at 0.26 mm where the solver reaches 1.2 mm (mean F1 from frame 0 to
-t+60 or the case's end 0.84 with it, 0.97 without).
-
-The push impulse since the reamer was placed (Σ F·Δt, N·s) stands for the cutting work done so
-far, as the teeth's friction work grows with the push and the time they turn; it comes from the
-push alone, so it closes no loop through the network. Without it the regressor cannot tell a
-reamer that has just landed near the patch's axis from one that has cut there for a second: at
-γ ≈ 0 the solver's reamer rests at ≈ 0.1 mm for 30–90 frames (sooner at more force) while the
-slow teeth near the axis cut the bone under the dome's pole, then drops 0.5 mm, and a regressor of
-the depth alone predicted almost no advance at the resting depth for ever.
-
-The regressor learns the advance scaled to a reference push (× 230 N / push) and scales its
-prediction back by the push: in the solver
-the cut is paid by the teeth's friction work, which grows with the push, and the mean advance per
-frame of the training cases grows with it (0.076 / 0.153 / 0.220 mm at 150 / 230 / 310 N). So
-scaled, the 31 cases at 230 N also inform the 7 at each other force; the teacher-forced total
-advance of the validation cases at 150 N came within 11 % of the solver's instead of 20 % (230 and
-310 N unchanged). The reference keeps the targets in mm at the data's scale, where the grids
-(SVR's ε in particular) are set. Regressors stored before this predict the advance itself (no
-``reference_force_n`` array).
-
-Predictions are clipped to the advances seen in training, because a regressor outside its data
-has no physics to fall back on. Four scikit-learn models are compared by grid search with
-cross-validation grouped by case, as the thesis did (Random Forest of 100 trees, SVR, Ridge,
-linear regression); the lowest cross-validated error wins and every model's error on held-out
-cases is tabulated. The winner is stored as plain arrays (tree tables, support vectors,
-coefficients) and evaluated by :class:`ArrayRegressor`, so loading a model never unpickles
-anything. A regressor stored before the impulse existed (four features) is read as such.
+Δposition = Φ(depth, γ, θ, push force, push impulse): the depth along D from where the reamer was
+placed instead of eq. 50's absolute position and removed count (both made autonomous rollouts
+unstable), the push impulse Σ F·Δt as the cutting work so far, the target scaled to a reference
+push and back. Predictions are clipped to the advances seen in training. Four scikit-learn models
+are compared by grid search with cross-validation grouped by case (Random Forest, SVR, Ridge,
+linear); the winner is stored as plain arrays and evaluated by :class:`ArrayRegressor`, so loading
+never unpickles. Regressors stored before the impulse (four features) or the scaling (no
+``reference_force_n``) are read as such. Why each choice, with its measurements: docs,
+"Benchmarks and validation", "Design measurements".
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from thrsim.config import PUSH_FORCE_N
 
 FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n", "impulse_n_s")
 KINDS = ("random_forest", "svr", "ridge", "linear")
@@ -252,8 +228,9 @@ def _candidates(seed: int, trees: int = 100) -> dict:
     }
 
 
-#: the push the regressor's targets are scaled to (the dataset's default)
-REFERENCE_FORCE_N = 230.0
+#: the push the regressor's targets are scaled to (the dataset's default; a model's regressor keeps
+#: the value it was trained with, the thesis's mean push, which is not a setting to change)
+REFERENCE_FORCE_N = PUSH_FORCE_N
 
 
 def _push_scale(X: np.ndarray) -> np.ndarray:

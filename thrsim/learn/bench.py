@@ -30,7 +30,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from thrsim.config import BonePatchConfig, LabelConfig, Orientation
+from thrsim.config import PUSH_FORCE_N, BonePatchConfig, LabelConfig, Orientation
 from thrsim.geometry.adjacency import face_adjacency
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import centroids
@@ -78,16 +78,23 @@ def time_production(
     axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
     # a steady feed, not the model's own: the region then depends on the mesh, not on what the weights learned
     centre = start_position(model.mesh.nodes, axis, model.teeth_radius_m)
-    simulator.step(axis, 230.0, centre)  # warm-up
+    simulator.step(axis, PUSH_FORCE_N, centre)  # warm-up
     feed = model.reamer_feed()
     times, regions, feed_times = [], [], []
     for k in range(1, frames + 1):
         started = time.perf_counter()
         feed.advance_m(
-            simulator.alpha, centre + (k - 1) * FEED_M * axis, centre, axis, inclination_deg, anteversion_deg, 230.0, 230.0 * k / 60.0
+            simulator.alpha,
+            centre + (k - 1) * FEED_M * axis,
+            centre,
+            axis,
+            inclination_deg,
+            anteversion_deg,
+            PUSH_FORCE_N,
+            PUSH_FORCE_N * k * model.frame_dt_s,
         )
         feed_times.append(time.perf_counter() - started)
-        state = simulator.step(axis, 230.0, centre + k * FEED_M * axis)
+        state = simulator.step(axis, PUSH_FORCE_N, centre + k * FEED_M * axis)
         times.append(state.seconds + feed_times[-1])
         regions.append(simulator._step.last.region)
     return {
@@ -126,7 +133,7 @@ def time_thesis_way(
         )
         graph = model.graph
         graph.centroids = centroids(mesh.nodes, mesh.tets)  # Algorithm 1, line 2: recomputed per frame
-        reamer = ReamerState(centre + k * FEED_M * axis, axis, 230.0, FEED_M, 136.0, teeth_radius_m)
+        reamer = ReamerState(centre + k * FEED_M * axis, axis, PUSH_FORCE_N, FEED_M, 136.0, teeth_radius_m)
         inputs = batch([(sub, alpha, frame_arrays(graph, sub, alpha, reamer, "thesis", 0.3, alpha >= 0.3))])
         t1 = time.perf_counter()
         with torch.inference_mode():

@@ -14,7 +14,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thrsim.config import LabelConfig, ReamerConfig
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig
 from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.data.pack import is_pack, read_pack
@@ -39,7 +39,7 @@ class CaseArrays:
     teeth_radius_m: float
     digest: str
     solver_version: str
-    frame_dt_s: float = 1.0 / 60.0
+    frame_dt_s: float = 1.0 / FRAME_RATE_HZ
     damage: np.ndarray | None = None  # (T, E) float32 D, where the case records it (solver 0.4.0 on)
 
     @property
@@ -72,7 +72,7 @@ def _case_arrays(
         alpha=alpha,
         positions=np.asarray(positions, dtype=np.float64),
         axis=axis / np.linalg.norm(axis),
-        force_n=float(attrs.get("force_n", 230.0)),
+        force_n=float(attrs.get("force_n", PUSH_FORCE_N)),
         inclination_deg=float(attrs.get("inclination_deg", 0.0)),
         anteversion_deg=float(attrs.get("anteversion_deg", 0.0)),
         omega_rad_s=float(attrs.get("omega_rad_s", 136.0)),
@@ -82,7 +82,7 @@ def _case_arrays(
         teeth_radius_m=(0.5 * float(reamer["head_diameter_mm"]) + float(reamer["tooth_protrusion_mm"])) * 1e-3,
         digest=digest,
         solver_version=str(attrs.get("thrsim_version", "unknown")),
-        frame_dt_s=1.0 / float(config.get("frame_rate_hz", 60.0)),
+        frame_dt_s=1.0 / float(config.get("frame_rate_hz", FRAME_RATE_HZ)),
         damage=None if damage is None else np.asarray(damage, dtype=np.float32),
     )
 

@@ -34,7 +34,7 @@ from safetensors.torch import load_file as load_tensors
 from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
-from thrsim.config import LabelConfig
+from thrsim.config import FRAME_RATE_HZ, LabelConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import KINDS, ArrayRegressor
@@ -119,6 +119,19 @@ class LoadedModel:
         """The lowest and highest push of the training cases (None on a card written before cards recorded it)."""
         found = self.card["data"].get("force_range_n")
         return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
+    def trained_inclination_deg(self) -> tuple[float, float] | None:
+        """The lowest and highest γ (reamer axis from the socket axis) of the training cases (None on a
+        card written before cards recorded it)."""
+        found = self.card["data"].get("inclination_range_deg")
+        return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
+    def frame_dt_s(self) -> float:
+        """Seconds of reaming one step of the model stands for: the training cases' frame time (cards
+        written before cards recorded it: the thesis's frame rate, which every case then had)."""
+        return float(self.card["data"].get("frame_dt_s", 1.0 / FRAME_RATE_HZ))
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""
@@ -293,8 +306,8 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
         path = SHIPPED_MODEL
         if not (path / CARD).is_file():
             raise ThrsimInputError(
-                "no shipped model in this thrsim build yet (it is trained on the 0.3.0 dataset); "
-                "train one with `thrsim train --data DIR --out MODEL_DIR` and pass --model MODEL_DIR"
+                "no shipped model in this thrsim build yet (it is trained on the 0.3.0 dataset); train one (thrsim train) and name its folder",
+                "model_dir",
             )
     path = Path(path)
     card = read_card(path)

@@ -56,7 +56,7 @@ def train_model(
     training summary is kept in the new card."""
     out = Path(out)
     if (out / CARD).exists() and not overwrite:
-        raise ThrsimInputError(f"{out}: already holds a trained model (pass --overwrite to replace it)")
+        raise ThrsimInputError(f"{out} already holds a trained model; to replace it, say so (overwrite)", "out", ("overwrite",))
     if out.exists() and not out.is_dir():
         raise ThrsimInputError(f"{out}: exists and is not a directory")
     if not out.parent.is_dir():
@@ -109,6 +109,8 @@ def train_model(
             "solver_versions": sorted({c.solver_version for c in cases}),
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
             "force_range_n": [min(c.force_n for c in train), max(c.force_n for c in train)],
+            "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
+            "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),
         },
         "training": {

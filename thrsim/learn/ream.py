@@ -24,7 +24,7 @@ from thrsim.config import Orientation
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
 from thrsim.learn.vtk_series import write_frame, write_pvd
-from thrsim.nav.bone_frame import cup_angles_from_bone
+from thrsim.nav.bone_frame import check_side, cup_angles_from_bone, on_side
 from thrsim.provenance import json_default, package_versions
 
 SUMMARY = "ream.json"
@@ -44,7 +44,7 @@ def check_out(out: Path) -> None:
     if out.exists() and not out.is_dir():
         raise ThrsimInputError(f"{out}: exists and is not a folder")
     if out.is_dir() and any(out.iterdir()) and not (out / SUMMARY).is_file():
-        raise ThrsimInputError(f"{out}: folder is not empty and holds no earlier ream output; choose another --out")
+        raise ThrsimInputError(f"{out} is not empty and holds no earlier ream output; choose another", "out")
     parent = out.parent if str(out.parent) else Path(".")
     if parent.exists() and not parent.is_dir():
         raise ThrsimInputError(f"{out}: {parent} is not a folder")
@@ -64,25 +64,23 @@ def ream(
     ``threads``: the simulator's (PyTorch's and NumPy's BLAS)."""
     out = Path(out)
     if frames < 1:
-        raise ThrsimInputError(f"--frames must be at least 1, got {frames}")
+        raise ThrsimInputError(f"must be at least 1, got {frames}", "frames")
     force = check_force(force_n)
-    if side not in ("right", "left"):
-        raise ThrsimInputError(f"unknown side {side!r}: choose right or left")
+    check_side(side)
     if not (0 <= inclination_deg <= 90 and np.isfinite(inclination_deg)):
-        raise ThrsimInputError(f"--inclination must lie in [0, 90] degrees, got {inclination_deg:g}")
+        raise ThrsimInputError(f"must lie in [0, 90] degrees, got {inclination_deg:g}", "inclination_deg")
     if not (0 <= anteversion_deg <= 360 and np.isfinite(anteversion_deg)):
-        raise ThrsimInputError(f"--anteversion must lie in [0, 360] degrees, got {anteversion_deg:g}")
+        raise ThrsimInputError(f"must lie in [0, 360] degrees, got {anteversion_deg:g}", "anteversion_deg")
     if png is not None and Path(png).suffix.lower() != ".png":
-        raise ThrsimInputError(f"{png}: --png writes a PNG; give a .png name")
+        raise ThrsimInputError(f"{png}: a picture is written as PNG; give a .png name", "png")
     check_out(out)
     simulator = ReamingSimulator(model_dir, threads=threads)
     simulator.reset(side)
-    axis = np.array(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis)
-    if side == "left":
-        axis = axis * np.array([-1.0, 1.0, 1.0])
+    # γ, θ are the right hip's bone frame (as the case files'); the simulator takes the side's
+    axis = on_side(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis, side)
     mesh = simulator.mesh
     teeth = simulator.model.teeth_radius_m
-    frame_dt = 1.0 / 60.0
+    frame_dt = simulator.model.frame_dt_s
     with atomic_folder(out) as staging:
         start = simulator.reamer_start(axis)
         first_alpha = simulator.alpha
@@ -108,6 +106,7 @@ def ream(
             "side": side,
             "frames": len(states),
             "frames_requested": frames,
+            "frame_rate_hz": 1.0 / frame_dt,
             "end_reason": end_reason,
             "end_reason_text": END_REASON_TEXT[end_reason],
             "elements": simulator.n_elements,

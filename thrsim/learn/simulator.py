@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from threadpoolctl import threadpool_limits
 
-from thrsim.config import LabelConfig
+from thrsim.config import PUSH_FORCE_N, LabelConfig
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
@@ -28,14 +28,11 @@ from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model
 from thrsim.learn.rollout import BoneState, LearnedStep
-from thrsim.nav.bone_frame import angles_of
+from thrsim.nav.bone_frame import angles_of, check_side, on_side
 from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
 PERFORATED, PASSED_THROUGH = "perforated", "passed_through"
-_MIRROR = np.array([-1.0, 1.0, 1.0])
-#: one step is one frame of the solver's cases (60 frames per second)
-FRAME_DT_S = 1.0 / 60.0
 
 
 @dataclass(frozen=True)
@@ -111,7 +108,7 @@ def check_force(force_n) -> float:
 
 
 class ReamingSimulator:
-    """Learned reaming, one frame (1/60 s) per :meth:`step`.
+    """Learned reaming, one frame (the model card's frame time, 1/60 s for the shipped model) per :meth:`step`.
 
     >>> sim = ReamingSimulator("MODEL_DIR")          # doctest: +SKIP
     >>> sim.reset(side="right")                       # doctest: +SKIP
@@ -154,7 +151,7 @@ class ReamingSimulator:
         axis = np.array([0.0, 0.0, -1.0])
         centre = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m) + 0.5e-3 * axis
         alpha = np.full(self.n_elements, self._intact_alpha, dtype=np.float32)
-        _, inputs = self._step.inputs(BoneState.start(alpha), centre, axis, 230.0, 0.5e-3, self.model.omega_rad_s)
+        _, inputs = self._step.inputs(BoneState.start(alpha), centre, axis, PUSH_FORCE_N, 0.5e-3, self.model.omega_rad_s)
         if inputs is None:
             raise ThrsimInputError("the model's mesh has no bone within the reamer's reach at its pole")
         return inputs
@@ -174,9 +171,7 @@ class ReamingSimulator:
 
     def reset(self, side: str = "right") -> None:
         """Intact bone (every element at α of an unstressed element), reamer not yet placed."""
-        if side not in ("right", "left"):
-            raise ThrsimInputError(f"unknown side {side!r}: choose right or left")
-        self.side = side
+        self.side = check_side(side)
         self.frame = 0
         self.bone = BoneState.start(np.full(self.n_elements, self._intact_alpha, dtype=np.float32))
         self._centre: np.ndarray | None = None  # right-side frame
@@ -217,7 +212,7 @@ class ReamingSimulator:
         return self._to_side(start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m))
 
     def _to_right(self, vector: np.ndarray) -> np.ndarray:
-        return vector * _MIRROR if self.side == "left" else vector
+        return on_side(vector, self.side)
 
     _to_side = _to_right  # the mirror is its own inverse
 
@@ -247,7 +242,7 @@ class ReamingSimulator:
         after = self.removed
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre
-        self._impulse_n_s += force * FRAME_DT_S
+        self._impulse_n_s += force * self.model.frame_dt_s
         self.frame += 1
         end_reason = self._end_reason(axis, after)
         return StepResult(

@@ -79,7 +79,7 @@ class Trainer:
         self.settings, self.teeth_radius_m, self.threshold = settings, teeth_radius_m, threshold
         self.reach_m = teeth_radius_m + settings.features.reach_margin_mm * 1e-3
         if settings.features.damage:
-            require_damage([*train, *validation], 'regenerate the data or train with --settings holding {"features": {"damage": false}}')
+            require_damage([*train, *validation], 'regenerate the data or train with the settings {"features": {"damage": false}}')
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
         if len(self.samples) == 0:
             raise ThrsimInputError("the training cases hold no frame pairs")
@@ -281,7 +281,7 @@ class Trainer:
             return False
         progress = json.loads(progress_file.read_text())
         if progress.get("identity") != self.identity():
-            raise ThrsimInputError(f"{folder}: holds a checkpoint of another training run (other data or settings); use another --out")
+            raise ThrsimInputError(f"{folder} holds a checkpoint of another training run (other data or settings); use another", "out")
         tensors = load_tensors(str(state_file))
         self.gn.load_state_dict({k[3:]: v for k, v in tensors.items() if k.startswith("gn.")})
         self.mlp.load_state_dict({k[4:]: v for k, v in tensors.items() if k.startswith("mlp.")})

@@ -28,14 +28,13 @@ from typing import Literal, Mapping
 
 import numpy as np
 
+from thrsim.config import SIDES
 from thrsim.errors import ThrsimInputError
 
-Side = Literal["right", "left"]
 Definition = Literal["radiographic", "operative", "anatomic"]
 Plane = Literal["standard", "three_point"]
 
 DEFINITIONS: tuple[str, ...] = ("radiographic", "operative", "anatomic")
-SIDES: tuple[str, ...] = ("right", "left")
 APP_LANDMARKS: tuple[str, ...] = ("asis_right", "asis_left", "pubic_right", "pubic_left")
 
 # Loose enough for axes typed with three decimals; anything further off is a caller's

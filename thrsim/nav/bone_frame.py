@@ -7,7 +7,9 @@ radiographic inclination and anteversion in the anterior pelvic plane). It place
 in the hip's APP frame with +z along the cup axis at the safe zone's centre (40°, 15°), so aiming
 at the zone's centre is γ = 0, and the cup axis (out of the acetabulum) is −D. A left hip's APP
 frame is the mirror of a right one's, so one patch serves both: the same clinical angles give the
-same γ, θ on either side. Pure numerics, no I/O.
+same γ, θ on either side. The mirror itself (:func:`on_side`, across x = 0 in the pelvis model
+frame and the bone frame alike) is applied where a left hip's points enter or leave a right-hip
+computation, and only there. Pure numerics, no I/O.
 """
 
 from __future__ import annotations
@@ -16,8 +18,31 @@ import math
 
 import numpy as np
 
-from thrsim.config import Orientation, SafeZone
+from thrsim.config import SIDES, Orientation, SafeZone, Side
+from thrsim.errors import ThrsimInputError
 from thrsim.nav.anatomy import angles_from_local, local_axis_from_angles
+
+#: a left hip is the mirror of a right one across x = 0 (the sagittal plane of the pelvis model
+#: frame; the bone frame's x = 0 plane)
+MIRROR = np.array([-1.0, 1.0, 1.0])
+
+
+def check_side(side: str) -> Side:
+    """``side`` when it is a hip side; ThrsimInputError otherwise."""
+    if side not in SIDES:
+        raise ThrsimInputError(f"must be right or left, got {side!r}", "side")
+    return side  # type: ignore[return-value]
+
+
+def other_side(side: Side) -> Side:
+    return "left" if side == "right" else "right"
+
+
+def on_side(right: np.ndarray, side: Side) -> np.ndarray:
+    """Points or directions (…×3) of a right hip as they are on ``side``; the mirror is its own
+    inverse, so a left hip's given here come back as the right hip's."""
+    right = np.asarray(right, dtype=np.float64)
+    return right * MIRROR if side == "left" else right
 
 
 def patch_in_app(zone: SafeZone = SafeZone()) -> np.ndarray:

@@ -13,8 +13,8 @@ import math
 
 import numpy as np
 
-from thrsim.errors import ThrsimInputError
-from thrsim.nav.anatomy import SIDES
+from thrsim.config import Side
+from thrsim.nav.bone_frame import check_side, on_side
 
 ACETABULUM_CENTRE_RIGHT = np.array([0.085, -0.035, -0.055])
 ACETABULUM_RIM_RADIUS = 0.026
@@ -65,15 +65,14 @@ def _mirror_name(name: str) -> str:
     return name
 
 
-def synthetic_pelvis_landmarks(side: str = "right") -> dict[str, np.ndarray]:
+def synthetic_pelvis_landmarks(side: Side = "right") -> dict[str, np.ndarray]:
     """The 27 landmarks of the synthetic pelvis in the model frame (m), in acquisition order."""
-    if side not in SIDES:
-        raise ThrsimInputError(f"side must be right or left; got {side!r}")
+    check_side(side)
     right = {name: np.array(p, dtype=float) for name, p in _BILATERAL_RIGHT.items()} | _rim_right()
     if side == "right":
         return right
-    return {_mirror_name(name): point * [-1.0, 1.0, 1.0] for name, point in right.items()}
+    return {_mirror_name(name): on_side(point, side) for name, point in right.items()}
 
 
-def acetabulum_centre(side: str = "right") -> np.ndarray:
-    return ACETABULUM_CENTRE_RIGHT * ([1.0, 1.0, 1.0] if side == "right" else [-1.0, 1.0, 1.0])
+def acetabulum_centre(side: Side = "right") -> np.ndarray:
+    return on_side(ACETABULUM_CENTRE_RIGHT, side)

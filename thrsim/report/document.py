@@ -9,47 +9,13 @@ nothing assessable was done (no landmark, no cup, no bone reamed) is not scored.
 
 from __future__ import annotations
 
-import base64
 import html
-import io
 import json
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
+from thrsim.report.parts import Criterion, Part, Section
 from thrsim.session.file import SessionFile, read_session
-
-
-@dataclass(frozen=True)
-class Criterion:
-    """One scored line: what was measured, the rule, and the points it earned."""
-
-    name: str
-    measured: str
-    rule: str
-    points: float
-    max_points: float
-
-
-@dataclass
-class Section:
-    title: str
-    body: str  # HTML
-    criteria: list[Criterion] = field(default_factory=list)
-
-
-@dataclass
-class Part:
-    """One mode's share of a session's assessment: its criteria, events and metrics as data, and
-    ``sections``, which builds its part of the page (plots take time: only the page asks)."""
-
-    criteria: list[Criterion]
-    events: list[dict]
-    metrics: dict
-    sections: Callable[[], list[Section]]
-
-
-PartProvider = Callable[[SessionFile], Part | None]
 
 
 @dataclass
@@ -77,30 +43,6 @@ class Assessment:
             "events": self.events,
             "metrics": self.metrics,
         }
-
-
-def figure_png(figure) -> str:
-    """An <img> of a matplotlib figure, as a base64 PNG data URI; closes the figure."""
-    import matplotlib.pyplot as plt
-
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=90, bbox_inches="tight")
-    plt.close(figure)
-    data = base64.b64encode(buffer.getvalue()).decode()
-    return f'<img alt="plot" src="data:image/png;base64,{data}">'
-
-
-def table(header: list[str], rows: list[list[object]]) -> str:
-    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(v))}</td>" for v in row) + "</tr>" for row in rows)
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
-
-
-def _providers() -> list[PartProvider]:
-    from thrsim.report.navigation import navigation_part
-    from thrsim.report.reaming import reaming_part
-
-    return [navigation_part, reaming_part]
 
 
 _STYLE = """
@@ -148,10 +90,13 @@ def render(session: SessionFile, assessment: Assessment, sections: list[Section]
 
 
 def _parts(session: SessionFile) -> list[Part]:
+    """Every mode's part of the session's report (a mode whose group the file lacks has none)."""
     import matplotlib
 
+    from thrsim.app.modes import MODES
+
     matplotlib.use("Agg")
-    return [part for provider in _providers() if (part := provider(session)) is not None]
+    return [part for mode in MODES.values() if (part := mode.report_part(session)) is not None]
 
 
 def _assessment(parts: list[Part]) -> Assessment:

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from thrsim.report.document import Criterion, Part, Section, figure_png, table
+from thrsim.report.parts import Criterion, Part, Section, figure_png, table
 from thrsim.session.file import SessionFile
 from thrsim.session.navigation import NavigationRecord, read_navigation
 

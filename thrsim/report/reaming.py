@@ -22,11 +22,10 @@ import math
 
 import numpy as np
 
-from thrsim.report.document import Criterion, Part, Section, figure_png, table
+from thrsim.report.parts import Criterion, Part, Section, figure_png, table
 from thrsim.session.file import SessionFile
 from thrsim.session.reaming import BONE_ERRORS, ReamingRecord, read_reaming
 
-FRAME_S = 1 / 60
 GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
 _ERROR_WORDS = {"perforated": "perforated", "medial_wall_breached": "medial wall breached", "rim_damaged": "rim damaged"}
@@ -188,7 +187,7 @@ def criteria(record: ReamingRecord) -> list[Criterion]:
 def _course(record: ReamingRecord) -> Section:
     import matplotlib.pyplot as plt
 
-    t = record.frame * FRAME_S
+    t = record.frame * record.frame_dt_s
     # room between the panels for the twin depth axis's label
     figure, axes = plt.subplots(1, 2, figsize=(11.5, 3.4), gridspec_kw={"wspace": 0.45})
     axes[0].plot(t, record.removed_volume_mm3, color="tab:brown", label="removed volume")
@@ -208,12 +207,12 @@ def _course(record: ReamingRecord) -> Section:
     axes[1].set_title("Push force")
     frames = len(record.frame)
     in_range = _in_range(record)
-    rate = record.removed_volume_mm3[-1] / (frames * FRAME_S)
+    rate = record.removed_volume_mm3[-1] / (frames * record.frame_dt_s)
     body = figure_png(figure) + table(
         ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
         [
             [
-                f"{frames * FRAME_S:.1f} s",
+                f"{frames * record.frame_dt_s:.1f} s",
                 f"{record.removed_volume_mm3[-1]:.1f} mm³",
                 f"{record.depth_mm[-1]:.2f} mm",
                 f"{rate:.0f} mm³/s",

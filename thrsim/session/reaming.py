@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
+from thrsim.config import FRAME_RATE_HZ
 from thrsim.errors import ThrsimInputError
 from thrsim.session.navigation import NavigationRecord, read_navigation, write_navigation
 
@@ -61,6 +62,7 @@ class ReamingRecord:
     behind_frames: int
     navigation: NavigationRecord
     cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold (empty without a model)
+    frame_dt_s: float = 1.0 / FRAME_RATE_HZ  # seconds of reaming per frame: the model's (settings' model; files before it: 1/60 s)
 
     @property
     def assessable(self) -> bool:
@@ -101,7 +103,8 @@ def read_reaming(group: dict) -> ReamingRecord:
     try:
         attrs, trace, events = group["attrs"], group["trace"], group["events"]
         data = [json.loads(d) for d in events["data"]] if "data" in events else [{}] * len(events["kind"])
-        trained = (json.loads(attrs["settings"]).get("model") or {}).get("trained_force_n")
+        model = json.loads(attrs["settings"]).get("model") or {}
+        trained = model.get("trained_force_n")
         return ReamingRecord(
             side=str(attrs["side"]),
             zone=json.loads(attrs["zone"]),
@@ -113,6 +116,7 @@ def read_reaming(group: dict) -> ReamingRecord:
                 for t, k, d, f, extra in zip(events["time"], events["kind"], events["detail"], events["frame"], data)
             ],
             trained_force_n=None if trained is None else (float(trained[0]), float(trained[1])),
+            frame_dt_s=float(model.get("frame_dt_s", 1.0 / FRAME_RATE_HZ)),
             final_alpha=np.asarray(group["final_alpha"], dtype=np.float32),
             behind_frames=int(attrs["behind_frames"]),
             navigation=read_navigation(group["navigation"]),

@@ -14,7 +14,7 @@ const stats = { frames: 0, states: 0, errors: [], acks: [], events: [], last: nu
 window.trainer = { stats, view, send: (message) => send(message) };
 
 let state = null;
-let steer = { inclination_deg: 60, anteversion_deg: 10 };
+let steer = null; // the reamer's aim: the server's starting aim (the hello's defaults), then the trainee's
 let camera = { azimuth_deg: 50, elevation_deg: -37, distance_mm: 1600 };
 let audio = null;
 
@@ -55,11 +55,12 @@ function receive(message) {
     showHello(message, stats);
     view.build(message.scene);
     $("side").value = message.scene.side;
-    sendSteer(); // a new session starts from the server's default aim: keep the page's
+    steer = { ...message.defaults.reamer }; // a new session starts from the server's aim: so does the page
+    sendSteer();
   } else if (message.type === "scene") {
     view.build(message.scene);
     $("side").value = message.scene.side;
-    sendSteer(); // so does the other hip
+    sendSteer(); // the other hip: keep the page's aim
   } else {
     commonMessage(message, stats);
   }
@@ -141,10 +142,6 @@ function sendSteer() {
 }
 $("steer-inc").addEventListener("input", (e) => { steer.inclination_deg = Number(e.target.value); sendSteer(); });
 $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number(e.target.value); sendSteer(); });
-$("steer-inc").value = steer.inclination_deg;
-$("steer-ant").value = steer.anteversion_deg;
-$("steer-inc-value").textContent = `${steer.inclination_deg}°`;
-$("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
 
 const touch = (landmark = null) => send({ type: "probe", action: "touch", landmark });
 $("touch").addEventListener("click", () => touch());
@@ -179,6 +176,7 @@ document.addEventListener("keydown", (e) => {
   if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
   if (e.target instanceof HTMLSelectElement) return;
   const step = e.shiftKey ? 5 : 1;
+  if (!steer) return; // before the hello: nothing to steer yet
   const handled = {
     " ": () => touch(),
     Backspace: () => send({ type: "registration", action: "retake" }),

@@ -14,8 +14,9 @@ export function toast(text, kind = "") {
   setTimeout(() => item.remove(), kind === "error" ? 5000 : 2500);
 }
 
-// States arrive at 60 Hz and mostly repeat what is shown: the panels are written only where a
-// value changed, since each write has the browser lay out and repaint them (CPU the drawing needs).
+// States arrive at every server tick (the hello's tick_hz) and mostly repeat what is shown: the
+// panels are written only where a value changed, since each write has the browser lay out and
+// repaint them (CPU the drawing needs).
 export function setText(id, text) {
   const element = $(id);
   if (element.textContent !== text) element.textContent = text;

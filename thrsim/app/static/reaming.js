@@ -20,8 +20,10 @@ stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 let bone = null;
 window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
 
-let steer = { inclination_deg: 40, anteversion_deg: 15 };
-let force = 230;
+// The aim and the push: the server's (the hello's defaults) when a session starts, then the trainee's.
+let steer = null;
+let force = null;
+let maxForce = null;
 let running = false;
 let dirty = true;
 let hudStale = false;
@@ -115,6 +117,10 @@ function receive(message) {
     if (message.type === "hello") {
       showHello(message, stats);
       if (document.visibilityState !== "visible") sendVisibility(); // a session that starts while the page is hidden holds too
+      steer = { ...message.defaults.reamer };
+      force = message.defaults.force_n;
+      maxForce = message.defaults.max_force_n;
+      $("force").max = maxForce;
     }
     view.build(message.scene);
     translucentReamer();
@@ -126,7 +132,7 @@ function receive(message) {
     $("side").value = message.scene.side;
     stats.framed = false;
     loadBone(message.scene);
-    // A new session or the other hip starts from the server's default aim and push: keep the page's.
+    // A new session starts from the server's aim and push, the other hip from the page's: sent either way.
     sendSteer();
     sendForce();
   } else {
@@ -275,26 +281,21 @@ document.addEventListener("visibilitychange", sendVisibility);
 $("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
 $("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
 $("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
-$("force").value = force;
-$("force-value").textContent = `${force} N`;
-$("steer-inc").value = steer.inclination_deg;
-$("steer-ant").value = steer.anteversion_deg;
-$("steer-inc-value").textContent = `${steer.inclination_deg}°`;
-$("steer-ant-value").textContent = `${steer.anteversion_deg}°`;
 
 const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
 document.addEventListener("keydown", (e) => {
   if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
   if (e.target instanceof HTMLSelectElement) return;
+  if (!steer) return; // before the hello: nothing to steer yet
   const step = e.shiftKey ? 5 : 1;
   const handled = {
     " ": () => $("run").click(),
     u: () => $("undo").click(),
     Backspace: () => $("undo").click(),
     r: () => $("reset").click(),
-    "+": () => { force = clamp(force + 10, 0, 400); sendForce(); },
-    "=": () => { force = clamp(force + 10, 0, 400); sendForce(); },
-    "-": () => { force = clamp(force - 10, 0, 400); sendForce(); },
+    "+": () => { force = clamp(force + 10, 0, maxForce); sendForce(); },
+    "=": () => { force = clamp(force + 10, 0, maxForce); sendForce(); },
+    "-": () => { force = clamp(force - 10, 0, maxForce); sendForce(); },
     ArrowUp: () => { steer.inclination_deg = clamp(steer.inclination_deg + step, 0, 90); sendSteer(); },
     ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
     ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },

@@ -38,7 +38,7 @@ class _Stamped:
 
 
 @dataclass
-class NavigationSession:
+class TrackerState:
     """Latest poses and force, and the navigation state they imply at a given time."""
 
     side: str = "right"

@@ -16,6 +16,9 @@ reply where the stream allows one. Per message:
   that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
   where possible, then that connection (only) is closed.
 
+Every bad message (and a peer that closes mid-message or stalls) costs one warning line in the
+log, naming the peer and why, never a traceback; only a bug of ours logs one.
+
 Peers: a connection from an address outside ``allowed_peers`` (loopback alone by default) is
 closed at once, with one log line and no reply.
 
@@ -60,6 +63,8 @@ class _Connection:
     def __init__(self, server: "NavigationServer", writer: asyncio.StreamWriter):
         self.server = server
         self.writer = writer
+        peer = writer.get_extra_info("peername")
+        self.peer = f"{peer[0]}:{peer[1]}" if peer else "unknown peer"
         self.handler_task = asyncio.current_task()
         self.connected_at = asyncio.get_running_loop().time()
         self.earned_at: float | None = None  # when it last sent a pose or force the trainer uses (loop time)
@@ -107,7 +112,9 @@ class NavigationServer:
              "bad_content", "unknown_type", "oversize", "protocol_errors", "timeouts"),
             0,
         )  # fmt: skip
-        self.stats.update(dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors", "refused_peers"), 0))
+        self.stats.update(
+            dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors", "refused_peers", "truncated"), 0)
+        )
         self._connections: set[_Connection] = set()
         self._handlers: set[asyncio.Task] = set()  # every connection's task, reclaimed ones included
         self._other_devices: set[str] = set()  # TRANSFORM names beyond config.known_devices, bounded
@@ -189,9 +196,10 @@ class NavigationServer:
             while await self._serve_one(reader, connection):
                 pass
         except (asyncio.IncompleteReadError, ConnectionError):
-            pass  # peer went away, possibly mid-message
+            pass  # peer went away between messages (mid-message is logged where it is read)
         except asyncio.TimeoutError:
             self.stats["timeouts"] += 1
+            _refused(connection, f"a message or a reply took longer than {self.config.io_timeout_s:g} s; connection closed")
             connection.say_goodbye(igtl.STATUS_TIMEOUT, "Timeout", f"a message or a reply took longer than {self.config.io_timeout_s:g} s")
         except Exception as error:  # a bug of ours or a peer we did not foresee: this connection only
             self.stats["internal_errors"] += 1
@@ -204,22 +212,25 @@ class NavigationServer:
 
     async def _serve_one(self, reader: asyncio.StreamReader, connection: _Connection) -> bool:
         """Read and act on one message; False when the connection must close."""
-        timeout = self.config.io_timeout_s
         try:
             first = await asyncio.wait_for(reader.readexactly(1), self.config.idle_timeout_s)
         except asyncio.TimeoutError:
             self.stats["idle_timeouts"] += 1
             connection.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", f"no message for {self.config.idle_timeout_s:g} s")
             return False
-        raw = first + await asyncio.wait_for(reader.readexactly(igtl.HEADER_SIZE - 1), timeout)
+        rest = await self._read_rest(reader, igtl.HEADER_SIZE - 1, connection, "header")
+        if rest is None:
+            return False
         try:
-            header = igtl.parse_header(raw)
+            header = igtl.parse_header(first + rest)
         except igtl.IgtlProtocolError as error:
             self.stats["protocol_errors"] += 1
+            _refused(connection, f"{error}; connection closed")
             await connection.send_status(error.status_code, "ProtocolError", str(error))
             return False
         if header.body_size > self.config.max_body_bytes:
             self.stats["oversize"] += 1
+            _refused(connection, f"body of {header.body_size} bytes exceeds {self.config.max_body_bytes}; connection closed")
             await connection.send_status(
                 igtl.STATUS_OVERFLOW,
                 "BodyTooLarge",
@@ -227,7 +238,9 @@ class NavigationServer:
                 header.device_name,
             )
             return False
-        body = await asyncio.wait_for(reader.readexactly(header.body_size), timeout)
+        body = await self._read_rest(reader, header.body_size, connection, f"{header.type_name} body")
+        if body is None:
+            return False
         self.stats["messages"] += 1
         # the whole message is in: the stream is still framed, so whatever goes wrong now is
         # answered with a STATUS and the connection goes on
@@ -237,6 +250,7 @@ class NavigationServer:
                 message = igtl.decode_body(header, body, crc)
             except igtl.IgtlProtocolError as error:
                 self.stats["bad_crc" if error.status_code == igtl.STATUS_CHECKSUM_ERROR else "bad_content"] += 1
+                _refused(connection, f"{error}; connection closed" if error.fatal else str(error))
                 await connection.send_status(error.status_code, "BadMessage", str(error), header.device_name)
                 return not error.fatal
             connection.version = message.version
@@ -248,6 +262,15 @@ class NavigationServer:
             log.exception("serving a %s message failed", header.type_name)
             await connection.send_status(igtl.STATUS_UNKNOWN_ERROR, "InternalError", f"{type(error).__name__}: {error}", header.device_name)
         return True
+
+    async def _read_rest(self, reader: asyncio.StreamReader, size: int, connection: _Connection, what: str) -> bytes | None:
+        """The next ``size`` bytes of a message begun, or None (logged) when the peer closes before they all come."""
+        try:
+            return await asyncio.wait_for(reader.readexactly(size), self.config.io_timeout_s)
+        except asyncio.IncompleteReadError as error:
+            self.stats["truncated"] += 1
+            _refused(connection, f"closed after {len(error.partial)} of the {size} bytes of the {what} still to come")
+            return None
 
     def _device_accepted(self, device: str) -> bool:
         """A known device, one of the other names already taken, or a new one while there is room."""
@@ -265,6 +288,7 @@ class NavigationServer:
                 pose = igtl.unpack_transform(message.content)
                 if not self._device_accepted(message.device_name):
                     self.stats["unknown_devices"] += 1
+                    _refused(connection, f"TRANSFORM of unknown device {message.device_name!r} ignored: no room for other names")
                     await connection.send_status(
                         igtl.STATUS_CONFIGURATION_ERROR, "UnknownDevice",
                         f"device {message.device_name!r} is not one of {', '.join(self.config.known_devices)} and the "
@@ -288,8 +312,15 @@ class NavigationServer:
                 return
         except (igtl.IgtlProtocolError, ThrsimInputError) as error:
             self.stats["bad_content"] += 1
+            _refused(connection, f"{message.type_name}: {error}")
             await connection.send_status(igtl.STATUS_CONFIGURATION_ERROR, "BadContent", str(error), message.device_name)
             return
         state = self.tracker.state(now)
         await connection.send("STRING", NAVIGATION_STATE, igtl.pack_string(json.dumps(state, allow_nan=False)))
         self.stats["replies"] += 1
+
+
+def _refused(connection: _Connection, why: str) -> None:
+    """One warning line for one bad message: the peer and why (a device name's line breaks escaped,
+    so a peer cannot split or forge log lines)."""
+    log.warning("OpenIGTLink message from %s refused: %s", connection.peer, why.replace("\r", "\\r").replace("\n", "\\n"))

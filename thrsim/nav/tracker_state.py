@@ -64,7 +64,11 @@ class TrackerState:
         values = np.asarray(values, dtype=float)
         if values.size == 0 or not np.all(np.isfinite(values)):
             raise ThrsimInputError("force reading is empty or not finite")
-        self.force = _Stamped(float(values[0]) if values.size == 1 else float(np.linalg.norm(values)), time_s)
+        with np.errstate(over="ignore"):
+            newton = float(values[0]) if values.size == 1 else float(np.linalg.norm(values))
+        if not np.isfinite(newton):  # finite components whose magnitude overflows (1e300 N each)
+            raise ThrsimInputError(f"force reading's magnitude overflows: components up to {np.abs(values).max():.3g} N")
+        self.force = _Stamped(newton, time_s)
 
     def _fresh(self, device: str, time_s: float) -> np.ndarray | None:
         stamped = self.poses.get(device)

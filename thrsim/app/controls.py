@@ -9,6 +9,7 @@ reason and the session goes on. Degrees and millimetres here (the user-facing ed
 from __future__ import annotations
 
 import json
+import reprlib
 from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
@@ -156,13 +157,25 @@ class _Parser:
         if not isinstance(text, dict):
             raise ThrsimInputError("control message must be a JSON object with a 'type'")
         if text.get("type") not in self.types:
-            raise ThrsimInputError(f"unknown control type {text.get('type')!r}; known: {', '.join(self.types)}")
+            raise ThrsimInputError(f"unknown control type {_shown(text.get('type'))}; known: {', '.join(self.types)}")
         try:
             return self.adapter.validate_python(text)
         except ValidationError as error:
             first = error.errors()[0]
             where = ".".join(str(p) for p in first.get("loc", ())[1:]) or "message"
+            where = where if where.isprintable() and len(where) <= 64 else _shown(where)
             raise ThrsimInputError(f"{text['type']} control refused: {where}: {first.get('msg', 'invalid')}") from None
+
+
+_SHOWN = reprlib.Repr()  # attributes, not keywords: Python 3.11
+_SHOWN.maxlevel, _SHOWN.maxstring, _SHOWN.maxlong, _SHOWN.maxother = 2, 40, 40, 40
+
+
+def _shown(value: object) -> str:
+    """A refused value or field name as a refusal quotes it: a short repr, so a peer's value can
+    neither flood the log nor break its line."""
+    text = _SHOWN.repr(value)
+    return text if len(text) <= 80 else text[:79] + "…"
 
 
 _NAVIGATION_PARSER = _Parser(_NAVIGATION)

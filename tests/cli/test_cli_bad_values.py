@@ -45,3 +45,33 @@ def test_dataset_refuses_a_deeply_nested_configuration(thrsim_inprocess, tmp_pat
     args = ("dataset", "--out", "data", "--solver", "synthetic", "--config", "sweep.json", "--json")
     assert_one_line_error(thrsim_inprocess(*args, cwd=tmp_path), "nested too deeply")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sweep.json"]
+
+
+HUGE = "9" * 23  # beyond a C long long: PyTorch's thread count overflowed
+FEM = ("fem", "--inclination", "15", "--anteversion", "30", "--out", "c.h5")
+BAD_FLAGS = {
+    "fem_force_nan": ((*FEM, "--force", "nan"), "force_n: Input should be a finite number"),
+    "fem_inclination_nan": (("fem", "--inclination", "nan", "--anteversion", "30", "--out", "c.h5"), "--inclination must lie in"),
+    "ream_force_nan": (("ream", "--force", "nan", "--out", "r"), "force must be finite"),
+    "ream_force_1e300": (("ream", "--force", "1e300", "--out", "r"), "force must be finite and in [0, 10000] N"),
+    "ream_threads_huge": (("ream", "--threads", HUGE, "--out", "r"), "--threads must lie in 1..4096"),
+    "train_threads_huge": (("train", "--data", "data", "--out", "model", "--threads", HUGE), "--threads must lie in 1..4096"),
+    "evaluate_threads_huge": (("evaluate", "--data", "data", "--threads", HUGE), "--threads must lie in 1..4096"),
+    "dataset_connect_timeout_nan": (("dataset", "--out", "d", "--dry-run", "--connect-timeout", "nan"), "--connect-timeout"),
+    "mesh_thickness_1e300": (("mesh", "--out", "m.vtu", "--thickness", "1e300"), "gmsh cannot build"),
+    "mesh_half_angle_1e-300": (("mesh", "--out", "m.vtu", "--half-angle", "1e-300"), "gmsh cannot build"),
+    "track_duration_nan": (("track", "--igtl-port", "0", "--duration", "nan"), "--duration must be positive"),
+    "track_log_interval_nan": (("track", "--igtl-port", "0", "--log-interval", "nan"), "--log-interval"),
+    "serve_seed_negative": (("serve", "--port", "0", "--igtl-port", "0", "--seed", "-1"), "--seed must be a non-negative integer"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_FLAGS))
+def test_a_bad_number_on_the_command_line_is_one_line(thrsim_inprocess, tmp_path, case):
+    """NaN, overflowing or impossible numbers in flags, each refused before any work (issue 27, item 5):
+    these ran with exit 0 (force 1e300), hung (a NaN duration) or ended in a traceback (a thread count
+    of 23 digits, a seed of -1, a shell gmsh cannot build)."""
+    args, needle = BAD_FLAGS[case]
+    (tmp_path / "data").mkdir()
+    assert_one_line_error(thrsim_inprocess(*args, cwd=tmp_path), needle)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["data"]

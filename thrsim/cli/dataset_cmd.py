@@ -12,6 +12,7 @@ same tasks to a Dask scheduler instead. Start one and its workers with::
 
 from __future__ import annotations
 
+import math
 import signal
 import time
 from pathlib import Path
@@ -20,7 +21,7 @@ from typing import Optional
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from thrsim.cli.output import command_group, console, err_console, print_json, print_table
+from thrsim.cli.output import check_threads, command_group, console, err_console, print_json, print_table
 from thrsim.config import SweepConfig
 from thrsim.data.executor import DASK_SECURITY
 from thrsim.data.sweep import format_list
@@ -112,12 +113,11 @@ def dataset(
         raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
     if solver not in _SOLVER_CHOICES:  # never a module named on the command line
         raise ThrsimInputError(f"--solver must be one of {', '.join(_SOLVER_CHOICES)}, got {solver!r}")
-    if connect_timeout <= 0:
-        raise ThrsimInputError(f"--connect-timeout must be positive, got {connect_timeout:g}")
+    if not 0 < connect_timeout < math.inf:
+        raise ThrsimInputError(f"--connect-timeout must be a positive number of seconds, got {connect_timeout:g}")
     if workers < 1:
         raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
-    if threads is not None and threads < 1:
-        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    check_threads(threads)
     sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
     template_overrides = _template_overrides(config)
     plan = plan_sweep(

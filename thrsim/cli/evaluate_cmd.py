@@ -9,7 +9,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from thrsim.cli.output import console, err_console, print_json
+from thrsim.cli.output import check_threads, console, err_console, print_json
 from thrsim.errors import ThrsimInputError
 
 
@@ -36,8 +36,7 @@ def evaluate(
     for name, stride in (("--start-stride", start_stride), ("--one-step-stride", one_step_stride)):
         if stride < 1:
             raise ThrsimInputError(f"{name} must be at least 1, got {stride}")
-    if threads < 1:
-        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    check_threads(threads)
     import torch
 
     from thrsim.data.pack import is_pack

@@ -87,6 +87,16 @@ def describe_os_error(error: OSError) -> str:
     return " ".join(problem.split())
 
 
+#: more threads than any machine thrsim runs on has cores; beyond it PyTorch overflows or the OS refuses
+MAX_THREADS = 4096
+
+
+def check_threads(threads: int | None, flag: str = "--threads") -> None:
+    """Refuse a thread count below 1 or above :data:`MAX_THREADS` in one line (None: the default)."""
+    if threads is not None and not 1 <= threads <= MAX_THREADS:
+        raise ThrsimInputError(f"{flag} must lie in 1..{MAX_THREADS}, got {threads}")
+
+
 def command_group(help: str, name: str | None = None, no_args_is_help: bool = True) -> typer.Typer:
     """A typer app with thrsim's conventions: -h/--help, no completion install, no pretty tracebacks."""
     return typer.Typer(

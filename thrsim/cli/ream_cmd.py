@@ -7,7 +7,7 @@ from pathlib import Path
 import typer
 
 from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
-from thrsim.cli.output import print_json
+from thrsim.cli.output import check_threads, print_json
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N
 
 #: the aim when none is given: the default case's γ, θ
@@ -55,10 +55,7 @@ def ream(
     the bone with γ 0 at the safe zone's centre, cup 40°/15°: cup 45°/20° is γ 6.9°, θ 330.1°, and the
     default γ 15°, θ 30° is cup 54.9°/11.2°.
     """
-    from thrsim.errors import ThrsimInputError
-
-    if threads < 1:
-        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    check_threads(threads)
     aim = resolve_aim(inclination, anteversion, cup_inclination, cup_anteversion, default=DEFAULT_AIM_DEG)
     from thrsim.learn.ream import ream as run_ream
 

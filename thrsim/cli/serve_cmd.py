@@ -100,6 +100,8 @@ def serve(
 
     if not 0 <= port <= 65535 or not 0 <= igtl_port <= 65535:
         raise ThrsimInputError("ports must lie in 0..65535")
+    if seed is not None and seed < 0:
+        raise ThrsimInputError(f"--seed must be a non-negative integer, got {seed}")
     if not sessions.exists():
         if not sessions.parent.is_dir():
             raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")

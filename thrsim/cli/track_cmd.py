@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import signal
 import time
 from typing import List, Optional
@@ -98,10 +99,10 @@ def track(
     reach it from another machine, prefer an SSH tunnel (``ssh -L 18944:127.0.0.1:18944 HOST``)
     or a private interface over ``--host 0.0.0.0``.
     """
-    if duration is not None and duration <= 0:
+    if duration is not None and not duration > 0:  # NaN too: a NaN deadline never comes
         raise ThrsimInputError(f"--duration must be positive, got {duration}")
-    if log_interval <= 0:
-        raise ThrsimInputError(f"--log-interval must be positive, got {log_interval}")
+    if not 0 < log_interval < math.inf:
+        raise ThrsimInputError(f"--log-interval must be a positive number of seconds, got {log_interval}")
     known = tuple(dict.fromkeys((*_DEFAULT.known_devices, *(devices or ()))))
     config = IgtlConfig(host=host, port=igtl_port, idle_timeout_s=idle_timeout, known_devices=known)
     asyncio.run(_serve(config, duration, json_log, log_interval))

@@ -8,7 +8,7 @@ from typing import Optional
 
 import typer
 
-from thrsim.cli.output import err_console, print_json, print_table
+from thrsim.cli.output import check_threads, err_console, print_json, print_table
 from thrsim.errors import ThrsimInputError
 
 
@@ -45,8 +45,7 @@ def train(
     """Train the learned simulator on a dataset's training split; write weights, regressor, mesh and card."""
     from thrsim.learn.settings import ModelSettings, preset
 
-    if threads < 1:
-        raise ThrsimInputError(f"--threads must be at least 1, got {threads}")
+    check_threads(threads)
     settings = preset(arch).model_dump()
     if settings_file is not None:
         from thrsim.config import read_settings_file

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from thrsim.errors import ThrsimInputError
 from thrsim.geometry.tet_metrics import signed_volumes
 
 _GMSH_TET = 4  # gmsh element type code of the 4-node tetrahedron
@@ -37,7 +38,12 @@ def gmsh_session(name: str) -> Iterator[object]:
         gmsh.option.setNumber("General.Verbosity", 0)
         gmsh.option.setNumber("General.NumThreads", 1)
         gmsh.model.add(name)
-        yield gmsh
+        try:
+            yield gmsh
+        except Exception as error:
+            if type(error) is not Exception:  # gmsh raises plain Exception; anything else is not gmsh's
+                raise
+            raise ThrsimInputError(f"gmsh cannot build the {name} with these settings: {error}") from None
     finally:
         gmsh.model.remove()
         if started_here:

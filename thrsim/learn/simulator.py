@@ -97,13 +97,18 @@ def check_axis(reamer_axis) -> np.ndarray:
     return axis / norm
 
 
+#: a push no hand gives a reamer (the trainer takes up to 400 N); larger ones overflow the float32 features
+MAX_FORCE_N = 10_000.0
+
+
 def check_force(force_n) -> float:
+    """``force_n`` as newtons in [0, :data:`MAX_FORCE_N`], or ThrsimInputError saying why not."""
     try:
         force = float(force_n)
     except (TypeError, ValueError):
         raise ThrsimInputError(f"force must be a number of newtons, got {force_n!r}") from None
-    if not math.isfinite(force) or force < 0:
-        raise ThrsimInputError(f"force must be finite and non-negative, got {force_n!r} N")
+    if not math.isfinite(force) or not 0 <= force <= MAX_FORCE_N:
+        raise ThrsimInputError(f"force must be finite and in [0, {MAX_FORCE_N:g}] N, got {force_n!r} N")
     return force
 
 

@@ -25,7 +25,7 @@ from thrsim.config import KNOWN_TRACKER_DEVICES, IgtlConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
 from thrsim.io.server import NAVIGATION_STATE, NavigationServer
-from thrsim.nav.session import NavigationSession
+from thrsim.nav.tracker_state import TrackerState
 
 pytestmark = pytest.mark.timeout(180)
 
@@ -141,18 +141,18 @@ def test_any_device_field_decodes_to_a_name_that_encodes_back(field):
 def test_a_transform_of_any_floats_is_a_pose_or_refused_with_an_input_error(content, device):
     pose = igtl.unpack_transform(content)
     assert pose.shape == (4, 4)
-    session = NavigationSession()
+    tracker = TrackerState()
     try:
-        session.update_pose(device, pose, 0.0)
+        tracker.update_pose(device, pose, 0.0)
     except ThrsimInputError:
         return
-    assert np.all(np.isfinite(session.poses[device].value)), "a NaN or infinite pose was stored"
+    assert np.all(np.isfinite(tracker.poses[device].value)), "a NaN or infinite pose was stored"
 
 
 def test_a_force_whose_magnitude_overflows_is_refused():
     # found by the listener's fuzz: a JSON reply of an infinite force was a traceback
     with pytest.raises(ThrsimInputError, match="magnitude overflows"):
-        NavigationSession().update_force(np.array([1e300, 1e300]), 0.0)
+        TrackerState().update_force(np.array([1e300, 1e300]), 0.0)
 
 
 # --- the listener, over a real socket -----------------------------------------------------------

@@ -53,7 +53,7 @@ BAD_FLAGS = {
     "fem_force_nan": ((*FEM, "--force", "nan"), "force_n: Input should be a finite number"),
     "fem_inclination_nan": (("fem", "--inclination", "nan", "--anteversion", "30", "--out", "c.h5"), "--inclination must lie in"),
     "ream_force_nan": (("ream", "--force", "nan", "--out", "r"), "force must be finite"),
-    "ream_force_1e300": (("ream", "--force", "1e300", "--out", "r"), "force must be finite and in [0, 10000] N"),
+    "ream_force_1e300": (("ream", "--force", "1e300", "--out", "r"), "force must be finite, non-negative and at most 10000 N"),
     "ream_threads_huge": (("ream", "--threads", HUGE, "--out", "r"), "--threads must lie in 1..4096"),
     "train_threads_huge": (("train", "--data", "data", "--out", "model", "--threads", HUGE), "--threads must lie in 1..4096"),
     "evaluate_threads_huge": (("evaluate", "--data", "data", "--threads", HUGE), "--threads must lie in 1..4096"),

@@ -108,7 +108,7 @@ def check_force(force_n) -> float:
     except (TypeError, ValueError):
         raise ThrsimInputError(f"force must be a number of newtons, got {force_n!r}") from None
     if not math.isfinite(force) or not 0 <= force <= MAX_FORCE_N:
-        raise ThrsimInputError(f"force must be finite and in [0, {MAX_FORCE_N:g}] N, got {force_n!r} N")
+        raise ThrsimInputError(f"force must be finite, non-negative and at most {MAX_FORCE_N:g} N, got {force_n!r} N")
     return force
 
 

@@ -22,9 +22,10 @@ from hypothesis import strategies as st
 from websockets.sync.client import connect
 
 from thrsim.app import controls
+from thrsim.app.modes import MODES
 from thrsim.errors import ThrsimInputError
 
-PARSERS = {"navigation": controls.parse_control, "reaming": controls.parse_reaming_control}
+PARSERS = {name: mode.parse_control for name, mode in MODES.items()}  # what the server calls on each frame
 FIELDS = sorted({name for model in controls._REAMING for name in model.model_fields} - {"type"})
 
 scalars = st.none() | st.booleans() | st.integers() | st.floats() | st.text(max_size=20)

@@ -52,7 +52,10 @@ class FullDisk:
                 pytest.skip("mounting a tmpfs needs root")
             size = kept + pages(room)
             mount = subprocess.run(
-                ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(self.folder)], capture_output=True, text=True
+                ["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(self.folder)],
+                capture_output=True,
+                text=True,
+                env=checkout_env(),
             )
             if mount.returncode != 0:
                 pytest.skip(f"cannot mount a tmpfs here: {mount.stderr.strip()}")
@@ -89,17 +92,17 @@ class FullDisk:
 
     def make_room(self) -> None:
         if self.kind == "tmpfs":
-            subprocess.run(["mount", "-o", "remount,size=64m", str(self.folder)], check=True)
+            subprocess.run(["mount", "-o", "remount,size=64m", str(self.folder)], check=True, env=checkout_env())
 
     def fill(self) -> None:
         """After :meth:`make_room`: ``room`` bytes left again."""
         if self.kind == "tmpfs":
             size = shutil.disk_usage(self.folder).used + pages(self.room)
-            subprocess.run(["mount", "-o", f"remount,size={size}", str(self.folder)], check=True)
+            subprocess.run(["mount", "-o", f"remount,size={size}", str(self.folder)], check=True, env=checkout_env())
 
     def unmount(self) -> None:
         if self.mounted:
-            subprocess.run(["umount", "-l", str(self.folder)], check=False)
+            subprocess.run(["umount", "-l", str(self.folder)], check=False, env=checkout_env())
 
 
 @pytest.fixture(params=KINDS)
@@ -169,7 +172,7 @@ SWEEP += ["--extra-forces", "none", "--workers", "1"]
 
 
 def test_dataset_on_a_full_disk(full_disk):
-    disk = full_disk(room=12_000)  # the manifest fits, a case file does not
+    disk = full_disk(room=32_000)  # the manifest fits, a case file does not
     out = disk.folder / "data"
     result = disk.run("dataset", *SWEEP, "--out", str(out), "--json")
     first = sorted(json.loads((out / "manifest.json").read_text())["cases"])[0]

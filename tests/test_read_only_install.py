@@ -16,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from checkout_cli import REPO_ROOT
+from checkout_cli import REPO_ROOT, checkout_env
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -45,7 +45,7 @@ def _read_only(folder: Path) -> None:
     """Read-only for everyone, root included: a read-only bind mount (root), or no write bits."""
     if os.geteuid() == 0:
         for args in (["--bind", folder, folder], ["-o", "remount,bind,ro", folder]):
-            mounted = subprocess.run(["mount", *map(str, args)], capture_output=True, text=True)
+            mounted = subprocess.run(["mount", *map(str, args)], capture_output=True, text=True, env=checkout_env())
             if mounted.returncode != 0:
                 pytest.skip(f"cannot make a read-only bind mount here: {mounted.stderr.strip()}")
     else:
@@ -56,7 +56,7 @@ def _read_only(folder: Path) -> None:
 def _unmount(*folders: Path) -> None:
     if os.geteuid() == 0:
         for folder in folders:
-            subprocess.run(["umount", "-l", str(folder)], capture_output=True)
+            subprocess.run(["umount", "-l", str(folder)], capture_output=True, env=checkout_env())
 
 
 def _run(args: list[str], install: Path, home: Path, tmp: Path, user: list[str]) -> subprocess.CompletedProcess:
@@ -91,7 +91,9 @@ def test_unprivileged_user():
     if shutil.which("setpriv") is None:
         pytest.skip("setpriv (util-linux) is not installed")
     user = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"]
-    usable = subprocess.run([*user, sys.executable, "-c", "import numpy, numba, h5py, typer"], capture_output=True, text=True, cwd="/")
+    usable = subprocess.run(
+        [*user, sys.executable, "-c", "import numpy, numba, h5py, typer"], capture_output=True, text=True, cwd="/", env=checkout_env()
+    )
     if usable.returncode != 0:
         pytest.skip(f"this interpreter's packages are not readable by an unprivileged user: {usable.stderr.strip().splitlines()[-1:]}")
     base = Path(tempfile.mkdtemp(prefix="thrsim-ro-"))  # pytest's own tmp_path is root's alone (0700)

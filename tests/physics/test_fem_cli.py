@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import json
 import subprocess
-import sys
 
 import numpy as np
 import pytest
-from checkout_cli import run_thrsim
+from checkout_cli import run_main, run_thrsim
 
 from thrsim.data.case_file import read_case, validate_case
 
@@ -99,7 +98,6 @@ def test_unwritable_output_and_inverted_mesh_are_refused(tmp_path):
 
 
 def test_a_blow_up_stops_with_the_frame_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    from thrsim.cli import main
     from thrsim.physics.reaming import ReamingSimulation
 
     original = ReamingSimulation.advance
@@ -111,14 +109,21 @@ def test_a_blow_up_stops_with_the_frame_and_writes_nothing(tmp_path, monkeypatch
 
     monkeypatch.setattr(ReamingSimulation, "advance", unstable_advance)
     out = tmp_path / "c.h5"
-    monkeypatch.setattr(
-        sys,
-        "argv",
-        ["thrsim", "fem", "--inclination", "15", "--anteversion", "30", "--frames", "3", "--element-size", "1.2", "--out", str(out)],
+    code, _, err = run_main(
+        monkeypatch,
+        capsys,
+        "fem",
+        "--inclination",
+        "15",
+        "--anteversion",
+        "30",
+        "--frames",
+        "3",
+        "--element-size",
+        "1.2",
+        "--out",
+        str(out),
     )
-    with pytest.raises(SystemExit) as stopped:
-        main()
-    assert stopped.value.code == 3
-    err = capsys.readouterr().err
+    assert code == 3
     assert "frame 1" in err and "non-finite" in err and "Traceback" not in err
     assert list(tmp_path.iterdir()) == []

@@ -113,5 +113,8 @@ def test_feed_control_advances_at_the_set_rate_and_records_the_push(tmp_path):
     simulated_s = 2 * summary["steps_per_frame"] * summary["dt_s"]  # whole steps: a frame is 4167 × 4 µs
     assert summary["feed_mm_s"] == 6.0 and summary["reamer_advance_mm"] == pytest.approx(6.0 * simulated_s, rel=1e-6)
     with h5py.File(out, "r") as f:
-        push = f["frames/push_force"][()]
-        assert push[0] == 0 and push[-1] > 0  # the bone resists the prescribed feed: the push it takes is positive
+        push, reaction, axis = f["frames/push_force"][()], f["frames/reaction_force"][()], f["frames/reamer_axis"][()]
+    # the push a feed takes balances the bone's reaction along the axis, less the head's weight, in every frame
+    balance = push[1:] + reaction[1:] @ axis
+    assert push[0] == 0 and np.ptp(balance) < 1e-9 * max(1.0, np.abs(push).max())
+    assert -5.0 < balance[0] < 0.0  # the head's weight helps a reamer pointing down: a couple of newtons

@@ -117,21 +117,21 @@ class LoadedModel:
     @property
     def trained_force_n(self) -> tuple[float, float] | None:
         """The lowest and highest push of the training cases (None on a card written before cards recorded it)."""
-        found = self.card["data"].get("force_range_n")
+        found = self.card.get("data", {}).get("force_range_n")
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
     def trained_inclination_deg(self) -> tuple[float, float] | None:
         """The lowest and highest γ (reamer axis from the socket axis) of the training cases (None on a
         card written before cards recorded it)."""
-        found = self.card["data"].get("inclination_range_deg")
+        found = self.card.get("data", {}).get("inclination_range_deg")
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
     def frame_dt_s(self) -> float:
         """Seconds of reaming one step of the model stands for: the training cases' frame time (cards
         written before cards recorded it: the thesis's frame rate, which every case then had)."""
-        return float(self.card["data"].get("frame_dt_s", 1.0 / FRAME_RATE_HZ))
+        return float(self.card.get("data", {}).get("frame_dt_s", 1.0 / FRAME_RATE_HZ))
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""

@@ -94,18 +94,18 @@ def test_two_tabs_get_two_sessions_and_an_observer_watches_read_only(open_page):
     first, second = open_page("/reaming"), open_page("/reaming")
     one, two = (page.evaluate("trainer.stats.hello") for page in (first, second))
     assert one["session"] != two["session"] and one["role"] == two["role"] == "trainee"
-    keys(first, "Space")
-    first.wait_for_function("trainer.stats.last.reaming.frame > 10", timeout=60_000)
-    assert second.evaluate("trainer.stats.last.reaming.frame") == 0 and not second.evaluate("trainer.stats.last.reaming.running")
     observer = open_page(one["observe"])
     hello = observer.evaluate("trainer.stats.hello")
     assert hello["session"] == one["session"] and hello["role"] == "observer"
-    observer.wait_for_function("trainer.stats.last.reaming.frame > 10", timeout=30_000)  # it watches the first tab's reaming
     assert observer.evaluate("['run', 'undo', 'reset', 'force', 'end'].every((id) => document.getElementById(id).disabled)")
     assert "read-only" in observer.locator("#session-id").inner_text()
-    keys(observer, "Space")  # its keys steer nothing
-    first.wait_for_timeout(300)
-    assert first.evaluate("trainer.stats.last.reaming.running")
+    keys(observer, "Space")  # its keys steer nothing: the trainee's reaming does not start
+    first.wait_for_timeout(500)
+    assert not first.evaluate("trainer.stats.last.reaming.running") and first.evaluate("trainer.stats.last.reaming.frame") == 0
+    keys(first, "Space")
+    first.wait_for_function("trainer.stats.last.reaming.frame > 10", timeout=60_000)
+    assert second.evaluate("trainer.stats.last.reaming.frame") == 0 and not second.evaluate("trainer.stats.last.reaming.running")
+    observer.wait_for_function("trainer.stats.last.reaming.frame > 10", timeout=30_000)  # it watches the first tab's reaming
 
 
 def test_a_hidden_page_pauses_reaming_and_showing_it_goes_on(open_page):

@@ -62,7 +62,7 @@ class BonePatchConfig(_Frozen):
     )
 
     @model_validator(mode="after")
-    def _sizes_consistent(self) -> "BonePatchConfig":
+    def _sizes_consistent(self) -> BonePatchConfig:
         if self.min_element_size_mm > self.element_size_mm:
             raise ValueError("min_element_size_mm must not exceed element_size_mm")
         if self.element_size_mm > self.thickness_mm * 4:
@@ -120,7 +120,7 @@ class SocketConfig(_Frozen):
     side: Side = "right"
 
     @model_validator(mode="after")
-    def _consistent(self) -> "SocketConfig":
+    def _consistent(self) -> SocketConfig:
         if self.min_element_size_mm > self.element_size_mm:
             raise ValueError("min_element_size_mm must not exceed element_size_mm")
         if self.coarse_element_size_mm < self.element_size_mm:
@@ -278,7 +278,7 @@ class ReamerConfig(_Frozen):
         return data
 
     @model_validator(mode="after")
-    def _tooth_range(self) -> "ReamerConfig":
+    def _tooth_range(self) -> ReamerConfig:
         if self.tooth_first_polar_deg >= self.tooth_last_polar_deg:
             raise ValueError("tooth_first_polar_deg must be below tooth_last_polar_deg")
         if self.wall_thickness_mm is not None and self.wall_thickness_mm >= self.head_diameter_mm / 2:
@@ -450,7 +450,7 @@ class TrackingVolumeConfig(_Frozen):
     still_tolerance_mm: float = Field(3.0, gt=0, description="tip wander during the dwell that still counts as still")
 
     @model_validator(mode="after")
-    def _depths(self) -> "TrackingVolumeConfig":
+    def _depths(self) -> TrackingVolumeConfig:
         if self.near_mm >= self.far_mm:
             raise ValueError("near_mm must be below far_mm")
         return self
@@ -567,7 +567,7 @@ class ReamingCaseConfig(_Frozen):
     solver: SolverConfig = SolverConfig()
 
     @model_validator(mode="after")
-    def _contact_within_stable_step(self) -> "ReamingCaseConfig":
+    def _contact_within_stable_step(self) -> ReamingCaseConfig:
         bound = 4.0 * (1.0 - STABILITY_RESERVE)
         normal, tangential = contact_stability_terms(self.solver.safety_factor, self.contact.penalty_factor, self.contact.damping_ratio)
         if max(normal, tangential) >= bound:
@@ -579,7 +579,7 @@ class ReamingCaseConfig(_Frozen):
         return self
 
     @model_validator(mode="after")
-    def _preparation_fits(self) -> "ReamingCaseConfig":
+    def _preparation_fits(self) -> ReamingCaseConfig:
         if self.pre_ream_mm is not None and self.start_from is not None:
             raise ValueError("give pre_ream_mm or start_from, not both: a chained case starts from the previous case's bone")
         if self.pre_ream_mm is None:

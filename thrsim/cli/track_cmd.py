@@ -64,7 +64,7 @@ async def _serve(config: IgtlConfig, duration: Optional[float], json_log: bool, 
                 break
             try:
                 await asyncio.wait_for(stop.wait(), wait)
-            except asyncio.TimeoutError:
+            except TimeoutError:
                 _log_line("state", server.snapshot(), json_log)
     finally:
         for signum in (signal.SIGINT, signal.SIGTERM):
@@ -86,7 +86,7 @@ def track(
     idle_timeout: float = typer.Option(
         _DEFAULT.idle_timeout_s, "--idle-timeout", help="close a connection that sends nothing for this long", metavar="S"
     ),
-    devices: Optional[List[str]] = typer.Option(
+    devices: Optional[list[str]] = typer.Option(
         None,
         "--device",
         help=f"accept TRANSFORMs under this device name too (repeatable; always: {', '.join(_DEFAULT.known_devices)})",

@@ -29,7 +29,7 @@ def _number(value: float | None) -> str:
 
 def verify(
     slow: bool = typer.Option(False, "--slow", help="include the slow checks (a short reaming case)"),
-    only: Optional[List[str]] = typer.Option(
+    only: Optional[list[str]] = typer.Option(
         None, "--only", help="run only this check family or figure (repeatable, or comma-separated)", metavar="NAME"
     ),
     list_checks: bool = typer.Option(False, "--list", help="list the checks and their figures, run nothing"),

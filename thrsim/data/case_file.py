@@ -348,7 +348,7 @@ class CaseReader:
     def close(self) -> None:
         self._file.close()
 
-    def __enter__(self) -> "CaseReader":
+    def __enter__(self) -> CaseReader:
         return self
 
     def __exit__(self, *exc) -> None:

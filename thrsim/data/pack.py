@@ -35,7 +35,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, timezone, UTC
 from pathlib import Path
 from typing import Any
 
@@ -307,7 +307,7 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
                 **attrs,
                 "thrsim_version": __version__,
                 "versions": _json_attr(package_versions()),
-                "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "updated": datetime.now(UTC).isoformat(timespec="seconds"),
             }
         )
     return kept, added

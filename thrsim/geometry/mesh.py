@@ -120,7 +120,7 @@ class TetMesh:
         self.adjacency  # raises on non-manifold faces
         return report
 
-    def mirrored(self, axis: int = 0) -> "TetMesh":
+    def mirrored(self, axis: int = 0) -> TetMesh:
         """Mirror across the plane normal to ``axis`` through the origin, keeping volumes positive.
 
         A reflection flips every tet's orientation; swapping two nodes of each tet restores it.

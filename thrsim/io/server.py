@@ -60,7 +60,7 @@ _CRC_IN_THREAD_BYTES = 64 * 1024
 class _Connection:
     """One peer: its writer and the header version to answer in."""
 
-    def __init__(self, server: "NavigationServer", writer: asyncio.StreamWriter):
+    def __init__(self, server: NavigationServer, writer: asyncio.StreamWriter):
         self.server = server
         self.writer = writer
         peer = writer.get_extra_info("peername")
@@ -197,7 +197,7 @@ class NavigationServer:
                 pass
         except (asyncio.IncompleteReadError, ConnectionError):
             pass  # peer went away between messages (mid-message is logged where it is read)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             self.stats["timeouts"] += 1
             _refused(connection, f"a message or a reply took longer than {self.config.io_timeout_s:g} s; connection closed")
             connection.say_goodbye(igtl.STATUS_TIMEOUT, "Timeout", f"a message or a reply took longer than {self.config.io_timeout_s:g} s")
@@ -214,7 +214,7 @@ class NavigationServer:
         """Read and act on one message; False when the connection must close."""
         try:
             first = await asyncio.wait_for(reader.readexactly(1), self.config.idle_timeout_s)
-        except asyncio.TimeoutError:
+        except TimeoutError:
             self.stats["idle_timeouts"] += 1
             connection.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", f"no message for {self.config.idle_timeout_s:g} s")
             return False
@@ -255,7 +255,7 @@ class NavigationServer:
                 return not error.fatal
             connection.version = message.version
             await self._dispatch(message, connection)
-        except (ConnectionError, asyncio.TimeoutError):
+        except (TimeoutError, ConnectionError):
             raise  # the peer is gone or not reading: the connection ends (see _handle)
         except Exception as error:  # noqa: BLE001 - one message's failure is that message's STATUS
             self.stats["internal_errors"] += 1

@@ -13,7 +13,7 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from datetime import datetime, timezone
+from datetime import datetime, timezone, UTC
 from pathlib import Path
 
 import numpy as np
@@ -95,7 +95,7 @@ def train_model(
     advance_seconds = time.perf_counter() - started
     history = trainer.history
     card = {
-        "created_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "created_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "thrsim_version": package_versions()["thrsim"],
         "versions": package_versions(),
         "arch": arch_name,
@@ -165,7 +165,7 @@ def refit_advance(data: str | os.PathLike, out: str | os.PathLike) -> dict:
     card = {
         **card,
         "advance": advance_table,
-        "advance_refit_utc": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "advance_refit_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "thrsim_version": package_versions()["thrsim"],
         "versions": package_versions(),
         "training": {**card["training"], "advance_seconds": time.perf_counter() - started},

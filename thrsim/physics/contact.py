@@ -127,7 +127,7 @@ class ContactArrays(NamedTuple):
     cutting_damage: np.ndarray  # (N,) damage this step's tooth cutting adds to every active element at the node
 
     @classmethod
-    def zeros(cls, n_nodes: int) -> "ContactArrays":
+    def zeros(cls, n_nodes: int) -> ContactArrays:
         return cls(np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros(n_nodes), np.zeros(n_nodes))
 
 

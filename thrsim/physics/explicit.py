@@ -118,7 +118,7 @@ class MaterialConstants(NamedTuple):
     u_f: np.ndarray
 
     @classmethod
-    def of(cls, dt: float, tissues: Sequence[Tissue]) -> "MaterialConstants":
+    def of(cls, dt: float, tissues: Sequence[Tissue]) -> MaterialConstants:
         """The constants table of ``tissues`` (row k = tissue k) at step ``dt``."""
 
         def column(value) -> np.ndarray:

@@ -196,7 +196,7 @@ class BoneRenderer:
     def release(self) -> None:
         self.ctx.release()
 
-    def __enter__(self) -> "BoneRenderer":
+    def __enter__(self) -> BoneRenderer:
         return self
 
     def __exit__(self, *exc) -> None:

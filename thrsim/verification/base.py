@@ -96,7 +96,7 @@ def numba_threads(n: int = 1) -> Iterator[None]:
 class Stopwatch:
     """``with Stopwatch() as w: ...; w.seconds``"""
 
-    def __enter__(self) -> "Stopwatch":
+    def __enter__(self) -> Stopwatch:
         self._start = time.perf_counter()
         self.seconds = 0.0
         return self

@@ -64,6 +64,23 @@ def _run(case: ReamingCaseConfig, mesh) -> dict:
     return summary
 
 
+def _removal_and_feed(prefix: str, against: str, run: dict, reference: dict, tolerance: float, details: dict, seconds: float):
+    """The removed volume and mean advance of ``run`` against ``reference``, as two figures."""
+    return [
+        result(
+            f"{prefix}-{figure}",
+            f"{key} {against}",
+            value=run[key],
+            reference=reference[key],
+            tolerance=tolerance,
+            units=units,
+            details=details,
+            seconds=seconds,
+        )
+        for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-advance", "mean_advance_mm", "mm"))
+    ]
+
+
 def reaming_energy_balance() -> list[CheckResult]:
     from thrsim.geometry.bone_patch import generate_bone_patch
 
@@ -99,12 +116,10 @@ def reaming_convergence() -> list[CheckResult]:
                 "mean_advance_mm": [reference["mean_advance_mm"], variant["mean_advance_mm"]],
                 "frames": [reference["frames"], variant["frames"]],
             }
-            for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-advance", "mean_advance_mm", "mm")):
-                records.append(result(
-                    f"reaming-convergence-{name}-{figure}", f"{key} with {name} vs the default settings ({CONVERGENCE_FRAMES} frames)",
-                    value=variant[key], reference=reference[key], tolerance=tolerance, units=units, details=details,
-                    seconds=watch.seconds,
-                ))  # fmt: skip
+            records += _removal_and_feed(
+                f"reaming-convergence-{name}", f"with {name} vs the default settings ({CONVERGENCE_FRAMES} frames)",
+                variant, reference, tolerance, details, watch.seconds,
+            )  # fmt: skip
     # a study of a case that removed nothing verifies nothing
     for record in records:
         record.passed = record.passed and reference["removed"] > 0
@@ -140,12 +155,10 @@ def reaming_active_zone() -> list[CheckResult]:
                 "removed_volume_mm3": [reference["removed_volume_mm3"], zoned["removed_volume_mm3"]],
                 "mean_advance_mm": [reference["mean_advance_mm"], zoned["mean_advance_mm"]],
             }
-            for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-advance", "mean_advance_mm", "mm")):
-                records.append(result(
-                    f"reaming-active-zone-{name}-{figure}", f"{key} with the active zone vs integrating everything ({name})",
-                    value=zoned[key], reference=reference[key], tolerance=ZONE_TOLERANCE, units=units, details=details,
-                    seconds=watch.seconds,
-                ))  # fmt: skip
+            records += _removal_and_feed(
+                f"reaming-active-zone-{name}", f"with the active zone vs integrating everything ({name})",
+                zoned, reference, ZONE_TOLERANCE, details, watch.seconds,
+            )  # fmt: skip
             records.append(result(
                 f"reaming-active-zone-{name}-energy-balance", f"|energy balance error| ÷ external work with the active zone ({name})",
                 value=zoned["energy_balance_error"], reference=None, tolerance=ENERGY_TOLERANCE, details=details, seconds=watch.seconds,

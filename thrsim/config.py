@@ -114,6 +114,13 @@ class SocketConfig(_Frozen):
     fossa_polar_deg: float = Field(25.0, ge=0, lt=60, description="the fossa's centre: this far from the pole toward inferior")
     medial_wall_distance_mm: float = Field(4.0, gt=0, description="bone from the fossa floor to the medial wall's pelvic face")
     medial_cortex_thickness_mm: float = Field(1.0, gt=0, description="cortical layer on the medial wall's pelvic face")
+    window_polar_deg: float | None = Field(
+        None, ge=0, le=90, description="mesh only a window of the socket: its centre this far from the pole (None: the whole socket)"
+    )
+    window_azimuth_deg: float = Field(
+        90.0, ge=-360, le=360, description="the window's direction about the socket axis, from anterior (+x) toward superior (+y)"
+    )
+    window_half_angle_deg: float = Field(10.0, gt=0, le=45, description="the window's angular radius about the socket centre")
     element_size_mm: float = Field(0.45, gt=0, description="element size where a planned reamer can cut [Table 5]")
     coarse_element_size_mm: float = Field(3.0, gt=0, description="element size far from the cutting")
     min_element_size_mm: float = Field(0.045, gt=0, description="minimum element size [Table 5]")
@@ -136,6 +143,14 @@ class SocketConfig(_Frozen):
     @property
     def socket_radius_mm(self) -> float:
         return 0.5 * self.socket_diameter_mm
+
+    @property
+    def window_direction(self) -> tuple[float, float, float] | None:
+        """Unit vector from the socket centre through the window's centre (right hip), None for the whole socket."""
+        if self.window_polar_deg is None:
+            return None
+        polar, azimuth = math.radians(self.window_polar_deg), math.radians(self.window_azimuth_deg)
+        return (math.sin(polar) * math.cos(azimuth), math.sin(polar) * math.sin(azimuth), -math.cos(polar))
 
     @property
     def planned_reamer_max_diameter_mm(self) -> float:

@@ -10,7 +10,7 @@ import pytest
 from checkout_cli import run_thrsim
 
 from thrsim.config import SocketConfig
-from thrsim.geometry.mesh import ARTICULAR, CANCELLOUS, CORTICAL, MEDIAL_WALL, RIM, SUPPORTED
+from thrsim.geometry.mesh import ARTICULAR, CANCELLOUS, CORTICAL, MEDIAL_WALL, RIM, SUPPORTED, WINDOW_SIDE
 from thrsim.geometry.mesh_io import read_mesh, write_mesh
 from thrsim.geometry.socket import dome_direction, fossa_axis, generate_socket, medial_wall_offset_mm
 
@@ -123,3 +123,41 @@ def test_a_layer_that_cannot_exist_is_refused():
         SocketConfig(subchondral_thickness_mm=1.0, subchondral_dome_excess_mm=1.0)
     with pytest.raises(ValueError):
         SocketConfig(medial_wall_distance_mm=0.0)
+
+
+@pytest.mark.parametrize(("polar", "azimuth"), [(0.0, 90.0), (45.0, 90.0), (80.0, 180.0)])
+def test_a_window_is_the_socket_within_its_cone(polar, azimuth):
+    """A window keeps the layered wall within its cone (nothing outside it), with its layers and its
+    cut faces held apart from the supported boundary."""
+    config = COARSE.model_copy(update={"window_polar_deg": polar, "window_azimuth_deg": azimuth, "window_half_angle_deg": 12.0})
+    window = generate_socket(config)
+    direction = np.array(config.window_direction)
+    assert abs(np.linalg.norm(direction) - 1.0) < 1e-12
+    cosine = window.centroids @ direction / np.linalg.norm(window.centroids, axis=1)
+    assert cosine.min() >= math.cos(math.radians(12.0)) - 1e-9
+    # the window's cavity face lies on the socket's, and both materials are there
+    radius_mm = np.linalg.norm(window.nodes[window.node_sets[ARTICULAR]], axis=1) * 1e3
+    assert radius_mm.min() >= 23.0 - 1e-5 and len(radius_mm) > 50
+    assert set(np.unique(window.material)) == {0, 1}
+    # its cone faces are held but are not the supported boundary a perforation goes through
+    side = window.node_sets[WINDOW_SIDE]
+    assert len(side) > 50
+    side_cosine = window.nodes[side] @ direction / np.linalg.norm(window.nodes[side], axis=1)
+    np.testing.assert_allclose(side_cosine, math.cos(math.radians(12.0)), atol=1e-6)
+    assert np.isin(side, window.fixed_nodes).all() and np.isin(window.node_sets[SUPPORTED], window.fixed_nodes).all()
+    whole = generate_socket(COARSE)
+    assert window.n_tets < 0.2 * whole.n_tets
+
+
+def test_cli_window(tmp_path):
+    done = run_thrsim("mesh", "--bone", "socket", "--element-size", "0.9", "--window", "45,90,12", "--json")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["node_sets"][WINDOW_SIDE] > 50 and summary["materials"][CORTICAL] > 0
+    for bad, says in (("95,0", "polar angle"), ("45", "POLAR,AZIMUTH"), ("45,0,0", "half-angle"), ("a,b", "POLAR,AZIMUTH")):
+        refused = run_thrsim("mesh", "--bone", "socket", "--window", bad, "--out", str(tmp_path / "w.msh"))
+        assert refused.returncode == 2 and says in refused.stderr and "Traceback" not in refused.stderr
+        assert len(refused.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "w.msh").exists()
+    patch = run_thrsim("mesh", "--window", "45,0")
+    assert patch.returncode == 2 and "--bone socket" in patch.stderr

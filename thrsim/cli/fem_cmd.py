@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
 from thrsim.cli.output import err_console, print_json, print_table
+from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
 from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
 from thrsim.errors import ThrsimInputError
 
@@ -52,6 +53,7 @@ def fem(
     socket_diameter: Optional[float] = typer.Option(
         None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only) [default: 46]", metavar="MM"
     ),
+    window: Optional[str] = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
     cancellous: Optional[str] = typer.Option(
         None, "--cancellous", help="cancellous bone behind the subchondral plate: normal or osteoporotic (socket only) [default: normal]"
     ),
@@ -103,8 +105,9 @@ def fem(
         raise ThrsimInputError(f"{out}: output folder {folder} does not exist or is not writable")
     if bone not in ("patch", "socket"):
         raise ThrsimInputError(f"--bone must be patch or socket, got {bone!r}")
-    if bone == "patch" and (socket_diameter is not None or cancellous is not None):
-        raise ThrsimInputError("--socket-diameter and --cancellous only apply to --bone socket")
+    if bone == "patch" and (socket_diameter is not None or cancellous is not None or window is not None):
+        raise ThrsimInputError("--socket-diameter, --window and --cancellous only apply to --bone socket")
+    socket_window = {f"socket.{key}": value for key, value in window_settings(window).items()}
     if cancellous is not None and cancellous not in CANCELLOUS_PRESETS:
         raise ThrsimInputError(f"--cancellous must be one of {', '.join(CANCELLOUS_PRESETS)}, got {cancellous!r}")
     case = load_case_config(
@@ -120,6 +123,7 @@ def fem(
             f"{'socket' if bone == 'socket' else 'bone'}.element_size_mm": element_size,
             f"{'socket' if bone == 'socket' else 'bone'}.side": side,
             "socket.socket_diameter_mm": socket_diameter,
+            **socket_window,
             "cancellous": None if cancellous is None else CANCELLOUS_PRESETS[cancellous].model_dump(),
             "reamer.head_diameter_mm": None if reamer_diameter is None else head_diameter_for_size(reamer_diameter),
             "pre_ream_mm": pre_ream,

@@ -11,6 +11,7 @@ from thrsim.cli.output import console, print_json, print_table
 from thrsim.config import BonePatchConfig, SocketConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
+from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
 from thrsim.geometry.socket import generate_socket
 from thrsim.geometry.mesh_io import WRITABLE_SUFFIXES, read_mesh, write_mesh
 
@@ -20,6 +21,7 @@ def mesh(
     socket_diameter: Optional[float] = typer.Option(
         None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only; default 46)", metavar="MM"
     ),
+    window: Optional[str] = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
     element_size: Optional[float] = typer.Option(None, "--element-size", help="global element size in mm (default 0.45)", metavar="MM"),
     side: str = typer.Option("right", "--side", help="hip side: right, or left (mirror across the sagittal plane)"),
     thickness: Optional[float] = typer.Option(None, "--thickness", help="shell thickness in mm (default 2.0)", metavar="MM"),
@@ -49,6 +51,7 @@ def mesh(
                 ("--thickness", thickness),
                 ("--half-angle", half_angle),
                 ("--socket-diameter", socket_diameter),
+                ("--window", window),
             )
             if value is not None
         ]
@@ -59,7 +62,7 @@ def mesh(
             bone = bone.mirrored(axis=0)
         source = str(from_file)
     else:
-        bone = _generate(bone_kind, side, element_size, thickness, half_angle, socket_diameter, quiet=as_json)
+        bone = _generate(bone_kind, side, element_size, thickness, half_angle, socket_diameter, window_settings(window), quiet=as_json)
         bone.validate(source="generated mesh")
         source = f"generated {bone_kind}"
 
@@ -88,6 +91,7 @@ def _generate(
     thickness: float | None,
     half_angle: float | None,
     socket_diameter: float | None,
+    window: dict[str, float],
     quiet: bool,
 ):
     """The generated bone the options ask for (flags that belong to the other bone refused)."""
@@ -95,12 +99,12 @@ def _generate(
         wrong = [flag for flag, value in (("--thickness", thickness), ("--half-angle", half_angle)) if value is not None]
         if wrong:
             raise ThrsimInputError(f"{', '.join(wrong)} only apply to --bone patch")
-        settings = {"side": side, "element_size_mm": element_size, "socket_diameter_mm": socket_diameter}
+        settings = {"side": side, "element_size_mm": element_size, "socket_diameter_mm": socket_diameter, **window}
         config = SocketConfig(**{key: value for key, value in settings.items() if value is not None})
         generate, what = generate_socket, "the layered socket"
     else:
-        if socket_diameter is not None:
-            raise ThrsimInputError("--socket-diameter only applies to --bone socket")
+        if socket_diameter is not None or window:
+            raise ThrsimInputError("--socket-diameter and --window only apply to --bone socket")
         settings = {"side": side, "element_size_mm": element_size, "thickness_mm": thickness, "half_angle_deg": half_angle}
         config = BonePatchConfig(**{key: value for key, value in settings.items() if value is not None})
         generate, what = generate_bone_patch, "the bone patch"

@@ -17,6 +17,9 @@ OUTER, INNER, SIDE = "outer", "inner", "side"
 #: node sets of the anatomical socket: the reamed cavity face (articular surface and fossa), the
 #: medial wall's pelvic face, the supported boundary (cuts through bone that continues) and the rim
 ARTICULAR, MEDIAL_WALL, SUPPORTED, RIM = "articular", "medial_wall", "supported", "rim"
+#: a window of the socket's side faces: cuts through the socket's own bone, held like the supported
+#: boundary but not a way through the bone (a reamer reaching them has not perforated)
+WINDOW_SIDE = "window_side"
 #: bone materials by name; a mesh without material tags is all cortical (the thesis's patch)
 CORTICAL, CANCELLOUS = "cortical", "cancellous"
 #: the materials a mesh file's element sets or cell data may name

@@ -15,6 +15,10 @@ inside gmsh, metres out):
 Node sets: ``articular`` (the whole cavity face, the fossa included), ``medial_wall`` (the pelvic
 face), ``rim`` (the opening plane's bone face) and ``supported`` (the ball's face: cuts through bone
 that continues, held by the solver: the mesh's fixed nodes). The left hip is the mirror across x = 0.
+
+A window (``window_polar_deg`` set) keeps only the bone within a cone about the socket centre: a
+piece of the layered wall the size of the thesis's patch, for cases that ream one region at a
+prescribed feed. Its cone faces form ``window_side``, held like ``supported``.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import numpy as np
 
 from thrsim.config import SocketConfig
 from thrsim.geometry.gmsh_model import gmsh_session, read_back, set_mesh_options
-from thrsim.geometry.mesh import ARTICULAR, CANCELLOUS, CORTICAL, MEDIAL_WALL, RIM, SUPPORTED, TetMesh
+from thrsim.geometry.mesh import ARTICULAR, CANCELLOUS, CORTICAL, MEDIAL_WALL, RIM, SUPPORTED, WINDOW_SIDE, TetMesh
 
 #: how fast the element size grows away from the fine region (mm of size per mm of distance)
 SIZE_GROWTH = 0.4
@@ -69,6 +73,11 @@ def generate_socket(config: SocketConfig | None = None) -> TetMesh:
         cone = occ.addCone(0, 0, 0, *(cone_length * fossa), 0, cone_length * math.tan(math.radians(config.fossa_half_angle_deg)))
         recess, _ = occ.intersect([(3, recess_sphere)], [(3, cone)])
         block, _ = occ.cut(block, [(3, cavity), *recess])
+        window = config.window_direction
+        if window is not None:
+            length = 2.0 * outer
+            sector = occ.addCone(0, 0, 0, *(length * np.array(window)), 0, length * math.tan(math.radians(config.window_half_angle_deg)))
+            block, _ = occ.intersect(block, [(3, sector)])
         plate_centre = config.subchondral_dome_excess_mm * dome_direction(config)
         plate = occ.addSphere(*plate_centre, radius + config.subchondral_thickness_mm)
         cortex = _half_space(occ, -fossa, -(wall - config.medial_cortex_thickness_mm), big)
@@ -104,7 +113,7 @@ def generate_socket(config: SocketConfig | None = None) -> TetMesh:
         nodes=built.nodes_m,
         tets=built.tets,
         node_sets=built.node_sets,
-        fixed_nodes=built.node_sets[SUPPORTED],
+        fixed_nodes=built.node_sets[SUPPORTED] if window is None else np.union1d(built.node_sets[SUPPORTED], built.node_sets[WINDOW_SIDE]),
         material=material,
         material_names=names,
     )
@@ -134,6 +143,9 @@ def _inside_block(config: SocketConfig, fossa: np.ndarray, wall: float, outer: f
         if r >= outer or point[2] >= config.rim_height_mm or float(point @ fossa) >= wall:
             return False
         in_recess = r < radius + config.fossa_depth_mm and float(point @ fossa) > r * math.cos(math.radians(config.fossa_half_angle_deg))
+        window = config.window_direction
+        if window is not None and float(point @ np.array(window)) < r * math.cos(math.radians(config.window_half_angle_deg)):
+            return False
         return r > radius and not in_recess
 
     return inside
@@ -157,7 +169,7 @@ def _interior_point(gmsh, tag: int, centre: np.ndarray) -> np.ndarray:
 
 def _classify_faces(gmsh, occ, config: SocketConfig, fossa: np.ndarray, wall: float, outer: float) -> dict[str, list[int]]:
     """The bone's outer faces by what they are: cavity (articular), pelvic face, rim plane, support."""
-    faces: dict[str, list[int]] = {ARTICULAR: [], MEDIAL_WALL: [], RIM: [], SUPPORTED: []}
+    faces: dict[str, list[int]] = {ARTICULAR: [], MEDIAL_WALL: [], RIM: [], SUPPORTED: [], WINDOW_SIDE: []}
     volumes = gmsh.model.getEntities(3)
     boundary = gmsh.model.getBoundary(volumes, combined=True, oriented=False)
     cavity_limit = config.socket_radius_mm + config.fossa_depth_mm + 1e-3
@@ -170,6 +182,8 @@ def _classify_faces(gmsh, occ, config: SocketConfig, fossa: np.ndarray, wall: fl
             faces[MEDIAL_WALL].append(tag)
         elif _max_radius(gmsh, tag) <= cavity_limit:
             faces[ARTICULAR].append(tag)
+        elif kind == "Cone" and config.window_direction is not None:
+            faces[WINDOW_SIDE].append(tag)
         elif kind == "Sphere" and abs(_max_radius(gmsh, tag) - outer) < 1e-3:
             faces[SUPPORTED].append(tag)
         else:

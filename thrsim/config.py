@@ -567,6 +567,11 @@ class ReamingCaseConfig(_Frozen):
         None, gt=0, description="the socket starts reamed geometrically to this diameter (a previous reamer's cavity); None: native"
     )
     pre_ream_centre_mm: tuple[float, float, float] = Field((0.0, 0.0, 0.0), description="the prepared cavity's centre in the bone frame")
+    reamer_centre_mm: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0),
+        description="the point of the bone frame the reamer's axis passes through: its centre moves along D through it "
+        "(the origin, the native socket's centre; offset it to medialise or raise the cavity)",
+    )
     start_from: str | None = Field(
         None, description="a case file whose last frame this case starts from (its removed bone, damage and PEEQ; same mesh and solver)"
     )
@@ -595,6 +600,10 @@ class ReamingCaseConfig(_Frozen):
 
     @model_validator(mode="after")
     def _preparation_fits(self) -> ReamingCaseConfig:
+        if self.bone_kind != "socket" and any(self.reamer_centre_mm):
+            raise ValueError("reamer_centre_mm applies to the socket (bone_kind socket) only: the patch's reamer aims at its pole")
+        if math.dist(self.reamer_centre_mm, (0.0, 0.0, 0.0)) > 0.5 * self.socket.socket_diameter_mm:
+            raise ValueError(f"reamer_centre_mm {self.reamer_centre_mm} lies outside the native socket (radius {self.socket.socket_radius_mm:g} mm)")
         if self.pre_ream_mm is not None and self.start_from is not None:
             raise ValueError("give pre_ream_mm or start_from, not both: a chained case starts from the previous case's bone")
         if self.pre_ream_mm is None:

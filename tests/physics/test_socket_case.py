@@ -118,3 +118,24 @@ def test_feed_control_advances_at_the_set_rate_and_records_the_push(tmp_path):
     balance = push[1:] + reaction[1:] @ axis
     assert push[0] == 0 and np.ptp(balance) < 1e-9 * max(1.0, np.abs(push).max())
     assert -5.0 < balance[0] < 0.0  # the head's weight helps a reamer pointing down: a couple of newtons
+
+
+def test_a_medialised_reamer_moves_along_its_line_and_a_window_reams_its_wall(tmp_path):
+    """``--reamer-centre`` puts the reamer's axis through a point of the bone frame: every recorded centre
+    lies on that line; on a window of the wall the reamer cuts it and nothing else perforates."""
+    out = tmp_path / "window.h5"
+    done = run_thrsim(
+        "fem", *COARSE, "--window", "0,90,15", "--reamer-diameter", "48", "--reamer-centre", "0,-1.5,-1",
+        "--inclination", "10", "--anteversion", "90", "--feed", "30", "--frames", "3", "--out", str(out), "--json", timeout=900,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads(done.stdout)
+    assert summary["end_reason"] == "completed" and summary["removed"] > 0
+    with h5py.File(out, "r") as f:
+        centres, axis = f["frames/reamer_position"][()], f["frames/reamer_axis"][()]
+        config = json.loads(f.attrs["config"])
+        assert config["socket"]["window_polar_deg"] == 0.0 and config["reamer_centre_mm"] == [0.0, -1.5, -1.0]
+    off_line = (centres - np.array([0.0, -1.5e-3, -1.0e-3])) - ((centres - np.array([0.0, -1.5e-3, -1.0e-3])) @ axis)[:, None] * axis
+    assert np.abs(off_line).max() < 1e-12
+    on_patch = run_thrsim("fem", "--inclination", "0", "--anteversion", "0", "--reamer-centre", "0,0,1", "--out", str(tmp_path / "p.h5"))
+    assert on_patch.returncode == 2 and "--bone socket" in on_patch.stderr and not (tmp_path / "p.h5").exists()

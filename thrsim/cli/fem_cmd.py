@@ -50,6 +50,13 @@ def fem(
     pre_ream_centre: Optional[str] = typer.Option(
         None, "--pre-ream-centre", help="the prepared cavity's centre X,Y,Z in mm, bone frame [default: 0,0,0]", metavar="X,Y,Z"
     ),
+    reamer_centre: Optional[str] = typer.Option(
+        None,
+        "--reamer-centre",
+        help="the point X,Y,Z in mm (bone frame) the reamer's axis passes through: medialise or raise the cavity (socket only) "
+        "[default: 0,0,0, the native socket's centre]",
+        metavar="X,Y,Z",
+    ),
     socket_diameter: Optional[float] = typer.Option(
         None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only) [default: 46]", metavar="MM"
     ),
@@ -105,8 +112,8 @@ def fem(
         raise ThrsimInputError(f"{out}: output folder {folder} does not exist or is not writable")
     if bone not in ("patch", "socket"):
         raise ThrsimInputError(f"--bone must be patch or socket, got {bone!r}")
-    if bone == "patch" and (socket_diameter is not None or cancellous is not None or window is not None):
-        raise ThrsimInputError("--socket-diameter, --window and --cancellous only apply to --bone socket")
+    if bone == "patch" and any(value is not None for value in (socket_diameter, cancellous, window, reamer_centre)):
+        raise ThrsimInputError("--socket-diameter, --window, --reamer-centre and --cancellous only apply to --bone socket")
     socket_window = {f"socket.{key}": value for key, value in window_settings(window).items()}
     if cancellous is not None and cancellous not in CANCELLOUS_PRESETS:
         raise ThrsimInputError(f"--cancellous must be one of {', '.join(CANCELLOUS_PRESETS)}, got {cancellous!r}")
@@ -128,6 +135,7 @@ def fem(
             "reamer.head_diameter_mm": None if reamer_diameter is None else head_diameter_for_size(reamer_diameter),
             "pre_ream_mm": pre_ream,
             "pre_ream_centre_mm": None if pre_ream_centre is None else _point_mm(pre_ream_centre, "--pre-ream-centre"),
+            "reamer_centre_mm": None if reamer_centre is None else _point_mm(reamer_centre, "--reamer-centre"),
             "damage.displacement_at_failure_m": None if failure_displacement is None else failure_displacement * 1e-3,
             "solver.target_dt_s": target_dt,
             "solver.threads": threads,

@@ -1,8 +1,8 @@
 """The ground-truth reaming case: a rigid spinning reamer pushed into the bone patch.
 
 Set-up [5.3]: the bone patch's fixed nodes are held (encastre); the reamer spins at ω about its
-axis D, has one translational degree of freedom s along D (its centre is c = s·D in the bone
-frame), and is pushed by the surgeon's force along D plus gravity. Gravity acts along −z of
+axis D, has one translational degree of freedom s along D (its centre is c = c₀ + s·D in the bone
+frame, c₀ the point its axis passes through: the origin unless ``reamer_centre_mm`` moves it), and is pushed by the surgeon's force along D plus gravity. Gravity acts along −z of
 the bone frame (patient in lateral decubitus: the acetabulum opens upward) on the head's own
 mass, so only its component m·g·(−z·D) along the axis matters (the surgeon carries the driver's
 weight). The reamer is hand-held (:class:`thrsim.config.ReamerHoldConfig`): the push drives an
@@ -162,7 +162,7 @@ class FrameLog:
 
 
 @njit(cache=True)
-def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth, law, contact, drive, reamer, ledger, stats, totals):
+def advance_reaming(steps, time, nodes, rotation, line_point, omega, solid, constants, teeth, law, contact, drive, reamer, ledger, stats, totals):
     """The reaming loop, compiled: contact, solid step and the reamer's axial motion, ``steps`` times.
 
     ``solid``/``constants``: :class:`~thrsim.physics.explicit.SolidArrays` and
@@ -182,7 +182,7 @@ def advance_reaming(steps, time, nodes, rotation, omega, solid, constants, teeth
         spin_cos, spin_sin = pm.cos(omega * time), pm.sin(omega * time)
         position, speed = reamer[POSITION], reamer[SPEED]
         for i in range(3):
-            centre[i] = position * axis[i]
+            centre[i] = line_point[i] + position * axis[i]
             e1[i] = spin_cos * rotation[i, 0] + spin_sin * rotation[i, 1]
             e2[i] = -spin_sin * rotation[i, 0] + spin_cos * rotation[i, 1]
         pose = ReamerPose(centre, e1, e2, axis, speed, omega)
@@ -241,6 +241,7 @@ class ReamingSimulation:
         self.prepared = self._prepare(case)
         self.reamer = build_reamer(case.reamer)
         self.axis = np.array(case.orientation.reamer_axis)
+        self.line_point = np.array(case.reamer_centre_mm, dtype=np.float64) * 1e-3
         self.rotation = frame_rotation(self.axis)
         self.omega = case.reamer.omega_rad_s
         self.teeth = ReamerTeeth(
@@ -346,7 +347,7 @@ class ReamingSimulation:
         reach = self.reamer.outer_radius + INITIAL_GAP_M
 
         def clearance(s: float) -> float:
-            return float(np.linalg.norm(nodes - s * self.axis, axis=1).min()) - reach
+            return float(np.linalg.norm(nodes - self.line_point - s * self.axis, axis=1).min()) - reach
 
         lo, hi = -2.0 * reach, 0.0
         if clearance(lo) <= 0:
@@ -362,7 +363,7 @@ class ReamingSimulation:
 
     @property
     def centre(self) -> np.ndarray:
-        return self.position * self.axis
+        return self.line_point + self.position * self.axis
 
     @property
     def position(self) -> float:
@@ -419,7 +420,7 @@ class ReamingSimulation:
         """Run ``steps`` steps of bone and reamer in one compiled loop (statistics accumulate in
         ``frame_stats`` until :meth:`start_frame_statistics` resets them)."""
         self.solid.time = advance_reaming(
-            steps, self.solid.time, self.mesh.nodes, self.rotation, self.omega, self.solid.arrays, self.solid.constants,
+            steps, self.solid.time, self.mesh.nodes, self.rotation, self.line_point, self.omega, self.solid.arrays, self.solid.constants,
             self.teeth, self.contact_law, self.contact, self.drive, self.state, self.ledger, self.frame_stats, self._scratch,
         )  # fmt: skip
 

@@ -397,6 +397,50 @@ def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> 
     return values
 
 
+class SocketSweepConfig(_Frozen):
+    """The 0.5 dataset (``thrsim dataset --bone socket``): windows of the layered socket, each reamed by
+    the next reamer size at a prescribed feed, so every case cuts from its first frames at a known
+    local feed and the force it takes is recorded (the whole socket's feed follows from the balance
+    of the push over its contact). The one definition of the plan's axes and held-out values.
+
+    Each case draws one value of every axis; the train cases from the train values only, balanced
+    (each value about as often as the others); each test case holds out one axis at a held-out
+    value (a reamer size, a tilt direction, a feed never trained on); validation cases tilt toward
+    the validation direction. Fixed ``seed``: the same plan every time.
+    """
+
+    #: (native socket diameter, prepared cavity diameter or None for the native socket, reamer size), mm
+    steps: tuple[tuple[float, float | None, float], ...] = (
+        (44.0, None, 46.0), (46.0, None, 48.0), (46.0, 48.0, 50.0), (50.0, None, 52.0), (50.0, 52.0, 54.0),
+    )  # fmt: skip
+    window_polars_deg: tuple[float, ...] = (0.0, 30.0, 55.0, 80.0)
+    window_azimuths_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    window_half_angle_deg: float = Field(10.0, gt=0, le=45)
+    inclinations_deg: tuple[float, ...] = (0.0, 15.0, 30.0)
+    anteversions_deg: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)
+    #: where the reamer's axis passes (mm, bone frame): the native centre, medialised, raised
+    reamer_centres_mm: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0), (0.0, 0.0, -2.0), (0.0, 2.0, 0.0))
+    feeds_mm_s: tuple[float, ...] = (0.5, 1.0, 2.0)
+    cancellous: tuple[str, ...] = ("normal", "osteoporotic")
+    test_reamer_sizes_mm: tuple[float, ...] = (50.0,)
+    test_anteversions_deg: tuple[float, ...] = (45.0, 135.0)
+    test_feeds_mm_s: tuple[float, ...] = (1.5,)
+    validation_anteversions_deg: tuple[float, ...] = (315.0,)
+    train_cases: int = Field(36, ge=1, le=10_000)
+    validation_cases: int = Field(6, ge=0, le=10_000)
+    test_cases: int = Field(9, ge=0, le=10_000)
+    frames: FrameCount = 60
+    seed: int = 0
+
+    @field_validator("cancellous")
+    @classmethod
+    def _known_cancellous(cls, values: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = [v for v in values if v not in CANCELLOUS_PRESETS]
+        if unknown:
+            raise ValueError(f"unknown cancellous preset(s) {unknown}: known {sorted(CANCELLOUS_PRESETS)}")
+        return values
+
+
 class SweepConfig(_Frozen):
     """Orientation sweep of the training cases [5.3.4]: the one definition of the sweep's
     defaults (``thrsim.data.sweep`` and ``thrsim dataset``'s options take theirs from here).

@@ -124,7 +124,7 @@ def test_sweep_defaults_are_defined_once_in_the_configuration():
     import inspect
 
     from thrsim.cli import dataset_cmd
-    from thrsim.config import SweepConfig
+    from thrsim.config import SocketSweepConfig, SweepConfig
 
     config = SweepConfig()
     options = {
@@ -135,7 +135,10 @@ def test_sweep_defaults_are_defined_once_in_the_configuration():
     assert parse_list(options["forces"], "") == config.forces_n
     assert parse_list(options["extra_forces"], "", allow_empty=True) == config.extra_forces_n
     assert parse_list(options["extra_force_anteversions"], "", allow_empty=True) == config.extra_force_anteversions_deg
-    assert options["frames"] == config.frames
+    # --frames defaults per bone, both from the configuration, and its help says both
+    assert options["frames"] is None
+    help_text = inspect.signature(dataset_cmd.dataset).parameters["frames"].default.help
+    assert f"{config.frames} on the patch" in help_text and f"{SocketSweepConfig().frames} on the socket" in help_text
     defaults = {name: p.default for name, p in inspect.signature(plan_sweep).parameters.items()}
     assert (defaults["inclinations"], defaults["anteversions"], defaults["frames"]) == (
         config.inclinations_deg,

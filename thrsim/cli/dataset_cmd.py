@@ -22,7 +22,7 @@ import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.output import check_threads, command_group, console, err_console, print_json, print_table
-from thrsim.config import SweepConfig
+from thrsim.config import SocketSweepConfig, SweepConfig
 from thrsim.data.executor import DASK_SECURITY
 from thrsim.data.sweep import format_list
 from thrsim.errors import SimulationError, ThrsimInputError
@@ -37,6 +37,7 @@ app = command_group(
 
 _LIST_HELP = "comma list and/or start:stop:step ranges, stop included"
 _SWEEP = SweepConfig()  # the sweep's defaults, defined once in thrsim.config
+_SOCKET_SWEEP = SocketSweepConfig()
 _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without importing it here
 
 
@@ -44,14 +45,25 @@ _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without 
 def dataset(
     ctx: typer.Context,
     out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
+    bone: str = typer.Option(
+        "patch",
+        "--bone",
+        help="patch: the orientation sweep of the thesis's patch; socket: the 0.5 plan of socket windows reamed one size up at "
+        f"set feeds ({_SOCKET_SWEEP.train_cases + _SOCKET_SWEEP.validation_cases + _SOCKET_SWEEP.test_cases} cases; the "
+        "orientation and force lists do not apply)",
+    ),
     inclinations: str = typer.Option(
         format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"
     ),
     anteversions: str = typer.Option(
         format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"
     ),
-    frames: int = typer.Option(
-        _SWEEP.frames, "--frames", help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second)", metavar="N"
+    frames: Optional[int] = typer.Option(
+        None,
+        "--frames",
+        help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second) [default: {_SWEEP.frames} on the patch, "
+        f"{_SOCKET_SWEEP.frames} on the socket]",
+        metavar="N",
     ),
     forces: str = typer.Option(
         format_list(_SWEEP.forces_n), "--forces", "--force", help="push force(s) in N for the full orientation grid", metavar="LIST"
@@ -67,6 +79,12 @@ def dataset(
         "--extra-force-anteversions",
         help="anteversions (every inclination) that get the extra forces",
         metavar="LIST",
+    ),
+    socket_plan: Optional[Path] = typer.Option(
+        None,
+        "--socket-plan",
+        help="JSON file of the socket plan's settings (any field of SocketSweepConfig: steps, windows, tilts, feeds, case counts, seed)",
+        metavar="FILE",
     ),
     element_sizes: Optional[str] = typer.Option(
         None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"
@@ -107,7 +125,7 @@ def dataset(
     if ctx.invoked_subcommand is not None:
         return
     from thrsim.data.generate import run_sweep
-    from thrsim.data.sweep import DEFAULT_SPLIT, parse_list, plan_sweep
+    from thrsim.data.sweep import DEFAULT_SPLIT, SocketSplitRule, parse_list, plan_socket_sweep, plan_sweep
 
     if out is None:
         raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
@@ -118,23 +136,36 @@ def dataset(
     if workers < 1:
         raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
     check_threads(threads)
-    sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
+    if bone not in ("patch", "socket"):
+        raise ThrsimInputError(f"--bone must be patch or socket, got {bone!r}")
     template_overrides = _template_overrides(config)
-    plan = plan_sweep(
-        parse_list(inclinations, "--inclinations"),
-        parse_list(anteversions, "--anteversions"),
-        frames=frames,
-        force_n=parse_list(forces, "--forces"),
-        extra_forces_n=parse_list(extra_forces, "--extra-forces", allow_empty=True),
-        extra_force_anteversions=parse_list(extra_force_anteversions, "--extra-force-anteversions", allow_empty=True),
-        element_sizes_mm=sizes,
-    )
+    if bone == "socket":
+        if element_sizes is not None:
+            raise ThrsimInputError("--element-sizes applies to the patch sweep; the socket's mesh is set by socket.element_size_mm in --config")
+        socket_sweep = _socket_sweep(socket_plan, frames)
+        plan = plan_socket_sweep(socket_sweep)
+        split = SocketSplitRule(socket_sweep)
+        template_overrides = {**(template_overrides or {}), "bone_kind": "socket"}
+    else:
+        if socket_plan is not None:
+            raise ThrsimInputError("--socket-plan applies to --bone socket")
+        sizes = parse_list(element_sizes, "--element-sizes") if element_sizes is not None else (None,)
+        plan = plan_sweep(
+            parse_list(inclinations, "--inclinations"),
+            parse_list(anteversions, "--anteversions"),
+            frames=_SWEEP.frames if frames is None else frames,
+            force_n=parse_list(forces, "--forces"),
+            extra_forces_n=parse_list(extra_forces, "--extra-forces", allow_empty=True),
+            extra_force_anteversions=parse_list(extra_force_anteversions, "--extra-force-anteversions", allow_empty=True),
+            element_sizes_mm=sizes,
+        )
+        split = DEFAULT_SPLIT
     if dry_run:
         from thrsim.data.generate import check_sweep_target
 
         check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
         rows = [
-            {**c.params(), "case_id": c.case_id, "split": DEFAULT_SPLIT.split(c.inclination_deg, c.anteversion_deg)} for c in plan.cases
+            {**c.params(), "case_id": c.case_id, "split": split.of(c)} for c in plan.cases
         ]
         payload = {"cases": len(plan.cases), "requested": plan.requested, "notes": plan.notes, "plan": rows}
         if as_json:
@@ -206,6 +237,7 @@ def dataset(
             on_event=on_event,
             on_start=on_start,
             template_overrides=template_overrides,
+            split=split,
         )
     except KeyboardInterrupt as stop:
         if progress is not None:
@@ -303,6 +335,23 @@ class _Terminated(KeyboardInterrupt):
 
 
 _SWEPT = ("inclination_deg", "anteversion_deg", "force_n", "frames")
+
+
+def _socket_sweep(plan_file: Path | None, frames: int | None) -> SocketSweepConfig:
+    """The socket plan: the defaults, a --socket-plan file's settings over them, --frames over both."""
+    from pydantic import ValidationError
+
+    from thrsim.config import read_settings_file
+
+    settings = {} if plan_file is None else read_settings_file(str(plan_file))
+    if frames is not None:
+        settings["frames"] = frames
+    try:
+        return SocketSweepConfig(**settings)
+    except ValidationError as error:
+        first = error.errors()[0]
+        where = ".".join(str(part) for part in first["loc"]) or "the plan"
+        raise ThrsimInputError(f"{plan_file or '--frames'}: {where}: {first['msg']}") from None
 
 
 def _template_overrides(config: Path | None) -> dict | None:

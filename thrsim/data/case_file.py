@@ -403,14 +403,14 @@ def validate_case(path: str | os.PathLike) -> dict[str, Any]:
     Format (:func:`_check_format`): the format attribute, every required dataset and attribute,
     consistent shapes, integer dtypes, node indices that exist, finite values, time strictly
     increasing. History (:func:`_check_history`): status only 0/1, frame 0 intact (every element
-    active, no plastic strain), no negative PEEQ or von Mises stress, a removed element never
+    active, no plastic strain; a pre-reamed or chained case's prepared bone excepted), no negative PEEQ or von Mises stress, a removed element never
     reappears, PEEQ never decreases for an element still active.
     """
     path = Path(path)
     with _open(path) as f:
         n_nodes, n_el, n_frames, names = _check_format(f, path)
-        history = _check_history(f["frames"], path, n_frames, n_el)
         attrs = decode_attrs(f.attrs)
+        history = _check_history(f["frames"], path, n_frames, n_el, prepared=_prepared(attrs))
     removed_per_frame = history["removed_per_frame"]
     summary = {
         "path": str(path),
@@ -505,9 +505,21 @@ def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, .
     return n_nodes, n_el, n_frames, names
 
 
-def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[str, Any]:
+def _prepared(attrs: dict[str, Any]) -> str | None:
+    """How a case's bone was prepared before its frame 0: "pre_ream" (elements already gone),
+    "start_from" (elements gone and plastic strain carried), None (intact)."""
+    if attrs.get("start_from"):
+        return "start_from"
+    if attrs.get("pre_ream_mm") is not None:
+        return "pre_ream"
+    return None
+
+
+def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int, prepared: str | None = None) -> dict[str, Any]:
     """The per-element frames make physical sense, read one frame at a time; returns the
-    removed count per frame, the largest PEEQ and the von Mises range."""
+    removed count per frame, the largest PEEQ and the von Mises range. A prepared bone
+    (``prepared``: see :func:`_prepared`) may start with elements gone, and a chained one with
+    plastic strain."""
     status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
     damage_ds = {name: g[name] for name in OPTIONAL_PER_ELEMENT if name in g}
     prev_damage: dict[str, np.ndarray] = {}
@@ -526,9 +538,9 @@ def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int) -> dict[
         if peeq.min(initial=0.0) < 0 or vm.min(initial=0.0) < 0:
             raise ThrsimInputError(f"{path}: frame {t}: negative PEEQ or von Mises stress")
         if t == 0:
-            if not np.all(status == 1):
+            if not np.all(status == 1) and prepared is None:
                 raise ThrsimInputError(f"{path}: frame 0 is not intact ({int((status == 0).sum())} element(s) removed)")
-            if peeq.max(initial=0.0) > 0:
+            if peeq.max(initial=0.0) > 0 and prepared != "start_from":
                 raise ThrsimInputError(f"{path}: frame 0 is not intact (PEEQ up to {peeq.max():.3g})")
         else:
             back = (prev_status == 0) & (status == 1)

@@ -338,7 +338,7 @@ def _clean_stale(cases: Path) -> None:
 def _entry(spec: CaseSpec, split: SplitRule, solver: str) -> dict:
     return {
         "params": spec.params(),
-        "split": split.split(spec.inclination_deg, spec.anteversion_deg),
+        "split": split.of(spec),
         "file": f"{CASES_DIR}/{spec.case_id}.h5",
         "solver": solver,
         "solver_version": __version__,

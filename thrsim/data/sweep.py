@@ -28,7 +28,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-from thrsim.config import ReamingCaseConfig, SweepConfig
+import random
+from typing import Any
+
+from thrsim.config import CANCELLOUS_PRESETS, ReamingCaseConfig, SocketSweepConfig, SweepConfig, head_diameter_for_size
 from thrsim.errors import ThrsimInputError
 
 DEFAULTS = SweepConfig()
@@ -109,9 +112,19 @@ class CaseSpec:
     frames: int
     element_size_mm: float | None = None  # None: the configuration's default
     aliases: tuple[float, ...] = ()  # requested anteversions this case stands for (γ = 0)
+    #: further case settings, dotted (``socket.window_polar_deg``) → value, and the name they give the case
+    settings: tuple[tuple[str, Any], ...] = ()
+    label: str = ""
+    split: str | None = None  # set by a plan that decides the split itself (the socket's)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "aliases", tuple(self.aliases))
+        object.__setattr__(self, "settings", tuple((str(k), _frozen(v)) for k, v in self.settings))
 
     @property
     def case_id(self) -> str:
+        if self.label:
+            return self.label
         name = f"g{self.inclination_deg:05.1f}_t{self.anteversion_deg:05.1f}_f{self.force_n:g}N"
         if self.element_size_mm is not None:
             name += f"_h{self.element_size_mm:g}mm"
@@ -124,6 +137,7 @@ class CaseSpec:
     def params(self) -> dict:
         data = asdict(self)
         data["aliases"] = list(self.aliases)
+        data["settings"] = [[key, _thawed(value)] for key, value in self.settings]
         return data
 
     def case_config(self, template: dict | None = None) -> ReamingCaseConfig:
@@ -139,6 +153,13 @@ class CaseSpec:
             bone = dict(data.get("bone") or {})
             bone["element_size_mm"] = self.element_size_mm
             data["bone"] = bone
+        for dotted, value in self.settings:
+            *parents, leaf = dotted.split(".")
+            tree = data
+            for key in parents:
+                tree[key] = dict(tree.get(key) or {})
+                tree = tree[key]
+            tree[leaf] = _thawed(value)
         return ReamingCaseConfig.model_validate(data)
 
 
@@ -159,6 +180,10 @@ class SplitRule:
         if theta in {_key(a) for a in self.validation_anteversions_deg}:
             return "validation"
         return "train"
+
+    def of(self, spec: CaseSpec) -> str:
+        """The split of a case: the plan's own choice when it made one, else by orientation."""
+        return spec.split or self.split(spec.inclination_deg, spec.anteversion_deg)
 
     def as_dict(self) -> dict:
         return {
@@ -278,3 +303,127 @@ def coverage_order(cases: list[CaseSpec], main_forces_n: tuple[float, ...] = DEF
     position = {id(c): i / len(main) for i, c in enumerate(main)}
     position.update({id(c): (j + 0.5) / len(extra) for j, c in enumerate(extra)})
     return sorted(cases, key=lambda c: position[id(c)])
+
+
+def _frozen(value: Any) -> Any:
+    """Lists (JSON's tuples) as tuples, so a spec read back from a manifest equals the planned one."""
+    if isinstance(value, (list, tuple)):
+        return tuple(_frozen(v) for v in value)
+    if isinstance(value, dict):
+        return tuple(sorted((k, _frozen(v)) for k, v in value.items()))
+    return value
+
+
+def _thawed(value: Any) -> Any:
+    if isinstance(value, tuple) and value and all(isinstance(v, tuple) and len(v) == 2 and isinstance(v[0], str) for v in value):
+        return {k: _thawed(v) for k, v in value}
+    if isinstance(value, tuple):
+        return [_thawed(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class SocketSplitRule:
+    """The socket plan decides each case's split (:func:`plan_socket_sweep`); this records what it held out."""
+
+    config: SocketSweepConfig = SocketSweepConfig()
+
+    def of(self, spec: CaseSpec) -> str:
+        return spec.split or "train"
+
+    def as_dict(self) -> dict:
+        c = self.config
+        return {
+            "test_reamer_sizes_mm": list(c.test_reamer_sizes_mm),
+            "test_anteversions_deg": list(c.test_anteversions_deg),
+            "test_feeds_mm_s": list(c.test_feeds_mm_s),
+            "validation_anteversions_deg": list(c.validation_anteversions_deg),
+        }
+
+
+class _Balanced:
+    """Draws from a list so each value comes about equally often: shuffled rounds through the values."""
+
+    def __init__(self, values, rng: random.Random):
+        self.values, self.rng, self.queue = list(values), rng, []
+
+    def draw(self):
+        if not self.queue:
+            self.queue = self.values[:]
+            self.rng.shuffle(self.queue)
+        return self.queue.pop()
+
+
+def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
+    """The 0.5 dataset's cases (see :class:`thrsim.config.SocketSweepConfig`): windows of the socket, one
+    reamer step each, at a prescribed feed; train, validation and test drawn apart, reproducibly."""
+    config = config or SocketSweepConfig()
+    rng = random.Random(config.seed)
+    train_steps = [s for s in config.steps if s[2] not in config.test_reamer_sizes_mm]
+    test_steps = [s for s in config.steps if s[2] in config.test_reamer_sizes_mm]
+    tilted = [g for g in config.inclinations_deg if g > 0]
+    if not train_steps or not tilted:
+        raise ThrsimInputError("the socket sweep needs a reamer step to train on and a tilt above 0°")
+    axes = {
+        "step": _Balanced(train_steps, rng),
+        "polar": _Balanced(config.window_polars_deg, rng),
+        "azimuth": _Balanced(config.window_azimuths_deg, rng),
+        "inclination": _Balanced(config.inclinations_deg, rng),
+        "anteversion": _Balanced(config.anteversions_deg, rng),
+        "centre": _Balanced(config.reamer_centres_mm, rng),
+        "feed": _Balanced(config.feeds_mm_s, rng),
+        "cancellous": _Balanced(config.cancellous, rng),
+    }
+    held_out = [("step", s) for s in test_steps] + [("anteversion", t) for t in config.test_anteversions_deg]
+    held_out += [("feed", f) for f in config.test_feeds_mm_s]
+    held = _Balanced(held_out, rng)
+    validation_direction = _Balanced(config.validation_anteversions_deg, rng)
+    tilt = _Balanced(tilted, rng)
+    cases: dict[str, CaseSpec] = {}
+    for split, count in (("train", config.train_cases), ("validation", config.validation_cases), ("test", config.test_cases)):
+        made = 0
+        while made < count:
+            pick = {name: axis.draw() for name, axis in axes.items()}
+            if split == "validation":
+                pick["inclination"], pick["anteversion"] = tilt.draw(), validation_direction.draw()
+            if split == "test":
+                name, value = held.draw()
+                pick[name] = value
+                if name == "anteversion":
+                    pick["inclination"] = tilt.draw()
+            spec = _socket_case(config, split, pick)
+            if spec.case_id in cases:
+                continue  # a repeat draw: draw again
+            cases[spec.case_id] = spec
+            made += 1
+    notes = [f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})"]
+    return SweepPlan(cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,))
+
+
+def _socket_case(config: SocketSweepConfig, split: str, pick: dict) -> CaseSpec:
+    socket_mm, prepared_mm, reamer_mm = pick["step"]
+    gamma = float(pick["inclination"])
+    theta = 0.0 if gamma == 0.0 else float(pick["anteversion"])
+    polar = float(pick["polar"])
+    azimuth = 0.0 if polar == 0.0 else float(pick["azimuth"])
+    centre = tuple(float(v) for v in pick["centre"])
+    settings: list[tuple[str, Any]] = [
+        ("socket.socket_diameter_mm", float(socket_mm)),
+        ("socket.window_polar_deg", polar),
+        ("socket.window_azimuth_deg", azimuth),
+        ("socket.window_half_angle_deg", config.window_half_angle_deg),
+        ("reamer.head_diameter_mm", head_diameter_for_size(float(reamer_mm))),
+        ("reamer_centre_mm", centre),
+        ("feed_mm_s", float(pick["feed"])),
+        ("cancellous", CANCELLOUS_PRESETS[pick["cancellous"]].model_dump()),
+    ]
+    if prepared_mm is not None:
+        settings.append(("pre_ream_mm", float(prepared_mm)))
+    label = (
+        f"s{socket_mm:g}_{'n' if prepared_mm is None else f'p{prepared_mm:g}'}_r{reamer_mm:g}_w{polar:g}a{azimuth:g}"
+        f"_g{gamma:g}t{theta:g}_c{'x'.join(f'{v:g}' for v in centre)}_v{pick['feed']:g}_{pick['cancellous'][:4]}"
+    )
+    return CaseSpec(
+        inclination_deg=gamma, anteversion_deg=theta, force_n=ReamingCaseConfig.model_fields["force_n"].default,
+        frames=config.frames, settings=tuple(settings), label=label, split=split,
+    )  # fmt: skip

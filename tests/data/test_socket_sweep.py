@@ -1,0 +1,84 @@
+"""The 0.5 dataset's plan: windows of the socket reamed one size up at set feeds, with held-out values."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import pytest
+from checkout_cli import run_thrsim
+
+from thrsim.config import SocketSweepConfig, head_diameter_for_size
+from thrsim.data.sweep import CaseSpec, plan_socket_sweep
+
+
+def _settings(spec: CaseSpec) -> dict:
+    return dict(spec.settings)
+
+
+def test_the_plan_is_reproducible_balanced_and_holds_values_out():
+    config = SocketSweepConfig()
+    plan = plan_socket_sweep(config)
+    again = plan_socket_sweep(config)
+    assert [c.case_id for c in plan.cases] == [c.case_id for c in again.cases]
+    assert len({c.case_id for c in plan.cases}) == len(plan.cases)
+    splits = Counter(c.split for c in plan.cases)
+    assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
+    train = [c for c in plan.cases if c.split == "train"]
+    held_sizes = {head_diameter_for_size(size) for size in config.test_reamer_sizes_mm}
+    for case in train:
+        settings = _settings(case)
+        assert settings["reamer.head_diameter_mm"] not in held_sizes
+        assert settings["feed_mm_s"] not in config.test_feeds_mm_s
+        assert case.anteversion_deg not in config.test_anteversions_deg + config.validation_anteversions_deg
+    # every train value of each axis comes about equally often
+    polars = Counter(_settings(c)["socket.window_polar_deg"] for c in train)
+    feeds = Counter(_settings(c)["feed_mm_s"] for c in train)
+    assert set(polars) == set(config.window_polars_deg) and max(polars.values()) - min(polars.values()) <= 2
+    assert set(feeds) == set(config.feeds_mm_s) and max(feeds.values()) - min(feeds.values()) <= 2
+    # each test case reams with something never trained on; validation tilts toward its own direction
+    for case in (c for c in plan.cases if c.split == "test"):
+        settings = _settings(case)
+        assert (
+            settings["reamer.head_diameter_mm"] in held_sizes
+            or settings["feed_mm_s"] in config.test_feeds_mm_s
+            or (case.inclination_deg > 0 and case.anteversion_deg in config.test_anteversions_deg)
+        )
+    for case in (c for c in plan.cases if c.split == "validation"):
+        assert case.inclination_deg > 0 and case.anteversion_deg in config.validation_anteversions_deg
+    # every case is a valid socket case, and reads back from its manifest entry unchanged
+    for case in plan.cases:
+        built = case.case_config({"bone_kind": "socket"})
+        assert built.bone_kind == "socket" and built.feed_mm_s is not None and built.socket.window_polar_deg is not None
+        assert CaseSpec(**json.loads(json.dumps(case.params()))) == case
+
+
+def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({"train_cases": 1, "validation_cases": 0, "test_cases": 1, "feeds_mm_s": [20.0], "test_feeds_mm_s": [25.0]}))
+    coarse = tmp_path / "coarse.json"
+    coarse.write_text(json.dumps({"socket": {"element_size_mm": 2.5}}))
+    out = tmp_path / "data"
+    args = ("dataset", "--bone", "socket", "--socket-plan", str(plan), "--config", str(coarse), "--frames", "2", "--out", str(out), "--json")
+    done = run_thrsim(*args, timeout=1200)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads(done.stdout)["generated"] == 2
+    manifest = json.loads((out / "manifest.json").read_text())
+    entries = list(manifest["cases"].values())
+    assert sorted(e["split"] for e in entries) == ["test", "train"] and all(e["status"] == "complete" for e in entries)
+    assert manifest["split_rule"]["test_feeds_mm_s"] == [25.0]
+    assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
+    again = run_thrsim(*args, timeout=600)
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2
+
+
+@pytest.mark.parametrize(
+    ("plan", "says"),
+    [({"train_cases": 0}, "train_cases"), ({"cancellous": ["spongy"]}, "unknown cancellous"), ({"windows": 3}, "windows")],
+)
+def test_a_bad_socket_plan_is_refused(tmp_path, plan, says):
+    path = tmp_path / "plan.json"
+    path.write_text(json.dumps(plan))
+    done = run_thrsim("dataset", "--bone", "socket", "--socket-plan", str(path), "--out", str(tmp_path / "data"))
+    assert done.returncode == 2 and says in done.stderr and len(done.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "data").exists()

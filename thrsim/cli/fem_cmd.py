@@ -14,6 +14,7 @@ from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_H
 from thrsim.cli.output import err_console, print_json, print_table
 from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
 from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
+from thrsim.data.checkpoint import CHECKPOINT_EVERY_S, checkpoint_path
 from thrsim.errors import ThrsimInputError
 
 # the help shows the configuration's defaults, not copies of them that can fall behind
@@ -86,6 +87,12 @@ def fem(
         None, "--axial-damping", help="arm and driver damping along the axis in N·s/m", metavar="NS_M"
     ),
     threads: Optional[int] = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
+    checkpoint_every: float = typer.Option(
+        CHECKPOINT_EVERY_S,
+        "--checkpoint-every",
+        help="seconds of solving between checkpoints (CASE.h5.resume; rerun the same command to resume after a kill; 0: every frame)",
+        metavar="S",
+    ),
     config: Optional[Path] = typer.Option(
         None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"
     ),
@@ -100,6 +107,8 @@ def fem(
     them) or with the clinical --cup-inclination/--cup-anteversion (radiographic, anterior pelvic
     plane, as the trainer shows them; see `thrsim ream --help`), one pair.
     """
+    if not 0.0 <= checkpoint_every < math.inf:
+        raise ThrsimInputError(f"--checkpoint-every must be a number of seconds, 0 or more, got {checkpoint_every:g}")
     if force is not None and feed is not None:
         raise ThrsimInputError("give --force (force control) or --feed (feed control), not both")
     if start_from is not None and not start_from.is_file():
@@ -157,7 +166,10 @@ def fem(
     columns = (TextColumn("reaming"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=as_json) as bar:
         task = bar.add_task("frames", total=case.frames)
-        summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone)
+        summary = run_case(
+            case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone,
+            checkpoint=checkpoint_path(out), checkpoint_every_s=checkpoint_every,
+        )  # fmt: skip
     summary = {**aim.as_dict(), **summary}
     if as_json:
         print_json(summary)

@@ -27,6 +27,7 @@ import contextlib
 import errno
 import fcntl
 import importlib
+import inspect
 import json
 import os
 import socket
@@ -44,6 +45,7 @@ from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
+from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan, coverage_order
 from thrsim.errors import ThrsimInputError, ThrsimOutputError
@@ -132,7 +134,10 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
     solve = resolve_solver(solver)
     started = time.perf_counter()
     try:
-        summary = solve(config, part) or {}
+        if "checkpoint" in inspect.signature(solve).parameters:  # a long case resumes after a lost worker
+            summary = solve(config, part, checkpoint=checkpoint_path(final)) or {}
+        else:
+            summary = solve(config, part) or {}
         wall = time.perf_counter() - started
         check = validate_case(part)
         _check_matches(check, spec, part)
@@ -508,6 +513,11 @@ class _Sweep:
             entry = {**(old or {}), **_entry(spec, split, solver), "attempts": (old or {}).get("attempts", 0)}
             found = _existing_complete(self.root, spec, old)
             if found is None:
+                entry.pop("in_progress", None)
+                checkpoint = checkpoint_path(self.root / CASES_DIR / f"{spec.case_id}.h5")
+                frames_done = checkpointed_frames(checkpoint) if checkpoint.exists() else None
+                if frames_done is not None:  # a case interrupted after a checkpoint: it resumes there
+                    entry["in_progress"] = {"checkpoint": f"{CASES_DIR}/{checkpoint.name}", "frames_done": frames_done}
                 cases[spec.case_id] = {**entry, "status": "pending"}
                 todo.append(spec)
                 continue
@@ -605,6 +615,7 @@ class _Sweep:
         entry.update(fields, status="complete", finished=_now())
         entry.pop("error", None)
         entry.pop("adopted", None)
+        entry.pop("in_progress", None)
         self.result.complete += 1
         self.result.frames_generated += int(fields["frames"])
         self.done += 1

@@ -85,6 +85,13 @@ LEDGER_SIZE = 8
 SUM_POSITION, MIN_POSITION, MAX_POSITION, SUM_AXIAL_FORCE, CONTACT_STEPS, SUM_FX, SUM_FY, SUM_FZ, SUM_PUSH = range(9)
 FRAME_STATS_SIZE = 9
 
+#: the bone's state arrays (fields of SolidArrays) a checkpoint keeps; the rest is the mesh's, rebuilt
+SOLID_STATE = (
+    "active", "accounted", "stress", "peeq", "damage", "initiation", "plastic_work", "damage_work", "viscous_work",
+    "viscous_pressure", "element_force", "nodal_mass", "inverse_mass", "elements_at_node", "velocity", "displacement", "du",
+    "external_force", "cutting_damage", "debris",
+)  # fmt: skip
+
 ENERGY_NAMES = (
     "kinetic",
     "internal",
@@ -139,6 +146,14 @@ class FrameLog:
     reaction_force: list = field(default_factory=list)  # within-frame mean of the bone's force on the reamer (N)
     push_force: list = field(default_factory=list)  # within-frame mean of the push along D (N): set, or what the feed takes
     motor_torque: list = field(default_factory=list)  # within-frame mean torque the motor delivers about D (N·m)
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray]) -> FrameLog:
+        """The log that :meth:`arrays` gave (a checkpoint's frames read back)."""
+        log = cls()
+        for name, values in arrays.items():
+            getattr(log, name).extend(np.asarray(values))
+        return log
 
     def arrays(self) -> dict[str, np.ndarray]:
         """The records as arrays, in the case file's dtypes."""
@@ -276,6 +291,8 @@ class ReamingSimulation:
         self.zone_sizes: list[int] = []  # active elements integrated, at each choice of the zone
         self.first_contact_frame: int | None = None
         self.perforated_frame: int | None = None
+        self.frames_done = 0  # frames recorded after frame 0
+        self.log = FrameLog()
 
     def _prepare(self, case: ReamingCaseConfig) -> np.ndarray:
         """Ream the socket geometrically to ``pre_ream_mm`` (every element whose centroid lies in the
@@ -540,12 +557,18 @@ class ReamingSimulation:
         alive = self.solid.alive_nodes
         return bone_in_path(self.mesh.nodes[alive] + self.solid.displacement[alive], self.centre, self.axis, self.reamer.outer_radius)
 
-    def run(self, frames: int, progress: Callable[[int, int], None] | None = None) -> tuple[FrameLog, dict]:
-        log = FrameLog()
-        self.record(log)
+    def run(
+        self, frames: int, progress: Callable[[int, int], None] | None = None, on_frame: Callable[[int], None] | None = None
+    ) -> tuple[FrameLog, dict]:
+        """Simulate up to ``frames`` frames (from where :meth:`restore` left it, else from frame 0);
+        ``on_frame(k)`` runs after frame k is recorded (a checkpoint may be taken there), then ``progress``."""
+        log = self.log
+        if not log.time:
+            self.record(log)
         end_reason = "completed"
         started = time.perf_counter()
-        for frame in range(1, frames + 1):
+        resumed_at = self.frames_done
+        for frame in range(self.frames_done + 1, frames + 1):
             self.start_frame_statistics()
             self.advance_frame()
             self._check(frame)
@@ -567,15 +590,63 @@ class ReamingSimulation:
             if self.frame_stats[CONTACT_STEPS] > 0 and self.first_contact_frame is None:
                 self.first_contact_frame = frame
             self.record(log)
+            self.frames_done = frame
+            if on_frame:
+                on_frame(frame)
             if progress:
                 progress(frame, frames)
             if self.first_contact_frame is not None and _stalled(log):
                 end_reason = "stalled"
                 break
         elapsed = time.perf_counter() - started
-        return log, self._summary(log, end_reason, elapsed)
+        summary = self._summary(log, end_reason, elapsed / max(self.frames_done - resumed_at, 1))
+        summary["resumed_from_frame"] = resumed_at or None
+        return log, summary
 
-    def _summary(self, log: FrameLog, end_reason: str, elapsed: float) -> dict:
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Everything the frames after the last recorded one depend on, as named arrays: the bone's
+        state, the reamer's, the ledgers and the frames recorded so far (a checkpoint's content)."""
+        solid = self.solid
+        arrays = {f"solid/{name}": getattr(solid.arrays, name) for name in SOLID_STATE}
+        arrays |= {
+            "solid/integrated": solid.integrated,
+            "solid/scalars": np.array([solid.time, solid.detached_count], dtype=np.float64),
+            "contact/surface_velocity": self.contact.surface_velocity,
+            "contact/normal_force": self.contact.normal_force,
+            "contact/penalty_energy": self.contact.penalty_energy,
+            "reamer/state": self.state,
+            "reamer/ledger": self.ledger,
+            "reamer/scratch": self._scratch,
+            "run/zone_sizes": np.array(self.zone_sizes, dtype=np.int64),
+            "run/scalars": np.array(
+                [self.frames_done, self.spin_work_at_frame_start, self.force_n, _or_minus_one(self.first_contact_frame)], dtype=np.float64
+            ),
+        }
+        arrays |= {f"log/{name}": values for name, values in self.log.arrays().items()}
+        return arrays
+
+    def restore(self, arrays: dict[str, np.ndarray]) -> int:
+        """Take the state a :meth:`snapshot` of this very case holds; returns the frame it was taken after."""
+        solid = self.solid
+        for name in SOLID_STATE:
+            target = getattr(solid.arrays, name)
+            target[...] = arrays[f"solid/{name}"]
+        solid.integrated = np.array(arrays["solid/integrated"], dtype=bool)
+        solid.time, detached = (float(v) for v in arrays["solid/scalars"])
+        solid.detached_count = int(detached)
+        for name in ("surface_velocity", "normal_force", "penalty_energy"):
+            getattr(self.contact, name)[...] = arrays[f"contact/{name}"]
+        self.state[...] = arrays["reamer/state"]
+        self.ledger[...] = arrays["reamer/ledger"]
+        self._scratch[...] = arrays["reamer/scratch"]
+        self.zone_sizes = [int(v) for v in arrays["run/zone_sizes"]]
+        frames_done, self.spin_work_at_frame_start, self.force_n, first_contact = (float(v) for v in arrays["run/scalars"])
+        self.frames_done = int(frames_done)
+        self.first_contact_frame = None if first_contact < 0 else int(first_contact)
+        self.log = FrameLog.from_arrays({name[4:]: values for name, values in arrays.items() if name.startswith("log/")})
+        return self.frames_done
+
+    def _summary(self, log: FrameLog, end_reason: str, seconds_per_frame: float) -> dict:
         records = log.arrays()
         energy = records["energy"]
         names = {name: i for i, name in enumerate(ENERGY_NAMES)}
@@ -585,7 +656,7 @@ class ReamingSimulation:
         status = records["status"]
         removed_now = (status[-1] == 0) & ~self.prepared
         simulated = len(log.time) - 1
-        axial = _along(records["reamer_position"], self.axis) - self.start_position
+        axial = _along(records["reamer_position"] - self.line_point, self.axis) - self.start_position
         external = energy[-1, names["external_work"]]
         summary = {
             "frames": simulated,
@@ -613,7 +684,7 @@ class ReamingSimulation:
             "reamer_teeth": self.reamer.tooth_count,
             "mean_peeq_active": float(self.solid.peeq[~removed_now].mean()) if (~removed_now).any() else None,
             "reamer_advance_mm": float(axial[-1] * 1e3),
-            "seconds_per_frame": elapsed / max(simulated, 1),
+            "seconds_per_frame": seconds_per_frame,
             "steps_per_frame": self.steps_per_frame,
             "dt_s": self.solid.dt,
             "max_kinetic_to_internal": float(ratio.max()) if ratio.size else None,
@@ -717,3 +788,7 @@ def bone_in_path(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, outer
     along = _along(relative, axis)
     lateral_sq = (relative * relative).sum(axis=1) - along**2
     return bool(np.any((along > 0.0) & (lateral_sq < outer_radius**2)))
+
+
+def _or_minus_one(value: int | None) -> int:
+    return -1 if value is None else value

@@ -9,6 +9,7 @@ import pytest
 from checkout_cli import run_thrsim
 
 from thrsim.config import SocketSweepConfig, head_diameter_for_size
+from thrsim.data.pack import read_pack
 from thrsim.data.sweep import CaseSpec, plan_socket_sweep
 
 
@@ -70,6 +71,16 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
     again = run_thrsim(*args, timeout=600)
     assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2
+    # the pack keeps each window's own mesh beside its frames
+    pack = tmp_path / "socket-pack.h5"
+    packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
+    assert packed.returncode == 0, packed.stderr[-2000:]
+    mesh, cases = read_pack(pack)
+    assert len(cases) == 2 and sum(case.mesh is not None for case in cases) == 1
+    for case in cases:
+        own = case.mesh or mesh
+        assert case.alpha.shape[1] == own.n_tets and case.status.shape == case.alpha.shape
+        assert set(own.material_names) == {"cortical", "cancellous"}
 
 
 @pytest.mark.parametrize(

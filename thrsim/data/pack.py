@@ -12,7 +12,7 @@ Layout::
     attrs   format="thrsim-learning-pack", version, alpha_levels, damage_levels, labels (JSON LabelConfig),
             identity (JSON, the dataset's), identity_hash, split_rule (JSON), thrsim_version,
             versions (JSON), updated
-    /mesh                      the case files' mesh group
+    /mesh                      the case files' mesh group (the first case's, in a pack of socket windows)
     /cases/<case_id>           attrs: the case file's attributes, split, aliases, source_file,
                                source_sha256, source_data_digest, wall_s
         alpha     (E,T) uint8  floor(α·alpha_levels) of active elements, one element's history
@@ -23,6 +23,8 @@ Layout::
                                where the case file records them (thrsim ≥ 0.3.1)
         time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
                                as in the case file
+        mesh                   the case's own mesh group where it is not the pack's (version 2: the
+                               socket's windows, one mesh each); version 1 packs hold one mesh
 
 α is stored in levels of 1/50, read back at the level's centre (error ≤ 0.01, half the training
 noise; the removal threshold 0.3 is a level boundary), damage in levels of 1/100 (0 and 1 exact):
@@ -54,7 +56,8 @@ from thrsim.hdf5_checks import group_at, read_dataset
 from thrsim.provenance import config_hash, json_default, package_versions
 
 PACK_FORMAT = "thrsim-learning-pack"
-PACK_VERSION = 1
+PACK_VERSION = 1  # every case on the pack's mesh
+PACK_VERSION_OWN_MESHES = 2  # cases may carry their own mesh (the socket's windows)
 ALPHA_LEVELS = 50
 DAMAGE_LEVELS = 100
 _SMALL_PER_FRAME = ("time", "reamer_position", "energy", *OPTIONAL_PER_FRAME)
@@ -78,6 +81,7 @@ class PackedCase:
     data_digest: str  # of the source case file (thrsim.data.case_file.data_digest)
     damage: np.ndarray | None = None  # (T,E) float32 D, where the case file records it
     damage_initiation: np.ndarray | None = None  # (T,E) float32 ω
+    mesh: TetMesh | None = None  # the case's own mesh where it has one (a socket window), else None: the pack's
 
 
 def pack_files(path: str | os.PathLike) -> list[Path]:
@@ -144,7 +148,6 @@ def _json_attr(value: Any) -> str:
 def _pack_attrs(manifest: dict, labels: LabelConfig) -> dict[str, Any]:
     return {
         "format": PACK_FORMAT,
-        "version": PACK_VERSION,
         "alpha_levels": ALPHA_LEVELS,
         "damage_levels": DAMAGE_LEVELS,
         "labels": _json_attr(labels.model_dump()),
@@ -182,6 +185,11 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
     group.attrs.update(attrs)
 
 
+def _windows(attrs: dict[str, Any]) -> bool:
+    """Whether the pack's dataset is of socket windows, each case on its own mesh."""
+    return json.loads(attrs["identity"]).get("template", {}).get("bone_kind") == "socket"
+
+
 def _same_mesh(a: TetMesh, b: TetMesh) -> bool:
     return (
         a.nodes.shape == b.nodes.shape
@@ -192,7 +200,7 @@ def _same_mesh(a: TetMesh, b: TetMesh) -> bool:
 
 
 def _check_same_source(existing: h5py.File, attrs: dict[str, Any], out: Path) -> None:
-    for key in ("identity_hash", "labels", "alpha_levels", "version"):
+    for key in ("identity_hash", "labels", "alpha_levels"):
         have = existing.attrs.get(key)
         have = have.decode() if isinstance(have, bytes) else have
         if have != attrs[key]:
@@ -291,20 +299,26 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
                     kept.append(case_id)
         for entry in entries:
             with CaseReader(entry["path"]) as reader:
-                if mesh is None:
-                    mesh = reader.mesh
-                elif not _same_mesh(mesh, reader.mesh):
-                    raise ThrsimInputError(f"{reader.path}: its mesh differs from the pack's (a pack holds one mesh)")
                 if entry["case_id"] in cases:
                     if cases[entry["case_id"]].attrs["source_data_digest"] != (entry.get("data_digest") or data_digest(reader.path)):
                         raise ThrsimInputError(f"{out}: case {entry['case_id']} is packed from other data than {reader.path}")
                     continue
-                _write_case_group(cases.create_group(entry["case_id"]), reader, entry, labels)
+                group = cases.create_group(entry["case_id"])
+                if mesh is None:
+                    mesh = reader.mesh
+                elif not _same_mesh(mesh, reader.mesh):
+                    if not _windows(attrs):
+                        del cases[entry["case_id"]]
+                        raise ThrsimInputError(f"{reader.path}: its mesh differs from the pack's (a pack of the patch holds one mesh)")
+                    write_mesh_group(group.create_group("mesh"), reader.mesh)  # a window of the socket: its own mesh
+                _write_case_group(group, reader, entry, labels)
                 added.append(entry["case_id"])
         write_mesh_group(f.create_group("mesh"), mesh)
+        own_meshes = any("mesh" in cases[case_id] for case_id in cases)
         f.attrs.update(
             {
                 **attrs,
+                "version": PACK_VERSION_OWN_MESHES if own_meshes else PACK_VERSION,
                 "thrsim_version": __version__,
                 "versions": _json_attr(package_versions()),
                 "updated": datetime.now(UTC).isoformat(timespec="seconds"),
@@ -331,7 +345,7 @@ def read_pack(
             shard_mesh, cases = _read_pack_file(shard, f, splits, labels)
         if mesh is None:
             mesh = shard_mesh
-        elif not _same_mesh(mesh, shard_mesh):
+        elif not _same_mesh(mesh, shard_mesh) and not any(case.mesh is not None for case in cases):
             raise ThrsimInputError(f"{shard}: its mesh differs from the other pack files'")
         for case in cases:
             if case.case_id in out:
@@ -353,8 +367,10 @@ def _read_pack_file(
         raise ThrsimInputError(
             f"{path}: the pack's version, label constants or levels are missing or malformed ({str(error).splitlines()[0]})"
         ) from None
-    if version != PACK_VERSION:
-        raise ThrsimInputError(f"{path}: learning pack version {version}; this thrsim reads version {PACK_VERSION}")
+    if version not in (PACK_VERSION, PACK_VERSION_OWN_MESHES):
+        raise ThrsimInputError(
+            f"{path}: learning pack version {version}; this thrsim reads versions {PACK_VERSION} and {PACK_VERSION_OWN_MESHES}"
+        )
     if not (1 <= levels <= 255 and 1 <= damage_levels <= 255):
         raise ThrsimInputError(f"{path}: the pack's levels ({levels:g}, {damage_levels:g}) do not fit its uint8 values")
     if labels is not None and labels.model_dump() != packed_labels:
@@ -369,9 +385,11 @@ def _read_pack_file(
         split = None if split in (None, "None") else split
         if splits is not None and split not in splits:
             continue
-        quantised = read_dataset(g, "alpha", path, "u", (mesh.n_tets, None))
+        own_mesh = read_mesh_group(group_at(g, "mesh", path)) if version == PACK_VERSION_OWN_MESHES and "mesh" in g else None
+        elements = (own_mesh or mesh).n_tets
+        quantised = read_dataset(g, "alpha", path, "u", (elements, None))
         frames = quantised.shape[1]
-        status = _status_from(read_dataset(g, "removed_frame", path, "iu", (mesh.n_tets,)), frames)
+        status = _status_from(read_dataset(g, "removed_frame", path, "iu", (elements,)), frames)
         alpha = np.where(status == 1, dequantise_alpha(quantised, levels), np.float32(0.0))
         out.append(PackedCase(
             case_id=case_id,
@@ -382,8 +400,9 @@ def _read_pack_file(
             split=split,
             attrs=attrs,
             data_digest=str(attrs.get("source_data_digest", "")),
+            mesh=own_mesh,
             **{
-                name: dequantise_damage(read_dataset(g, name, path, "u", (mesh.n_tets, frames)), damage_levels) if name in g else None
+                name: dequantise_damage(read_dataset(g, name, path, "u", (elements, frames)), damage_levels) if name in g else None
                 for name in OPTIONAL_PER_ELEMENT
             },
         ))  # fmt: skip

@@ -12,10 +12,15 @@ import time
 
 import numba
 
-from thrsim.config import BonePatchConfig, ReamingCaseConfig
+import numpy as np
+
+from thrsim.config import BonePatchConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.physics.reaming import CONTACT_STEPS, ReamingSimulation
 from thrsim.provenance import package_versions
+
+#: the whole socket's element size in the benchmark: coarse enough for a frame in minutes on two cores
+WHOLE_SOCKET_ELEMENT_MM = 1.5
 
 
 def bench_mesh(bone: BonePatchConfig) -> dict:
@@ -32,22 +37,58 @@ def bench_mesh(bone: BonePatchConfig) -> dict:
     }
 
 
+def _time_frames(simulation: ReamingSimulation, frames: int) -> dict:
+    """Time ``frames`` frames after one warm-up frame (JIT compile, first contact); the cost per active
+    element and step is what compares a patch with a socket whatever their sizes."""
+    simulation.run(1)
+    zone_choices = len(simulation.zone_sizes)
+    started = time.perf_counter()
+    for _ in range(frames):
+        simulation.start_frame_statistics()
+        simulation.advance_frame()
+    seconds = (time.perf_counter() - started) / frames
+    timed_zones = simulation.zone_sizes[zone_choices:]
+    active = float(np.median(timed_zones)) if timed_zones else float((simulation.solid.active > 0).sum())
+    return {
+        "elements": simulation.mesh.n_tets,
+        "active_elements_median": active,
+        "frames_timed": frames,
+        "seconds_per_frame": seconds,
+        "ms_per_step": 1e3 * seconds / simulation.steps_per_frame,
+        "ns_per_active_element_step": 1e9 * seconds / simulation.steps_per_frame / max(active, 1.0),
+    }
+
+
+def bench_socket(frames: int) -> dict:
+    """The socket's cost against its active elements: a window reamed at a set feed (a 0.5 dataset case)
+    and the whole socket at a coarse size, each against the patch's cost per active element."""
+    base = ReamingCaseConfig(inclination_deg=0.0, anteversion_deg=0.0)
+    reamer = base.reamer.model_copy(update={"head_diameter_mm": head_diameter_for_size(48.0)})
+    window = base.model_copy(
+        update={"bone_kind": "socket", "feed_mm_s": 1.0, "frames": frames + 1, "reamer": reamer,
+                "socket": SocketConfig(window_polar_deg=30.0, window_azimuth_deg=90.0)}
+    )  # fmt: skip
+    whole = base.model_copy(
+        update={"bone_kind": "socket", "frames": frames + 1, "reamer": reamer, "socket": SocketConfig(element_size_mm=WHOLE_SOCKET_ELEMENT_MM)}
+    )
+    return {
+        "window": {"case": "48 mm reamer on the native 46 mm socket, window 30°/90°, feed 1 mm/s", **_time_frames(ReamingSimulation(window), frames)},
+        "whole": {
+            "case": f"48 mm reamer on the native 46 mm socket at {WHOLE_SOCKET_ELEMENT_MM} mm elements, 230 N along the socket axis",
+            **_time_frames(ReamingSimulation(whole), frames),
+        },
+    }
+
+
 def bench_solver(bone: BonePatchConfig, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
     """Seconds per output frame of the default reaming case (after one warm-up frame: JIT compile)."""
     case = ReamingCaseConfig(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg, frames=frames + 1, bone=bone)
     simulation = ReamingSimulation(case)
-    simulation.run(1)
-    started = time.perf_counter()
-    for _ in range(frames):
-        simulation.start_frame_statistics()
-        simulation.advance(simulation.steps_per_frame)
-    seconds = (time.perf_counter() - started) / frames
+    timed = _time_frames(simulation, frames)
+    seconds = timed["seconds_per_frame"]
     return {
         "case": f"inclination {inclination_deg} deg, anteversion {anteversion_deg} deg, {case.force_n:g} N",
-        "elements": simulation.mesh.n_tets,
-        "frames_timed": frames,
-        "seconds_per_frame": seconds,
-        "ms_per_step": 1e3 * seconds / simulation.steps_per_frame,
+        **timed,
         "steps_per_frame": simulation.steps_per_frame,
         "dt_s": simulation.solid.dt,
         "removed_after": int((simulation.solid.active == 0).sum()),
@@ -57,9 +98,9 @@ def bench_solver(bone: BonePatchConfig, frames: int, inclination_deg: float = 15
     }
 
 
-def run_benchmarks(element_size_mm: float = 0.45, frames: int = 3) -> dict:
+def run_benchmarks(element_size_mm: float = 0.45, frames: int = 3, socket: bool = False) -> dict:
     bone = BonePatchConfig(element_size_mm=element_size_mm)
-    return {
+    result = {
         "machine": {
             "cpu_count": os.cpu_count(),
             "numba_threads": numba.get_num_threads(),
@@ -69,3 +110,9 @@ def run_benchmarks(element_size_mm: float = 0.45, frames: int = 3) -> dict:
         "mesh": bench_mesh(bone),
         "solver": bench_solver(bone, frames),
     }
+    if socket:
+        result["socket"] = bench_socket(frames)
+        patch = result["solver"]["ns_per_active_element_step"]
+        for figures in result["socket"].values():
+            figures["cost_per_active_element_vs_patch"] = figures["ns_per_active_element_step"] / patch
+    return result

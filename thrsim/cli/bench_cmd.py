@@ -20,6 +20,9 @@ def bench(
     model: Optional[Path] = typer.Option(
         None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"
     ),
+    socket: bool = typer.Option(
+        False, "--socket", help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch"
+    ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
     browser_seconds: float = typer.Option(10.0, "--browser-seconds", min=1.0, help="how long to count the page's frames", metavar="S"),
@@ -32,8 +35,8 @@ def bench(
 ) -> None:
     """Time mesh generation and the explicit solver (and the trainer pages); print one JSON object."""
     if browser_only:
-        if learned:
-            raise ThrsimInputError("--browser-only times only the pages: drop --learned")
+        if learned or socket:
+            raise ThrsimInputError("--browser-only times only the pages: drop --learned and --socket")
         import os
         import platform
 
@@ -48,7 +51,7 @@ def bench(
         return
     from thrsim.bench import run_benchmarks  # Numba and gmsh: loaded only when benchmarking
 
-    result = run_benchmarks(element_size, frames)
+    result = run_benchmarks(element_size, frames, socket=socket)
     if browser:
         from thrsim.app.drawing_bench import time_drawing
 

@@ -18,6 +18,11 @@ Both run the default case (default 0.45 mm mesh, γ 15°, θ 30°, 230 N) from f
   native socket, ``ZONE_SOCKET_FRAMES`` frames): removed volume and mean advance within 5 %, and
   the zone's energy balance still within 5 % of the external work.
 
+* ``reaming-socket-window``: a window of the socket (30° from the pole, toward the dome) reamed by a
+  48 mm reamer on the native 46 mm socket at 1 mm/s for ``WINDOW_FRAMES`` frames, the 0.5 dataset's
+  kind of case: energy balance within 5 %, and the removed volume and the mean push the feed takes
+  within 10 % when the contact penalty factor or Δt is halved.
+
 Removal is a threshold process (element deletion) driven by a chaotic cut, so both figures are
 taken over many frames: the removed volume at the end and the axial advance averaged over the
 frames after first contact (within-frame means, not frame-end samples).
@@ -38,6 +43,8 @@ CONVERGENCE_FRAMES = 30
 ZONE_TOLERANCE = 0.05
 ZONE_SOCKET_ELEMENT_MM = 1.0
 ZONE_SOCKET_FRAMES = 10
+WINDOW_FRAMES = 30
+WINDOW_TOLERANCE = 0.10
 #: variant → (settings changed from the default case, tolerance on removed volume and advance)
 VARIANTS = {
     "contact-factor-half": (lambda c: {"contact": c.contact.model_copy(update={"penalty_factor": c.contact.penalty_factor / 2})}, 0.10),
@@ -168,6 +175,47 @@ def reaming_active_zone() -> list[CheckResult]:
     return records
 
 
+def socket_window_case(frames: int) -> ReamingCaseConfig:
+    """The 0.5 dataset's kind of case: a window of the socket reamed one size up at a set feed."""
+    from thrsim.config import ReamerConfig, SocketConfig, head_diameter_for_size
+
+    return ReamingCaseConfig(
+        inclination_deg=0.0, anteversion_deg=0.0, bone_kind="socket", frames=frames, feed_mm_s=1.0,
+        socket=SocketConfig(window_polar_deg=30.0, window_azimuth_deg=90.0),
+        reamer=ReamerConfig(head_diameter_mm=head_diameter_for_size(48.0)),
+    )  # fmt: skip
+
+
+def reaming_socket_window() -> list[CheckResult]:
+    from thrsim.physics.reaming import bone_mesh
+
+    base = socket_window_case(WINDOW_FRAMES)
+    mesh = bone_mesh(base)
+    records = []
+    with Stopwatch() as watch:
+        reference = _run(base, mesh)
+        energy = result(
+            "reaming-socket-window-energy-balance", f"|energy balance error| ÷ external work over {WINDOW_FRAMES} frames of a socket window",
+            value=reference["energy_balance_error"], reference=None, tolerance=ENERGY_TOLERANCE,
+            details={key: reference.get(key) for key in ("elements", "removed", "external_work_j", "push_mean_n", "active_elements_median")},
+            seconds=watch.seconds,
+        )  # fmt: skip
+        records.append(energy)
+        for name in ("contact-factor-half", "dt-half"):
+            change, _ = VARIANTS[name]
+            variant = _run(base.model_copy(update=change(base)), mesh)
+            details = {key: [reference[key], variant[key]] for key in ("removed_volume_mm3", "push_mean_n", "frames")}
+            for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-push", "push_mean_n", "N")):
+                records.append(result(
+                    f"reaming-socket-window-{name}-{figure}", f"{key} with {name} vs the default settings (socket window)",
+                    value=variant[key], reference=reference[key], tolerance=WINDOW_TOLERANCE, units=units, details=details,
+                    seconds=watch.seconds,
+                ))  # fmt: skip
+    for record in records:
+        record.passed = record.passed and reference["removed"] > 0
+    return records
+
+
 CHECKS = [
     Check("reaming-energy-balance", f"default case, {ENERGY_FRAMES} frames: energy balance error ≤ {ENERGY_TOLERANCE:.0%} of the external work",
           reaming_energy_balance, ("reaming-energy-balance-error",), slow=True),
@@ -178,4 +226,8 @@ CHECKS = [
     Check("reaming-convergence", f"default case, {CONVERGENCE_FRAMES} frames: removed volume and mean advance vs half contact factor, "
           "half Δt, half and double reamer mass", reaming_convergence,
           tuple(f"reaming-convergence-{name}-{figure}" for name in VARIANTS for figure in ("removed-volume", "mean-advance")), slow=True),
+    Check("reaming-socket-window", f"a socket window at 1 mm/s, {WINDOW_FRAMES} frames: energy balance within {ENERGY_TOLERANCE:.0%}; "
+          f"removed volume and mean push within {WINDOW_TOLERANCE:.0%} with half contact factor and half Δt", reaming_socket_window,
+          ("reaming-socket-window-energy-balance",) + tuple(f"reaming-socket-window-{name}-{figure}" for name in ("contact-factor-half", "dt-half")
+                                                          for figure in ("removed-volume", "mean-push")), slow=True),
 ]  # fmt: skip

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections import Counter
 
 import pytest
@@ -56,7 +57,10 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
 
 def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     plan = tmp_path / "plan.json"
-    plan.write_text(json.dumps({"train_cases": 1, "validation_cases": 0, "test_cases": 1, "feeds_mm_s": [20.0], "test_feeds_mm_s": [25.0]}))
+    plan.write_text(
+        json.dumps({"train_cases": 1, "validation_cases": 0, "test_cases": 1, "feeds_mm_s": [20.0], "test_feeds_mm_s": [25.0],
+                    "inclinations_deg": [0.0, 15.0], "reamer_centres_mm": [[0.0, 0.0, 0.0]], "seed": 7})
+    )
     coarse = tmp_path / "coarse.json"
     coarse.write_text(json.dumps({"socket": {"element_size_mm": 2.5}}))
     out = tmp_path / "data"
@@ -71,6 +75,15 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
     again = run_thrsim(*args, timeout=600)
     assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2
+    # the calibration reads the cases reamed along the socket's axis: more push, more seated feed
+    info = run_thrsim("dataset", "info", str(out), "--json", timeout=600)
+    assert info.returncode == 0, info.stderr[-2000:]
+    calibration = json.loads(info.stdout)["socket_calibration"]
+    along_axis = [e for e in entries if e["params"]["inclination_deg"] == 0.0 and not any(dict(e["params"]["settings"])["reamer_centre_mm"][:2])]
+    assert calibration["cases_used"] == len(along_axis) == 1  # seed 7: the train case reams the pole along the axis
+    if along_axis:
+        feeds = [calibration["seated"][push]["feed_mm_s"] for push in ("150", "230", "310")]
+        assert all(math.isfinite(f) for f in feeds) and feeds[0] < feeds[1] < feeds[2]
     # the pack keeps each window's own mesh beside its frames
     pack = tmp_path / "socket-pack.h5"
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)

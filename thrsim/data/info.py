@@ -132,6 +132,10 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
         "size_mb": sum((root / e["file"]).stat().st_size for k, e in complete.items() if k not in missing) / 1e6,
         "solver_rates": solver_rates(complete),
     }
+    if identity.get("template", {}).get("bone_kind") == "socket":
+        from thrsim.data.calibration import socket_calibration
+
+        info["socket_calibration"] = socket_calibration(root)
     if histograms:
         info["alpha_histogram"] = {"bins": ALPHA_BINS.tolist(), "removed": hist_removed.tolist(), "remaining": hist_remaining.tolist()}
     return info

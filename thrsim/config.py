@@ -49,11 +49,11 @@ class BonePatchConfig(_Frozen):
     0.45 mm (minimum size 0.045 mm).
     """
 
-    inner_radius_mm: float = Field(22.0, gt=0, description="articular (reamed) face radius")
-    thickness_mm: float = Field(2.0, gt=0, description="shell thickness, inner to outer face")
+    inner_radius_mm: float = Field(22.0, gt=0, le=100.0, description="articular (reamed) face radius")
+    thickness_mm: float = Field(2.0, gt=0, le=50.0, description="shell thickness, inner to outer face")
     half_angle_deg: float = Field(19.0, gt=0, lt=90, description="patch half-angle about the pole")
-    element_size_mm: float = Field(0.45, gt=0, description="global element size [Table 5]")
-    min_element_size_mm: float = Field(0.045, gt=0, description="minimum element size [Table 5]")
+    element_size_mm: float = Field(0.45, ge=0.1, le=10.0, description="global element size [Table 5]")
+    min_element_size_mm: float = Field(0.045, ge=0.01, description="minimum element size [Table 5]")
     side: Side = "right"
     support_side_faces: bool = Field(
         True,
@@ -101,19 +101,19 @@ class SocketConfig(_Frozen):
 
     socket_diameter_mm: float = Field(46.0, ge=40.0, le=60.0, description="native socket (articular sphere) diameter")
     planned_reamer_max_mm: float | None = Field(
-        None, gt=0, description="largest reamer the fine mesh is made for; None = socket diameter + 4 mm"
+        None, gt=0, le=100.0, description="largest reamer the fine mesh is made for; None = socket diameter + 4 mm"
     )
-    fine_margin_mm: float = Field(1.0, ge=0, description="fine mesh beyond the largest planned reamer's teeth")
+    fine_margin_mm: float = Field(1.0, ge=0, le=20.0, description="fine mesh beyond the largest planned reamer's teeth")
     rim_height_mm: float = Field(0.0, ge=-10.0, le=10.0, description="opening plane's height above the socket centre")
-    bone_stock_mm: float = Field(8.0, gt=0, description="bone beyond the largest planned reamer, to the supported boundary")
-    subchondral_thickness_mm: float = Field(1.5, gt=0, description="subchondral plate thickness, mean over the socket")
-    subchondral_dome_excess_mm: float = Field(1.0, ge=0, description="extra plate thickness under the dome (less opposite)")
+    bone_stock_mm: float = Field(8.0, gt=0, le=50.0, description="bone beyond the largest planned reamer, to the supported boundary")
+    subchondral_thickness_mm: float = Field(1.5, gt=0, le=10.0, description="subchondral plate thickness, mean over the socket")
+    subchondral_dome_excess_mm: float = Field(1.0, ge=0, le=10.0, description="extra plate thickness under the dome (less opposite)")
     dome_polar_deg: float = Field(35.0, ge=0, lt=90, description="the dome's direction: this far from the pole toward superior")
-    fossa_depth_mm: float = Field(3.0, gt=0, description="how far the fossa floor lies below the articular sphere")
+    fossa_depth_mm: float = Field(3.0, gt=0, le=20.0, description="how far the fossa floor lies below the articular sphere")
     fossa_half_angle_deg: float = Field(30.0, gt=0, lt=60, description="angular radius of the fossa about its centre")
     fossa_polar_deg: float = Field(25.0, ge=0, lt=60, description="the fossa's centre: this far from the pole toward inferior")
-    medial_wall_distance_mm: float = Field(4.0, gt=0, description="bone from the fossa floor to the medial wall's pelvic face")
-    medial_cortex_thickness_mm: float = Field(1.0, gt=0, description="cortical layer on the medial wall's pelvic face")
+    medial_wall_distance_mm: float = Field(4.0, gt=0, le=30.0, description="bone from the fossa floor to the medial wall's pelvic face")
+    medial_cortex_thickness_mm: float = Field(1.0, gt=0, le=10.0, description="cortical layer on the medial wall's pelvic face")
     window_polar_deg: float | None = Field(
         None, ge=0, le=90, description="mesh only a window of the socket: its centre this far from the pole (None: the whole socket)"
     )
@@ -121,9 +121,9 @@ class SocketConfig(_Frozen):
         90.0, ge=-360, le=360, description="the window's direction about the socket axis, from anterior (+x) toward superior (+y)"
     )
     window_half_angle_deg: float = Field(10.0, gt=0, le=45, description="the window's angular radius about the socket centre")
-    element_size_mm: float = Field(0.45, gt=0, description="element size where a planned reamer can cut [Table 5]")
-    coarse_element_size_mm: float = Field(3.0, gt=0, description="element size far from the cutting")
-    min_element_size_mm: float = Field(0.045, gt=0, description="minimum element size [Table 5]")
+    element_size_mm: float = Field(0.45, ge=0.1, le=10.0, description="element size where a planned reamer can cut [Table 5]")
+    coarse_element_size_mm: float = Field(3.0, ge=0.1, le=20.0, description="element size far from the cutting")
+    min_element_size_mm: float = Field(0.045, ge=0.01, description="minimum element size [Table 5]")
     side: Side = "right"
 
     @model_validator(mode="after")
@@ -166,8 +166,8 @@ class SocketConfig(_Frozen):
 class BoneMaterial(_Frozen):
     """Elastic constants of cortical bone [Table 7]."""
 
-    density_kg_m3: float = Field(1700.0, gt=0)
-    youngs_modulus_pa: float = Field(17e9, gt=0)
+    density_kg_m3: float = Field(1700.0, gt=0, le=1e5)
+    youngs_modulus_pa: float = Field(17e9, gt=0, le=1e13)
     poisson_ratio: float = Field(0.35, gt=-1.0, lt=0.5)
 
     @property
@@ -214,7 +214,7 @@ class JohnsonCookDamage(_Frozen):
     d3: float = 0.006
     d4: float = 0.0
     d5: float = Field(0.01, description="thermal term, unused")
-    displacement_at_failure_m: float = Field(4.5e-4, gt=0)
+    displacement_at_failure_m: float = Field(4.5e-4, ge=1e-6, le=1.0)
 
     TABLE_8_U_F_M: ClassVar[float] = 5e-4
     TEXT_U_F_M: ClassVar[float] = 1e-4
@@ -254,7 +254,7 @@ class CancellousBone(_Frozen):
     material: BoneMaterial = Field(default_factory=lambda: BoneMaterial(density_kg_m3=500.0, youngs_modulus_pa=367e6, poisson_ratio=0.2))
     hardening: JohnsonCookHardening = Field(default_factory=lambda: JohnsonCookHardening(a_pa=2.75e6, b_pa=5.6e6))
     damage: JohnsonCookDamage = Field(default_factory=lambda: JohnsonCookDamage(d1=0.5, d2=0.0, d3=0.0))
-    specific_cutting_energy_j_m3: float = Field(1e8, gt=0, description="u_c of the cutting law in cancellous bone")
+    specific_cutting_energy_j_m3: float = Field(1e8, ge=1e6, le=1e11, description="u_c of the cutting law in cancellous bone")
 
 
 #: osteoporotic cancellous bone: apparent density 0.25 g/cm³, the same laws as :class:`CancellousBone`
@@ -272,25 +272,31 @@ class ReamerConfig(_Frozen):
     """Rigid hemispherical reamer head [5.1.2, 5.2.2, 5.3]; any size, its teeth by :func:`teeth_for_diameter` unless given."""
 
     head_diameter_mm: float = Field(REFERENCE_REAMER_DIAMETER_MM, ge=30.0, le=80.0, description="reamer size (head diameter)")
-    tooth_count: int = Field(REFERENCE_TOOTH_COUNT, ge=1, description="teeth on the head; default: by the size (teeth_for_diameter)")
-    tooth_length_mm: float = Field(3.0, gt=0, description="cutting-edge length along the meridian")
-    tooth_edge_radius_mm: float = Field(0.25, gt=0, description="radius of the edge's rounded crest")
-    tooth_protrusion_mm: float = Field(0.4, gt=0, description="how far the edge stands proud of the head")
+    tooth_count: int = Field(
+        REFERENCE_TOOTH_COUNT, ge=1, le=1000, description="teeth on the head; default: by the size (teeth_for_diameter)"
+    )
+    tooth_length_mm: float = Field(3.0, gt=0, le=50.0, description="cutting-edge length along the meridian")
+    tooth_edge_radius_mm: float = Field(0.25, gt=0, le=10.0, description="radius of the edge's rounded crest")
+    tooth_protrusion_mm: float = Field(0.4, gt=0, le=10.0, description="how far the edge stands proud of the head")
     tooth_first_polar_deg: float = Field(3.0, ge=0, lt=90)
     tooth_last_polar_deg: float = Field(86.0, gt=0, le=90)
-    omega_rad_s: float = Field(136.0, description="spin about the axis D")
-    gravity_m_s2: float = Field(9.81, ge=0)
-    density_kg_m3: float = Field(7800.0, gt=0, description="AISI 420 steel [Table 9]")
-    youngs_modulus_pa: float = Field(200e9, gt=0)
+    omega_rad_s: float = Field(136.0, ge=-1e4, le=1e4, description="spin about the axis D")
+    gravity_m_s2: float = Field(9.81, ge=0, le=100.0)
+    density_kg_m3: float = Field(7800.0, gt=0, le=1e5, description="AISI 420 steel [Table 9]")
+    youngs_modulus_pa: float = Field(200e9, gt=0, le=1e13)
     poisson_ratio: float = Field(0.3, gt=-1.0, lt=0.5)
     wall_thickness_mm: float | None = Field(None, gt=0, description="hollow head's wall; None = the thesis's simplified solid head")
 
     @model_validator(mode="before")
     @classmethod
     def _teeth_by_size(cls, data):
-        if isinstance(data, dict) and data.get("tooth_count") is None and data.get("head_diameter_mm") is not None:
-            return {**data, "tooth_count": teeth_for_diameter(float(data["head_diameter_mm"]))}
-        return data
+        if not isinstance(data, dict) or data.get("tooth_count") is not None:
+            return data
+        try:  # a finite size only: anything else (inf, a list) is the field's to refuse, in one line
+            size = float(data.get("head_diameter_mm"))
+        except (TypeError, ValueError):
+            return data
+        return {**data, "tooth_count": teeth_for_diameter(size)} if math.isfinite(size) else data
 
     @model_validator(mode="after")
     def _tooth_range(self) -> ReamerConfig:
@@ -333,11 +339,11 @@ class ContactConfig(_Frozen):
     orthogonal cutting of cortical bone is of the order of 0.1 to a few J/mm³.
     """
 
-    friction: float = Field(0.3, ge=0)
+    friction: float = Field(0.3, ge=0, le=10.0)
     damping_ratio: float = Field(0.2, ge=0, lt=1, description="contact damping as a fraction of critical")
-    penalty_factor: float = Field(0.8, gt=0, description="β in k_i = β·m_i/Δt² (node on its contact spring: ω·Δt = √β)")
+    penalty_factor: float = Field(0.8, gt=0, le=4.0, description="β in k_i = β·m_i/Δt² (node on its contact spring: ω·Δt = √β)")
     specific_cutting_energy_j_m3: float = Field(
-        5e8, gt=0, description="u_c: volume the teeth cut = their friction work / u_c (thrsim.physics.contact)",
+        5e8, ge=1e6, le=1e11, description="u_c: volume the teeth cut = their friction work / u_c (thrsim.physics.contact)",
     )  # fmt: skip
 
 
@@ -373,8 +379,8 @@ class ReamerHoldConfig(_Frozen):
     push.
     """
 
-    effective_mass_kg: float = Field(2.0, gt=0, description="head + shaft + driver + the arm's share")
-    axial_damping_n_s_m: float = Field(2000.0, gt=0, description="arm and driver damping along D")
+    effective_mass_kg: float = Field(2.0, ge=0.1, le=100.0, description="head + shaft + driver + the arm's share")
+    axial_damping_n_s_m: float = Field(2000.0, gt=0, le=1e5, description="arm and driver damping along D")
 
 
 class Orientation(_Frozen):
@@ -584,15 +590,17 @@ class SolverConfig(_Frozen):
         0.7, gt=0, le=1,
         description="fraction of the Courant limit the mass-scaled elements run at; 0.7 leaves the margin contact needs",
     )  # fmt: skip
-    max_kinetic_to_internal: float = Field(0.1, gt=0, description="reported target after first contact")
-    energy_blowup_factor: float = Field(1e3, gt=1, description="stop when energy exceeds this × work done")
-    threads: int | None = Field(None, ge=1, description="Numba threads; None = all cores")
+    max_kinetic_to_internal: float = Field(0.1, gt=0, le=100.0, description="reported target after first contact")
+    energy_blowup_factor: float = Field(1e3, gt=1, le=1e12, description="stop when energy exceeds this × work done")
+    threads: int | None = Field(None, ge=1, le=4096, description="Numba threads; None = all cores")
     active_zone: Literal["auto", "on", "off"] = Field(
         "auto", description="integrate only the elements the reamer can reach soon (auto: on for the socket, off for the patch)"
     )
-    zone_halo_mm: float = Field(1.5, gt=0, description="bone integrated beyond the teeth's reach, held beyond it")
-    zone_lookahead_mm: float = Field(0.5, ge=0, description="how far ahead along D the zone reaches, besides the reamer's own travel")
-    zone_steps: int = Field(400, ge=1, description="steps between two choices of the zone")
+    zone_halo_mm: float = Field(1.5, gt=0, le=50.0, description="bone integrated beyond the teeth's reach, held beyond it")
+    zone_lookahead_mm: float = Field(
+        0.5, ge=0, le=50.0, description="how far ahead along D the zone reaches, besides the reamer's own travel"
+    )
+    zone_steps: int = Field(400, ge=1, le=1_000_000, description="steps between two choices of the zone")
 
 
 class ReamingCaseConfig(_Frozen):
@@ -600,7 +608,7 @@ class ReamingCaseConfig(_Frozen):
 
     inclination_deg: float = Field(..., ge=0, le=90)
     anteversion_deg: float = Field(..., ge=0, le=360)
-    force_n: float = Field(PUSH_FORCE_N, ge=0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
+    force_n: float = Field(PUSH_FORCE_N, ge=0, le=10_000.0, description="surgeon's axial push along D; the thesis's mean 230 N [5.3.2]")
     feed_mm_s: float | None = Field(
         None, gt=0, le=100, description="feed control: the reamer advances at this rate and the push is what it takes (None: force control)"
     )

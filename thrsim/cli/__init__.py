@@ -1,8 +1,9 @@
 """The ``thrsim`` command: one typer app, each subcommand in its own module of this package.
 
 Every subcommand module exposes a function that is registered here; errors of the user's
-making (:class:`ThrsimInputError`, pydantic validation) and any ``OSError`` the system raises
-on a path (a file in the way, no permission, a full disk) become one line on stderr and exit 2.
+making (:class:`ThrsimInputError`, pydantic validation, a flag typer cannot parse or does not
+know) and any ``OSError`` the system raises on a path (a file in the way, no permission, a full
+disk) become one line on stderr and exit 2.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from thrsim.cli import nav_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
 from thrsim.cli import evaluate_cmd, ream_cmd, replay_cmd, report_cmd, review_cmd, serve_cmd, train_cmd
-from thrsim.cli.output import command_group, describe_os_error, format_validation_error, user_message
+from thrsim.cli.output import UsageError, command_group, describe_os_error, describe_usage_error, format_validation_error, user_message
 from thrsim.errors import SimulationError, ThrsimInputError
 
 app = command_group("Physically-based and learned simulation of acetabular reaming (total hip replacement training).", name="thrsim")
@@ -57,7 +58,14 @@ app.add_typer(dataset_cmd.app, name="dataset")
 def main() -> None:
     """Entry point of the ``thrsim`` console script."""
     try:
-        app()
+        code = app(standalone_mode=False)  # typer returns, not exits: its usage errors reach the handlers below
+    except UsageError as error:
+        if type(error).__name__ != "NoArgsIsHelpError":  # a bare `thrsim` or `thrsim nav`: typer printed the help
+            typer.echo(f"thrsim: error: {describe_usage_error(error)}", err=True)
+        sys.exit(2)
+    except typer.Abort:
+        typer.echo("thrsim: aborted", err=True)
+        sys.exit(1)
     except ThrsimInputError as error:
         typer.echo(f"thrsim: error: {user_message(error)}", err=True)
         sys.exit(2)
@@ -73,3 +81,5 @@ def main() -> None:
     except KeyboardInterrupt:
         typer.echo("thrsim: interrupted", err=True)
         sys.exit(130)
+    if isinstance(code, int) and code:  # typer.Exit's code: a stopped sweep, a failed check
+        sys.exit(code)

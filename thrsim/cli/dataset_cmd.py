@@ -133,8 +133,7 @@ def dataset(
         raise ThrsimInputError(f"--solver must be one of {', '.join(_SOLVER_CHOICES)}, got {solver!r}")
     if not 0 < connect_timeout < math.inf:
         raise ThrsimInputError(f"--connect-timeout must be a positive number of seconds, got {connect_timeout:g}")
-    if workers < 1:
-        raise ThrsimInputError(f"--workers must be at least 1, got {workers}")
+    check_threads(workers, "--workers")  # a process each: beyond it the pool cannot start them
     check_threads(threads)
     if bone not in ("patch", "socket"):
         raise ThrsimInputError(f"--bone must be patch or socket, got {bone!r}")

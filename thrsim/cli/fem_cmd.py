@@ -4,14 +4,16 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from pathlib import Path
 from typing import Optional
 
 import typer
+from pydantic import ValidationError
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
-from thrsim.cli.output import err_console, print_json, print_table
+from thrsim.cli.output import err_console, format_validation_error, print_json, print_table
 from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
 from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
 from thrsim.data.checkpoint import CHECKPOINT_EVERY_S, checkpoint_path
@@ -126,34 +128,43 @@ def fem(
     socket_window = {f"socket.{key}": value for key, value in window_settings(window).items()}
     if cancellous is not None and cancellous not in CANCELLOUS_PRESETS:
         raise ThrsimInputError(f"--cancellous must be one of {', '.join(CANCELLOUS_PRESETS)}, got {cancellous!r}")
-    case = load_case_config(
-        None if config is None else str(config),
-        {
-            "inclination_deg": aim.inclination_deg,
-            "anteversion_deg": aim.anteversion_deg,
-            "frames": frames,
-            "force_n": force,
-            "feed_mm_s": feed,
-            "start_from": None if start_from is None else str(start_from),
-            "bone_kind": bone,
-            f"{'socket' if bone == 'socket' else 'bone'}.element_size_mm": element_size,
-            f"{'socket' if bone == 'socket' else 'bone'}.side": side,
-            "socket.socket_diameter_mm": socket_diameter,
-            **socket_window,
-            "cancellous": None if cancellous is None else CANCELLOUS_PRESETS[cancellous].model_dump(),
-            "reamer.head_diameter_mm": None if reamer_diameter is None else head_diameter_for_size(reamer_diameter),
-            "pre_ream_mm": pre_ream,
-            "pre_ream_centre_mm": None if pre_ream_centre is None else _point_mm(pre_ream_centre, "--pre-ream-centre"),
-            "reamer_centre_mm": None if reamer_centre is None else _point_mm(reamer_centre, "--reamer-centre"),
-            "damage.displacement_at_failure_m": None if failure_displacement is None else failure_displacement * 1e-3,
-            "solver.target_dt_s": target_dt,
-            "solver.threads": threads,
-            "contact.penalty_factor": contact_factor,
-            "contact.specific_cutting_energy_j_m3": None if cutting_energy is None else cutting_energy * 1e9,
-            "hold.effective_mass_kg": effective_mass,
-            "hold.axial_damping_n_s_m": axial_damping,
-        },
-    )
+    side_of = "socket" if bone == "socket" else "bone"
+    given = {  # each setting a flag sets: the flag, and its value in the configuration's units (None: not given)
+        "inclination_deg": ("--inclination", aim.inclination_deg),
+        "anteversion_deg": ("--anteversion", aim.anteversion_deg),
+        "frames": ("--frames", frames),
+        "force_n": ("--force", force),
+        "feed_mm_s": ("--feed", feed),
+        "start_from": ("--start-from", None if start_from is None else str(start_from)),
+        "bone_kind": ("--bone", bone),
+        f"{side_of}.element_size_mm": ("--element-size", element_size),
+        f"{side_of}.side": ("--side", side),
+        "socket.socket_diameter_mm": ("--socket-diameter", socket_diameter),
+        **{dotted: ("--window", value) for dotted, value in socket_window.items()},
+        "cancellous": ("--cancellous", None if cancellous is None else CANCELLOUS_PRESETS[cancellous].model_dump()),
+        "reamer.head_diameter_mm": ("--reamer-diameter", None if reamer_diameter is None else head_diameter_for_size(reamer_diameter)),
+        "pre_ream_mm": ("--pre-ream", pre_ream),
+        "pre_ream_centre_mm": ("--pre-ream-centre", None if pre_ream_centre is None else _point_mm(pre_ream_centre, "--pre-ream-centre")),
+        "reamer_centre_mm": ("--reamer-centre", None if reamer_centre is None else _point_mm(reamer_centre, "--reamer-centre")),
+        "damage.displacement_at_failure_m": (
+            "--failure-displacement",
+            None if failure_displacement is None else failure_displacement * 1e-3,
+        ),
+        "solver.target_dt_s": ("--target-dt", target_dt),
+        "solver.threads": ("--threads", threads),
+        "contact.penalty_factor": ("--contact-factor", contact_factor),
+        "contact.specific_cutting_energy_j_m3": ("--cutting-energy", None if cutting_energy is None else cutting_energy * 1e9),
+        "hold.effective_mass_kg": ("--effective-mass", effective_mass),
+        "hold.axial_damping_n_s_m": ("--axial-damping", axial_damping),
+    }
+    try:
+        case = load_case_config(None if config is None else str(config), {dotted: value for dotted, (_, value) in given.items()})
+    except ValidationError as error:  # the line names the flag beside each setting it refuses that a flag set
+        line = format_validation_error(error)
+        for dotted, (flag, value) in given.items():
+            if value is not None:
+                line = re.sub(rf"(?<=: |; ){re.escape(dotted)}:", f"{dotted} ({flag}):", line)
+        raise ThrsimInputError(line) from None
     bone = None
     if mesh_file is not None:
         from thrsim.geometry.mesh_io import read_mesh

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import reprlib
 from typing import Any
 
 import typer
@@ -73,6 +74,34 @@ def format_validation_error(error: ValidationError) -> str:
         where = ".".join(str(p) for p in item.get("loc", ())) or error.title
         parts.append(f"{where}: {item.get('msg', 'invalid')}")
     return "invalid configuration: " + "; ".join(parts)
+
+
+#: typer's usage error (a value it cannot parse, an unknown flag, a missing one): click's class, which
+#: typer ≥ 0.2x vendors, so found through the BadParameter typer exports rather than imported by name
+UsageError: type[Exception] = next(c for c in typer.BadParameter.__mro__ if c.__name__ == "UsageError")
+
+_SHOWN = reprlib.Repr()  # a refused value quoted shortly, on one line, whatever its length
+_SHOWN.maxstring = 60
+
+
+def describe_usage_error(error: Exception) -> str:
+    """One line for a usage error of typer's, not its usage box: the flag, the problem and the value
+    refused (``--frames: Input should be a valid integer, ..., got 'x' (see thrsim fem -h)``)."""
+    ctx = getattr(error, "ctx", None)
+    names = [] if ctx is not None else ["COMMAND"]  # no context where the parser refused (a flag without its value)
+    while ctx is not None and ctx.parent is not None:  # the root's name is the program's, however it was started
+        names.insert(0, ctx.info_name)
+        ctx = ctx.parent
+    command = " ".join(["thrsim", *names])
+    param = getattr(error, "param", None)
+    if type(error).__name__ == "MissingParameter" or param is None:
+        text = error.format_message()
+    else:
+        text = f"{'/'.join(param.opts)}: {error.message}"
+        cause = error.__cause__
+        if isinstance(cause, ValidationError) and cause.errors():  # typer parsed the value with pydantic: name it
+            text += f", got {_SHOWN.repr(cause.errors()[0].get('input'))}"
+    return " ".join(f"{text} (see {command} -h)".split())
 
 
 def describe_os_error(error: OSError) -> str:

@@ -9,6 +9,7 @@ import os
 import signal
 import socket
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -102,15 +103,15 @@ def serve(
         raise ThrsimInputError("ports must lie in 0..65535")
     if seed is not None and seed < 0:
         raise ThrsimInputError(f"--seed must be a non-negative integer, got {seed}")
-    if not sessions.exists():
-        if not sessions.parent.is_dir():
-            raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
-        sessions.mkdir()
+    if not sessions.exists() and not sessions.parent.is_dir():
+        raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
         model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow),
     )  # fmt: skip
-    settings.check()  # refusals are one line, before the ports are taken and the network compiled
+    # refusals are one line, before the ports are taken, the network compiled or the sessions folder made
+    # (checked as the folder it will be made in, so that a refused start leaves nothing behind)
+    replace(settings, sessions_dir=sessions if sessions.exists() else sessions.parent).check()
     try:
         family = socket.AF_INET6 if ":" in host else socket.AF_INET
         listener = socket.socket(family, socket.SOCK_STREAM)
@@ -135,6 +136,7 @@ def serve(
             file=sys.stderr,
             flush=True,
         )
+    sessions.mkdir(exist_ok=True)
     app = create_app(settings)  # checks the settings: a refusal is one line, exit 2
     bound_port = listener.getsockname()[1]
     shown_host = f"[{host}]" if ":" in host else host

@@ -18,9 +18,10 @@ import time
 from pathlib import Path
 
 import numpy as np
+from pydantic import TypeAdapter, ValidationError
 
 from thrsim.atomic import atomic_folder
-from thrsim.config import Orientation
+from thrsim.config import FrameCount, Orientation
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
 from thrsim.learn.vtk_series import write_frame, write_pvd
@@ -63,8 +64,10 @@ def ream(
     """Roll the learned simulator out and write the series (and, with ``png``, a picture of the last frame);
     ``threads``: the simulator's (PyTorch's and NumPy's BLAS)."""
     out = Path(out)
-    if frames < 1:
-        raise ThrsimInputError(f"must be at least 1, got {frames}", "frames")
+    try:  # as many as a case may ask for: a frame each is written
+        TypeAdapter(FrameCount).validate_python(frames)
+    except ValidationError as error:
+        raise ThrsimInputError(f"{error.errors()[0]['msg']}, got {frames}", "frames") from None
     force = check_force(force_n)
     check_side(side)
     if not (0 <= inclination_deg <= 90 and np.isfinite(inclination_deg)):

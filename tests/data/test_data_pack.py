@@ -13,8 +13,8 @@ from checkout_cli import run_main
 
 from thrsim.cli import main
 from thrsim.config import LabelConfig
-from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.case_file import read_case
+from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.pack import (
     ALPHA_LEVELS,
     DAMAGE_LEVELS,

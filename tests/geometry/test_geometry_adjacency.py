@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from geometry_helpers import orient
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
@@ -11,8 +12,6 @@ from scipy.spatial import Delaunay
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.adjacency import exposed_faces, face_adjacency
 from thrsim.geometry.tet_metrics import TET_FACES, centroids, signed_volumes
-
-from geometry_helpers import orient
 
 
 def face_normals(nodes, faces):

@@ -8,9 +8,9 @@ import shutil
 import meshio
 import numpy as np
 import pytest
+from learn_helpers import run_thrsim
 from PIL import Image
 
-from learn_helpers import run_thrsim
 from thrsim.learn.evaluation import windows
 from thrsim.learn.model_dir import SHIPPED_MODEL
 

@@ -7,9 +7,9 @@ import sys
 
 import numpy as np
 import pytest
-
 from checkout_cli import checkout_env
 from learn_helpers import REPO
+
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.rollout import BoneState
 from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, angles_of, start_position

@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 import torch
-
 from learn_helpers import tiny_settings
+
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 from thrsim.learn.graph import StaticGraph

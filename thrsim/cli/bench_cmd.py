@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,7 +16,7 @@ def bench(
     learned: bool = typer.Option(
         False, "--learned", help="also time the learned simulator (production step, the thesis's way, a 4x larger mesh)"
     ),
-    model: Optional[Path] = typer.Option(
+    model: Path | None = typer.Option(
         None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"
     ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),

@@ -16,7 +16,6 @@ import math
 import signal
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -43,7 +42,7 @@ _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without 
 @app.callback(invoke_without_command=True)
 def dataset(
     ctx: typer.Context,
-    out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
+    out: Path | None = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
     inclinations: str = typer.Option(
         format_list(_SWEEP.inclinations_deg), "--inclinations", help=f"inclinations γ in degrees ({_LIST_HELP})", metavar="LIST"
     ),
@@ -68,21 +67,21 @@ def dataset(
         help="anteversions (every inclination) that get the extra forces",
         metavar="LIST",
     ),
-    element_sizes: Optional[str] = typer.Option(
+    element_sizes: str | None = typer.Option(
         None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"
     ),
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
-    scheduler: Optional[str] = typer.Option(
+    scheduler: str | None = typer.Option(
         None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"
     ),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
-    config: Optional[Path] = typer.Option(
+    config: Path | None = typer.Option(
         None,
         "--config",
         help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f",
         metavar="FILE",
     ),
-    threads: Optional[int] = typer.Option(
+    threads: int | None = typer.Option(
         None,
         "--threads",
         help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)",
@@ -232,7 +231,7 @@ def dataset(
 @app.command("info")
 def info(
     directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
-    plot: Optional[Path] = typer.Option(
+    plot: Path | None = typer.Option(
         None, "--plot", help="write the α histograms of removed vs remaining elements (Figure 44) to this PNG", metavar="PNG"
     ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),

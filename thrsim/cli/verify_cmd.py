@@ -10,7 +10,6 @@ units and details.
 from __future__ import annotations
 
 import time
-from typing import List, Optional
 
 import typer
 from rich.table import Table
@@ -29,7 +28,7 @@ def _number(value: float | None) -> str:
 
 def verify(
     slow: bool = typer.Option(False, "--slow", help="include the slow checks (a short reaming case)"),
-    only: Optional[list[str]] = typer.Option(
+    only: list[str] | None = typer.Option(
         None, "--only", help="run only this check family or figure (repeatable, or comma-separated)", metavar="NAME"
     ),
     list_checks: bool = typer.Option(False, "--list", help="list the checks and their figures, run nothing"),

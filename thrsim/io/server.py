@@ -42,8 +42,7 @@ import ipaddress
 import json
 import logging
 import time
-from typing import Callable
-
+from collections.abc import Callable
 
 from thrsim.config import IgtlConfig
 from thrsim.errors import ThrsimInputError

@@ -39,8 +39,8 @@ from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import KINDS, ArrayRegressor
 from thrsim.learn.graph import StaticGraph, mesh_digest
-from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import ModelSettings
 
 MODEL_FORMAT = "thrsim-model"

@@ -41,8 +41,8 @@ from thrsim.learn.cases import CaseArrays, require_damage
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
-from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.metrics import Counts
+from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.rollout import BoneState, LearnedStep, rollout
 from thrsim.learn.settings import ModelSettings
 from thrsim.provenance import config_hash

@@ -15,8 +15,9 @@ which this model folds into one viewpoint. Pure numerics, no I/O.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Sequence, Union
+from typing import Union
 
 import numpy as np
 

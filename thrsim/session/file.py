@@ -24,8 +24,8 @@ mid-write leaves no half file, and the journal is removed only once the file is 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable, Iterator
 from array import array
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -83,7 +83,7 @@ def review() -> dict:
     """The rubric, the thesis's reviewed simulators with their scores, and thrsim's."""
     simulators = {}
     for name, (category, symbols, hip) in THESIS_TABLE.items():
-        marks = {c: _SYMBOL[s] for c, s in zip(CRITERIA, symbols)}
+        marks = {c: _SYMBOL[s] for c, s in zip(CRITERIA, symbols, strict=True)}
         simulators[name] = {"category": category, "total_hip_replacement": hip, "marks": marks, "scores": score(marks)}
     own = {c: mark for c, (mark, _) in THRSIM.items()}
     return {

@@ -227,7 +227,7 @@ def _check_arrays(file: Path, arrays: dict[str, np.ndarray], expected: dict[str,
         values = arrays[name]
         if values.dtype.kind != kind or values.dtype.itemsize not in (4, 8):
             raise ThrsimInputError(f"{file}: {name} has dtype {values.dtype}, expected {'float' if kind == 'f' else 'int'}32 or 64")
-        if values.ndim != len(shape) or any(want is not None and got != want for got, want in zip(values.shape, shape)):
+        if values.ndim != len(shape) or any(want is not None and got != want for got, want in zip(values.shape, shape, strict=True)):
             raise ThrsimInputError(f"{file}: {name} has shape {values.shape}, expected {tuple('n' if n is None else n for n in shape)}")
         if kind == "f" and not np.isfinite(values).all():
             raise ThrsimInputError(f"{file}: {name} holds NaN or infinite values")

@@ -42,7 +42,7 @@ class _SplitFirstLayer(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         total = self.parts[0](inputs[0])
-        for layer, x in zip(self.parts[1:], inputs[1:]):
+        for layer, x in zip(self.parts[1:], inputs[1:], strict=True):
             total = total + layer(x)
         return total
 

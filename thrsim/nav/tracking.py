@@ -17,7 +17,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Union
 
 import numpy as np
 
@@ -67,7 +66,7 @@ class Box:
         return True
 
 
-Occluder = Union[Sphere, Box]
+Occluder = Sphere | Box
 
 
 @dataclass(frozen=True)

@@ -61,7 +61,7 @@ THRSIM: dict[str, tuple[str, str]] = {
 }
 
 
-def group_score(marks: tuple[str, str, str]) -> int:
+def group_score(marks: tuple[str, ...]) -> int:
     """0–5 for one group's three marks (met / partial / not met); see the module docstring."""
     if len(marks) != 3 or any(m not in (MET, PARTIAL, NOT_MET) for m in marks):
         raise ValueError(f"a group needs three marks among met, partial, not met; got {marks}")

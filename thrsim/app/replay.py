@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +89,7 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
     )
 
 
-def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, object]], on_state=None) -> int:
+def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, Any]], on_state=None) -> int:
     """Feed recorded ``(kind, time_s, payload)`` inputs, in order, to ``trainer`` as the live session fed
     them (a tick is a step; ``end_session`` is the app's, not the trainer's); the number it refused."""
     refused = 0

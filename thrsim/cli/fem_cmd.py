@@ -132,19 +132,19 @@ def fem(
             "hold.axial_damping_n_s_m": axial_damping,
         },
     )
-    bone = None
+    bone_mesh = None
     if mesh_file is not None:
         from thrsim.geometry.mesh_io import read_mesh
 
-        bone = read_mesh(mesh_file)
-        if len(bone.fixed_nodes) == 0:
+        bone_mesh = read_mesh(mesh_file)
+        if len(bone_mesh.fixed_nodes) == 0:
             raise ThrsimInputError(f"{mesh_file}: the mesh has no fixed nodes (a node set named 'fixed')")
     from thrsim.data.ground_truth import run_case  # Numba: loaded only when a case runs
 
     columns = (TextColumn("reaming"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(), TimeRemainingColumn())
     with Progress(*columns, console=err_console, transient=as_json) as bar:
         task = bar.add_task("frames", total=case.frames)
-        summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone)
+        summary = run_case(case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone_mesh)
     summary = {**aim.as_dict(), **summary}
     if as_json:
         print_json(summary)

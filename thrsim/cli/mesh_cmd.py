@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 
 import typer
@@ -10,6 +12,7 @@ from thrsim.cli.output import console, print_json, print_table
 from thrsim.config import BonePatchConfig, SocketConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
+from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import WRITABLE_SUFFIXES, read_mesh, write_mesh
 from thrsim.geometry.socket import generate_socket
 
@@ -88,22 +91,27 @@ def _generate(
     half_angle: float | None,
     socket_diameter: float | None,
     quiet: bool,
-):
+) -> TetMesh:
     """The generated bone the options ask for (flags that belong to the other bone refused)."""
+    generate: Callable[[], TetMesh]
     if bone_kind == "socket":
         wrong = [flag for flag, value in (("--thickness", thickness), ("--half-angle", half_angle)) if value is not None]
         if wrong:
             raise ThrsimInputError(f"{', '.join(wrong)} only apply to --bone patch")
         settings = {"side": side, "element_size_mm": element_size, "socket_diameter_mm": socket_diameter}
-        config = SocketConfig(**{key: value for key, value in settings.items() if value is not None})
-        generate, what = generate_socket, "the layered socket"
+        generate, what = (
+            partial(generate_socket, SocketConfig(**{k: v for k, v in settings.items() if v is not None})),
+            "the layered socket",
+        )
     else:
         if socket_diameter is not None:
             raise ThrsimInputError("--socket-diameter only applies to --bone socket")
         settings = {"side": side, "element_size_mm": element_size, "thickness_mm": thickness, "half_angle_deg": half_angle}
-        config = BonePatchConfig(**{key: value for key, value in settings.items() if value is not None})
-        generate, what = generate_bone_patch, "the bone patch"
+        generate, what = (
+            partial(generate_bone_patch, BonePatchConfig(**{k: v for k, v in settings.items() if v is not None})),
+            "the bone patch",
+        )
     if quiet:
-        return generate(config)
+        return generate()
     with console.status(f"meshing {what} with gmsh"):
-        return generate(config)
+        return generate()

@@ -12,10 +12,17 @@ from __future__ import annotations
 import time
 
 import typer
+from rich.console import JustifyMethod
 from rich.table import Table
 
 from thrsim.cli.output import console, err_console, print_json
 from thrsim.errors import ThrsimInputError
+
+#: the table's columns and how each is aligned
+_COLUMNS: tuple[tuple[str, JustifyMethod], ...] = (
+    ("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
+    ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center"),
+)  # fmt: skip
 
 
 def _number(value: float | None) -> str:
@@ -82,8 +89,7 @@ def verify(
         })  # fmt: skip
     else:
         table = Table(title="thrsim verification")
-        for column, justify in (("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
-                                ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center")):  # fmt: skip
+        for column, justify in _COLUMNS:
             table.add_column(
                 column, justify=justify, no_wrap=column != "check", overflow="fold", min_width=24 if column == "check" else None
             )

@@ -22,7 +22,6 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
@@ -37,7 +36,7 @@ from thrsim.atomic import atomic_path
 from thrsim.config import FRAME_RATE_HZ, LabelConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.advance import KINDS, ArrayRegressor
+from thrsim.learn.advance import ArrayRegressor, Kind
 from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.reamer_feed import ReamerFeed
@@ -75,7 +74,7 @@ class DataCard(_CardSection):
 
 
 class AdvanceCard(_CardSection):
-    chosen: Literal[KINDS]
+    chosen: Kind
 
 
 class ModelCard(_CardSection):
@@ -93,7 +92,7 @@ class ModelCard(_CardSection):
 
 @dataclass
 class LoadedModel:
-    path: Path
+    path: Path | None  # None: a model built in memory (an untrained one to time)
     card: dict
     settings: ModelSettings
     gn: LearnedSimulator

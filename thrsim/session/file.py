@@ -28,6 +28,7 @@ from array import array
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -91,7 +92,7 @@ class InputLog:
     def pose_devices(self) -> list[str]:
         return [self.devices[i] for i in self.pose_device.data]
 
-    def replay(self) -> Iterator[tuple[str, float, object]]:
+    def replay(self) -> Iterator[tuple[str, float, Any]]:
         """(kind, time, payload) in lived order: kind is control, pose, force or tick."""
         matrices = self.pose_matrix.numpy(float).reshape(-1, 4, 4)
         merged = [(s, "control", t, json.loads(m)) for s, t, m in self.controls]
@@ -156,7 +157,7 @@ class _TableWriter:
 def write_session(
     path: str | Path,
     attrs: dict,
-    inputs: Iterable[tuple[str, float, object]],
+    inputs: Iterable[tuple[str, float, Any]],
     mode_writers: dict[str, Callable[[h5py.Group], None]],
 ) -> Path:
     """Write the whole session atomically: ``inputs`` as ``(kind, time_s, payload)`` in lived order

@@ -11,7 +11,6 @@ import platform
 import time
 
 import numba
-
 import numpy as np
 
 from thrsim.config import BonePatchConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size
@@ -69,10 +68,18 @@ def bench_socket(frames: int) -> dict:
                 "socket": SocketConfig(window_polar_deg=30.0, window_azimuth_deg=90.0)}
     )  # fmt: skip
     whole = base.model_copy(
-        update={"bone_kind": "socket", "frames": frames + 1, "reamer": reamer, "socket": SocketConfig(element_size_mm=WHOLE_SOCKET_ELEMENT_MM)}
+        update={
+            "bone_kind": "socket",
+            "frames": frames + 1,
+            "reamer": reamer,
+            "socket": SocketConfig(element_size_mm=WHOLE_SOCKET_ELEMENT_MM),
+        }
     )
     return {
-        "window": {"case": "48 mm reamer on the native 46 mm socket, window 30°/90°, feed 1 mm/s", **_time_frames(ReamingSimulation(window), frames)},
+        "window": {
+            "case": "48 mm reamer on the native 46 mm socket, window 30°/90°, feed 1 mm/s",
+            **_time_frames(ReamingSimulation(window), frames),
+        },
         "whole": {
             "case": f"48 mm reamer on the native 46 mm socket at {WHOLE_SOCKET_ELEMENT_MM} mm elements, 230 N along the socket axis",
             **_time_frames(ReamingSimulation(whole), frames),
@@ -85,7 +92,6 @@ def bench_solver(bone: BonePatchConfig, frames: int, inclination_deg: float = 15
     case = ReamingCaseConfig(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg, frames=frames + 1, bone=bone)
     simulation = ReamingSimulation(case)
     timed = _time_frames(simulation, frames)
-    seconds = timed["seconds_per_frame"]
     return {
         "case": f"inclination {inclination_deg} deg, anteversion {anteversion_deg} deg, {case.force_n:g} N",
         **timed,

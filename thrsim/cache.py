@@ -102,7 +102,7 @@ def _thrsim_imports(path: Path) -> set[str]:
     package = ".".join(path.relative_to(PACKAGE.parent).with_suffix("").parts)
     if path.name != "__init__.py":
         package = package.rpartition(".")[0]
-    names = set()
+    names: set[str] = set()
     for node in _import_time_nodes(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
             names.update(alias.name for alias in node.names)

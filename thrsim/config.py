@@ -655,7 +655,9 @@ class ReamingCaseConfig(_Frozen):
         if self.bone_kind != "socket" and any(self.reamer_centre_mm):
             raise ValueError("reamer_centre_mm applies to the socket (bone_kind socket) only: the patch's reamer aims at its pole")
         if math.dist(self.reamer_centre_mm, (0.0, 0.0, 0.0)) > 0.5 * self.socket.socket_diameter_mm:
-            raise ValueError(f"reamer_centre_mm {self.reamer_centre_mm} lies outside the native socket (radius {self.socket.socket_radius_mm:g} mm)")
+            raise ValueError(
+                f"reamer_centre_mm {self.reamer_centre_mm} lies outside the native socket (radius {self.socket.socket_radius_mm:g} mm)"
+            )
         if self.pre_ream_mm is not None and self.start_from is not None:
             raise ValueError("give pre_ream_mm or start_from, not both: a chained case starts from the previous case's bone")
         if self.pre_ream_mm is None:

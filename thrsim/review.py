@@ -61,7 +61,7 @@ THRSIM: dict[str, tuple[str, str]] = {
 }
 
 
-def group_score(marks: tuple[str, str, str]) -> int:
+def group_score(marks: tuple[str, ...]) -> int:
     """0–5 for one group's three marks (met / partial / not met); see the module docstring."""
     if len(marks) != 3 or any(m not in (MET, PARTIAL, NOT_MET) for m in marks):
         raise ValueError(f"a group needs three marks among met, partial, not met; got {marks}")
@@ -83,7 +83,7 @@ def review() -> dict:
     """The rubric, the thesis's reviewed simulators with their scores, and thrsim's."""
     simulators = {}
     for name, (category, symbols, hip) in THESIS_TABLE.items():
-        marks = {c: _SYMBOL[s] for c, s in zip(CRITERIA, symbols)}
+        marks = {c: _SYMBOL[s] for c, s in zip(CRITERIA, symbols, strict=True)}
         simulators[name] = {"category": category, "total_hip_replacement": hip, "marks": marks, "scores": score(marks)}
     own = {c: mark for c, (mark, _) in THRSIM.items()}
     return {

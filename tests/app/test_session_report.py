@@ -147,6 +147,19 @@ def test_garbled_missing_and_foreign_session_files_are_refused(saved, tmp_path):
         build_report(broken)
 
 
+@pytest.mark.parametrize("column", ["inputs/controls/time", "inputs/poses/time", "inputs/ticks/time", "navigation/events/value"])
+def test_session_files_with_columns_of_unequal_length_are_refused(saved, tmp_path, column):
+    uneven = tmp_path / "uneven.h5"
+    uneven.write_bytes(saved.read_bytes())
+    with h5py.File(uneven, "r+") as h5:
+        values = h5[column][()]
+        assert len(values) > 0
+        del h5[column]
+        h5.create_dataset(column, data=values[:-1])
+    with pytest.raises(ThrsimInputError, match="garble"):
+        read_navigation(read_session(uneven).groups["navigation"])
+
+
 def _thrsim(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
         [sys.executable, "-m", "thrsim", *args], cwd=REPO, capture_output=True, text=True, timeout=120, env=checkout_env()

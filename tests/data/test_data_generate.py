@@ -48,7 +48,7 @@ def test_local_sweep_manifest_and_resume(tmp_path):
     manifest = read_manifest(root)
     assert manifest["format"] == "thrsim-dataset"
     assert len(manifest["cases"]) == 3
-    for case_id, entry in manifest["cases"].items():
+    for entry in manifest["cases"].values():
         path = root / entry["file"]
         assert entry["status"] == "complete" and entry["frames"] == 3
         assert entry["sha256"] == file_sha256(path) and entry["data_digest"] == data_digest(path)

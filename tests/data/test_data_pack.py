@@ -13,8 +13,8 @@ from checkout_cli import run_main
 
 from thrsim.cli import main
 from thrsim.config import LabelConfig
-from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.case_file import read_case
+from thrsim.data.generate import load_dataset, read_manifest, write_manifest
 from thrsim.data.pack import (
     ALPHA_LEVELS,
     DAMAGE_LEVELS,
@@ -71,7 +71,7 @@ def test_a_pack_reads_back_as_the_dataset_does(dataset, tmp_path, monkeypatch, c
     assert np.array_equal(mesh_dir.tets, mesh_pack.tets) and np.array_equal(mesh_dir.nodes, mesh_pack.nodes)
     assert [c.case_id for c in from_dir] == [c.case_id for c in from_pack]
     changed = 0
-    for full, packed in zip(from_dir, from_pack):
+    for full, packed in zip(from_dir, from_pack, strict=True):
         assert (packed.split, packed.digest, packed.force_n, packed.end_reason) == (full.split, full.digest, full.force_n, full.end_reason)
         assert np.array_equal(packed.positions, full.positions) and np.array_equal(packed.axis, full.axis)
         assert np.abs(packed.alpha - full.alpha).max() <= 0.5 / ALPHA_LEVELS + 1e-6
@@ -88,7 +88,7 @@ def _same_cases(a, b) -> bool:
         and np.array_equal(x.status, y.status)
         and np.array_equal(x.damage, y.damage)
         and x.split == y.split
-        for x, y in zip(a, b)
+        for x, y in zip(a, b, strict=True)
     )
 
 

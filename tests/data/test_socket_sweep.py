@@ -58,13 +58,36 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
 def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     plan = tmp_path / "plan.json"
     plan.write_text(
-        json.dumps({"train_cases": 1, "validation_cases": 0, "test_cases": 1, "feeds_mm_s": [20.0], "test_feeds_mm_s": [25.0],
-                    "inclinations_deg": [0.0, 15.0], "reamer_centres_mm": [[0.0, 0.0, 0.0]], "seed": 7})
+        json.dumps(
+            {
+                "train_cases": 1,
+                "validation_cases": 0,
+                "test_cases": 1,
+                "feeds_mm_s": [20.0],
+                "test_feeds_mm_s": [25.0],
+                "inclinations_deg": [0.0, 15.0],
+                "reamer_centres_mm": [[0.0, 0.0, 0.0]],
+                "seed": 7,
+            }
+        )
     )
     coarse = tmp_path / "coarse.json"
     coarse.write_text(json.dumps({"socket": {"element_size_mm": 2.5}}))
     out = tmp_path / "data"
-    args = ("dataset", "--bone", "socket", "--socket-plan", str(plan), "--config", str(coarse), "--frames", "2", "--out", str(out), "--json")
+    args = (
+        "dataset",
+        "--bone",
+        "socket",
+        "--socket-plan",
+        str(plan),
+        "--config",
+        str(coarse),
+        "--frames",
+        "2",
+        "--out",
+        str(out),
+        "--json",
+    )
     done = run_thrsim(*args, timeout=1200)
     assert done.returncode == 0, done.stderr[-2000:]
     assert json.loads(done.stdout)["generated"] == 2
@@ -79,7 +102,9 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     info = run_thrsim("dataset", "info", str(out), "--json", timeout=600)
     assert info.returncode == 0, info.stderr[-2000:]
     calibration = json.loads(info.stdout)["socket_calibration"]
-    along_axis = [e for e in entries if e["params"]["inclination_deg"] == 0.0 and not any(dict(e["params"]["settings"])["reamer_centre_mm"][:2])]
+    along_axis = [
+        e for e in entries if e["params"]["inclination_deg"] == 0.0 and not any(dict(e["params"]["settings"])["reamer_centre_mm"][:2])
+    ]
     assert calibration["cases_used"] == len(along_axis) == 1  # seed 7: the train case reams the pole along the axis
     if along_axis:
         feeds = [calibration["seated"][push]["feed_mm_s"] for push in ("150", "230", "310")]

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from geometry_helpers import COARSE_MM, CUBE_NODES, CUBE_TETS, orient
 
 from thrsim.config import BonePatchConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
-from geometry_helpers import COARSE_MM, CUBE_NODES, CUBE_TETS, orient
 
 
 @pytest.fixture

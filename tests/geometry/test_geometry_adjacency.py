@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from geometry_helpers import orient
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.spatial import Delaunay
@@ -11,8 +12,6 @@ from scipy.spatial import Delaunay
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.adjacency import exposed_faces, face_adjacency
 from thrsim.geometry.tet_metrics import TET_FACES, centroids, signed_volumes
-
-from geometry_helpers import orient
 
 
 def face_normals(nodes, faces):
@@ -75,7 +74,9 @@ def test_exposed_faces_after_removing_tets(cube):
     everything = np.ones(5, dtype=bool)
     owner, local = exposed_faces(adj, everything)
     assert len(owner) == 12
-    assert set(zip(owner.tolist(), local.tolist())) == set(zip(adj.boundary_owner.tolist(), adj.boundary_local_face.tolist()))
+    assert set(zip(owner.tolist(), local.tolist(), strict=True)) == set(
+        zip(adj.boundary_owner.tolist(), adj.boundary_local_face.tolist(), strict=True)
+    )
 
     no_centre = everything.copy()
     no_centre[0] = False
@@ -87,7 +88,7 @@ def test_exposed_faces_after_removing_tets(cube):
     owner, local = exposed_faces(adj, no_corner)
     assert len(owner) == 10
     # the centre now shows the face it shared with the removed corner
-    assert (0, int(np.flatnonzero(adj.neighbours[0] == 1)[0])) in set(zip(owner.tolist(), local.tolist()))
+    assert (0, int(np.flatnonzero(adj.neighbours[0] == 1)[0])) in set(zip(owner.tolist(), local.tolist(), strict=True))
 
     assert len(exposed_faces(adj, np.zeros(5, dtype=bool))[0]) == 0
 

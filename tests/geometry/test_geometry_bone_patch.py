@@ -7,12 +7,11 @@ import math
 import numpy as np
 import pytest
 from checkout_cli import checkout_env
+from geometry_helpers import COARSE_MM
 
 from thrsim.config import BonePatchConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import INNER, OUTER, SIDE
-
-from geometry_helpers import COARSE_MM
 
 TOL_M = 1e-9  # gmsh puts boundary nodes on the exact OpenCASCADE surfaces, then snapped to a 1 nm grid
 #: the grid moves a node by ≤ √3/2 nm, ≤ 2.3e-6° seen from the centre 22 mm away

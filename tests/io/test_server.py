@@ -20,8 +20,8 @@ import numpy as np
 import pyigtl
 import pytest
 from checkout_cli import checkout_env
-
 from igtl_helpers import is_closed, read_message, reamer_pose_mm, transform_message, wait_until
+
 from thrsim.config import IgtlConfig
 from thrsim.io import igtl
 from thrsim.io.server import NAVIGATION_STATE

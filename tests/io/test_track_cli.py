@@ -10,7 +10,6 @@ import subprocess
 import pyigtl
 import pytest
 from checkout_cli import THRSIM, checkout_env
-
 from igtl_helpers import reamer_pose_mm, wait_until
 
 pytestmark = pytest.mark.timeout(60)

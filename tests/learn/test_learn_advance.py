@@ -75,7 +75,10 @@ def test_the_advance_is_learned_per_unit_push_so_the_push_carries_it_to_other_fo
     X = np.column_stack(
         [rng.uniform(0, 3, n), np.full(n, 15.0), rng.uniform(0, 180, n), rng.choice([150.0, 230.0], n), rng.uniform(0, 460, n)]
     )
-    truth = lambda X: X[:, 3] * (4e-4 + 2e-4 * np.sin(X[:, 0]))
+
+    def truth(X: np.ndarray) -> np.ndarray:
+        return X[:, 3] * (4e-4 + 2e-4 * np.sin(X[:, 0]))
+
     regressor, table = fit_advance(X, truth(X), np.repeat(np.arange(6), 40), None, None, trees=20)
     assert regressor.reference_force_n == 230.0 and "230 N / push" in table["target"]
     at_310 = X[:40].copy()

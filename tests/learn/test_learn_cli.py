@@ -8,9 +8,9 @@ import shutil
 import meshio
 import numpy as np
 import pytest
+from learn_helpers import run_thrsim
 from PIL import Image
 
-from learn_helpers import run_thrsim
 from thrsim.learn.evaluation import windows
 from thrsim.learn.model_dir import SHIPPED_MODEL
 
@@ -232,7 +232,7 @@ def test_ream_takes_clinical_cup_angles(tiny_model, tmp_path):
 def test_ream_refuses_bad_input_and_writes_nothing(tiny_model, tmp_path, args, message):
     out = tmp_path / "ream"
     base = {"--inclination": "15", "--anteversion": "30", "--frames": "2"}
-    for flag, value in zip(args[::2], args[1::2]):
+    for flag, value in zip(args[::2], args[1::2], strict=True):
         base[flag] = value
     flat = [x for kv in base.items() for x in kv]
     result = run_thrsim("ream", *flat, "--model", str(tiny_model), "--out", str(out))

@@ -17,7 +17,7 @@ GRAPH = StaticGraph(MESH)
 def _edge_set(senders, receivers, nodes=None):
     if nodes is not None:
         senders, receivers = nodes[senders], nodes[receivers]
-    return set(zip(senders.tolist(), receivers.tolist()))
+    return set(zip(senders.tolist(), receivers.tolist(), strict=True))
 
 
 def test_edges_join_tets_sharing_a_face_in_both_directions():

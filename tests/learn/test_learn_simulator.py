@@ -7,9 +7,9 @@ import sys
 
 import numpy as np
 import pytest
-
 from checkout_cli import checkout_env
 from learn_helpers import REPO
+
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.rollout import BoneState
 from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, angles_of, start_position
@@ -56,7 +56,7 @@ def test_left_side_is_the_mirror_of_the_right(simulator):
     right = [simulator.step(AXIS, 230.0) for _ in range(3)]
     simulator.reset("left")
     left = [simulator.step(AXIS * mirror, 230.0) for _ in range(3)]
-    for r, l in zip(right, left):
+    for r, l in zip(right, left, strict=True):
         assert np.array_equal(r.alpha, l.alpha)
         assert np.allclose(l.reamer_position, r.reamer_position * mirror)
     assert np.allclose(simulator.mesh.nodes, simulator.right_mesh.nodes * mirror)
@@ -72,7 +72,7 @@ def test_a_snapshot_restores_a_frame_and_the_run_goes_on_as_before(simulator):
     assert simulator.frame == 2 and np.array_equal(simulator.alpha, taken.bone.alpha)
     assert np.array_equal(simulator.bone.damage, taken.bone.damage) and taken.bone.damage.any()  # damage is part of the state
     again = [simulator.step(AXIS, 230.0) for _ in range(3)]
-    for a, b in zip(first, again):
+    for a, b in zip(first, again, strict=True):
         assert a.frame == b.frame and np.array_equal(a.alpha, b.alpha) and np.array_equal(a.reamer_position, b.reamer_position)
     assert first[-1].frame == 5 and simulator.depth_m > 0
 

@@ -8,8 +8,8 @@ import shutil
 import numpy as np
 import pytest
 import torch
-
 from learn_helpers import tiny_settings
+
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 from thrsim.learn.graph import StaticGraph
@@ -70,9 +70,9 @@ def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path, pushforwa
     assert resumed.load_checkpoint(tmp_path / "ckpt")
     assert resumed.epoch == 1
     resumed.run(None)
-    for (name, a), (_, b) in zip(straight.gn.state_dict().items(), resumed.gn.state_dict().items()):
+    for (name, a), (_, b) in zip(straight.gn.state_dict().items(), resumed.gn.state_dict().items(), strict=True):
         assert torch.equal(a, b), name
-    for (name, a), (_, b) in zip(straight.mlp.state_dict().items(), resumed.mlp.state_dict().items()):
+    for (name, a), (_, b) in zip(straight.mlp.state_dict().items(), resumed.mlp.state_dict().items(), strict=True):
         assert torch.equal(a, b), name
 
 
@@ -126,7 +126,7 @@ def test_model_directory_roundtrip_predicts_bit_for_bit(tiny_model, synthetic_da
     shutil.copytree(tiny_model, copy)
     again = load_model(copy)
     _, cases = load_cases(synthetic_dataset, splits=("test",))
-    for (m1, c1), (m2, c2) in zip(_rollout_alpha(model, cases), _rollout_alpha(again, cases)):
+    for (m1, c1), (m2, c2) in zip(_rollout_alpha(model, cases), _rollout_alpha(again, cases), strict=True):
         assert np.array_equal(m1, m2) and np.array_equal(c1, c2)
     for name, tensor in model.gn.state_dict().items():
         assert torch.equal(tensor, again.gn.state_dict()[name])

@@ -18,7 +18,7 @@ HEAD_FROM_TRACKER = make_pose(Rotation.from_euler("zyx", [90.0, 10.0, -5.0], deg
 def recording(count: int, rotation_noise_deg: float, translation_noise_m: float, glitch_fraction: float = 0.0, seed: int = 0):
     rng = np.random.default_rng(seed)
     head, tracker = [], []
-    for i in range(count):
+    for _ in range(count):
         target = make_pose(Rotation.from_euler("zyx", rng.uniform(-30, 30, 3), degrees=True), rng.uniform(-0.3, 0.3, 3) + [0, 0, 1.5])
         noise = make_pose(
             Rotation.from_rotvec(rng.normal(0, np.radians(rotation_noise_deg) / np.sqrt(3), 3)),

@@ -62,7 +62,7 @@ def test_the_hand_held_reamer_reams_quasi_statically(baseline):
 
 def test_energy_is_balanced_and_every_dissipation_grows(baseline):
     simulation, records, summary = baseline
-    energy = dict(zip(ENERGY_NAMES, records["energy"].T))
+    energy = dict(zip(ENERGY_NAMES, records["energy"].T, strict=True))
     external = energy["external_work"]
     assert external[-1] > 0
     assert summary["energy_balance_error"] < 0.05

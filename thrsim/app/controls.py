@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import reprlib
-from typing import Annotated, Literal, Union
+from typing import Annotated, Literal, Union, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
@@ -22,6 +22,7 @@ MAX_MESSAGE_BYTES = 16 * 1024
 
 class _Control(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False, strict=True)
+    type: str  # each control's own Literal: the discriminator
 
 
 class CameraControl(_Control):
@@ -140,7 +141,7 @@ class _Parser:
 
     def __init__(self, models: tuple[type[_Control], ...]):
         self.adapter: TypeAdapter = TypeAdapter(Annotated[Union[models], Field(discriminator="type")])  # noqa: UP007 (a tuple of models)
-        self.types: tuple[str, ...] = tuple(sorted(m.model_fields["type"].annotation.__args__[0] for m in models))
+        self.types: tuple[str, ...] = tuple(sorted(get_args(m.model_fields["type"].annotation)[0] for m in models))
 
     def __call__(self, text: str | bytes | dict) -> _Control:
         if isinstance(text, (str, bytes)):

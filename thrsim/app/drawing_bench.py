@@ -101,7 +101,7 @@ def serve_child(sessions: Path, *extra: str) -> tuple[subprocess.Popen, str]:
     announced = threading.Event()
 
     def read() -> None:
-        for line in process.stdout:  # drained to the end, so the child never blocks on a full pipe
+        for line in process.stdout:  # type: ignore[union-attr]  # (stdout=PIPE: never None) drained to the end, so the child never blocks on a full pipe
             match = _ANNOUNCE.search(line)
             if match and not found:
                 found.append(f"http://127.0.0.1:{match.group(1)}")
@@ -174,7 +174,7 @@ def time_drawing(
         chromium_version = browser.version
     elapsed = (last[0] - first[0]) / 1000
     frames = last[1] - first[1]
-    cpu_ms = None if cpu_first is None or not frames else 1e3 * (cpu_last - cpu_first) / frames
+    cpu_ms = None if cpu_first is None or cpu_last is None or not frames else 1e3 * (cpu_last - cpu_first) / frames
     return {
         "what": "frames drawn per second by the trainer page, reamer turning every frame (?continuous=1); at most 60 (headless Chromium's frame pacing)",
         "fps": frames / elapsed,

@@ -24,6 +24,7 @@ from collections import deque
 from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -88,7 +89,7 @@ class LiveSession:
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
 
-    def control(self, message: object) -> tuple[object, str]:
+    def control(self, message: object) -> tuple[Any, str]:
         """Validate, log and apply one control; ThrsimInputError (logged first) when refused."""
         control = self.mode.parse_control(message)
         with self.lock:

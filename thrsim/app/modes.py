@@ -16,17 +16,24 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from thrsim.app.reaming import ReamingTrainer
+    from thrsim.learn.model_dir import LoadedModel
 
 log = logging.getLogger(__name__)
 
 
 class Trainer(Protocol):
     mode: str
-    side: str
-    targets: dict[str, np.ndarray]  # the pelvic landmarks in the reference frame (a tracker's session checks them)
+
+    @property
+    def side(self) -> str: ...
+    @property
+    def targets(self) -> dict[str, np.ndarray]: ...  # the pelvic landmarks in the reference frame (a tracker's session checks them)
 
     def apply_control(self, control: Any, time_s: float) -> str: ...
     def apply_pose(self, device: str, pose: np.ndarray, time_s: float) -> None: ...
@@ -93,7 +100,7 @@ def _navigation_report(session: Any) -> Any:
 
 #: loaded once per model folder and network kind: a new session reuses it (compiling changes a
 #: model's network in place, so compiled and eager sessions never share one)
-_MODELS: dict[tuple[str | None, bool], object] = {}
+_MODELS: dict[tuple[str | None, bool], LoadedModel] = {}
 
 
 def _reaming(settings: dict) -> Trainer:
@@ -135,6 +142,11 @@ def _reaming_report(session: Any) -> Any:
     return reaming_part(session)
 
 
+def _as_reaming(trainer: Trainer) -> ReamingTrainer:
+    """The reaming mode's hooks are only ever given the reaming mode's trainer."""
+    return cast("ReamingTrainer", trainer)
+
+
 def _reaming_settings(serve: Any) -> dict:
     """The model folder (None: the shipped one) and whether to compile its network."""
     settings: dict = {} if serve.model is None else {"model": str(serve.model)}
@@ -150,10 +162,12 @@ def _reaming_routes(trainer: Trainer) -> list[tuple[str, Callable[[], Any]]]:
 
     payload: list[bytes] = []
 
+    reaming = _as_reaming(trainer)
+
     def mesh() -> Any:
-        simulator = trainer.simulator
+        simulator = reaming.simulator
         if simulator is None:
-            raise HTTPException(404, trainer.unavailable or "no reaming model")
+            raise HTTPException(404, reaming.unavailable or "no reaming model")
         if not payload:
             payload.append(mesh_payload(simulator.right_mesh))
         return Response(payload[0], media_type="application/octet-stream")
@@ -165,16 +179,17 @@ def _reaming_bone(trainer: Trainer, sent: Any) -> tuple[bytes, Any] | None:
     """The bone's levels as they changed since ``sent`` (the trainer replaces its array, never mutates it)."""
     from thrsim.app.bone_stream import update
 
-    levels = trainer.levels
+    reaming = _as_reaming(trainer)
+    levels = reaming.levels
     if len(levels) == 0:
         return None
-    message = update(trainer.frames_run, sent, levels)
+    message = update(reaming.frames_run, sent, levels)
     return None if message is None else (message, levels)
 
 
 def _reaming_health(trainer: Trainer) -> dict:
     """How the reaming sessions' network runs: compiled, eager (with why, if compiling failed) or none."""
-    simulator = trainer.simulator
+    simulator = _as_reaming(trainer).simulator
     if simulator is None:
         return {"reaming_network": {"state": "none"}}
     return {"reaming_network": {"state": "compiled" if simulator.compiled else "eager", "compile_error": simulator.compile_error}}

@@ -19,6 +19,7 @@ import math
 from array import array
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -32,14 +33,14 @@ from thrsim.nav.anatomy import (
     app_frame,
     local_axis_from_angles,
 )
-from thrsim.nav.bone_frame import on_side, other_side
+from thrsim.nav.bone_frame import check_side, on_side, other_side
 from thrsim.nav.calibration import calibrate_frames
 from thrsim.nav.pelvis import (
     ACETABULUM_RIM_RADIUS,
     acetabulum_centre,
     synthetic_pelvis_landmarks,
 )
-from thrsim.nav.registration import LandmarkRegistration
+from thrsim.nav.registration import LandmarkRegistration, RegistrationResult
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
@@ -169,7 +170,7 @@ class NavigationTrainer:
     # ---- set-up -----------------------------------------------------------------------------
 
     def _set_side(self, side: str, time_s: float) -> None:
-        self.side = side
+        self.side = side = check_side(side)
         self.model_landmarks = synthetic_pelvis_landmarks(side)
         self.true_app_model = app_frame(self.model_landmarks, side=side)
         self.acetabulum_model = acetabulum_centre(side)
@@ -192,7 +193,7 @@ class NavigationTrainer:
 
     def _restart_registration(self, time_s: float) -> None:
         self.registration = LandmarkRegistration(self.targets, self.tracking)
-        self.result = None
+        self.result: RegistrationResult | None = None
         self.app = self.true_app
         self.app_source = "model"
         self.scene_to_reference = self.model_to_reference
@@ -336,8 +337,10 @@ class NavigationTrainer:
         if action == "restart":
             self._restart_registration(time_s)
             self._event(time_s, "registration_restarted")
-            self._event(time_s, "target", landmark=self.registration.current_target)
-            self.log.target_started[self.registration.current_target] = time_s
+            first = self.registration.current_target
+            self._event(time_s, "target", landmark=first)
+            if first is not None:
+                self.log.target_started[first] = time_s
             return "registration restarted"
         if not self.registration.acquired:
             raise ThrsimInputError("no landmark acquired yet: nothing to retake")
@@ -405,24 +408,26 @@ class NavigationTrainer:
         """Advance to ``time_s``: registration, visibility, angles; returns the state for viewers.
         Nothing here is slow, so ``early`` (see :class:`thrsim.app.modes.Trainer`) is never called."""
         if self._probe_on is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
-            self._set_page_probe_tremor(time_s)
+            self._set_page_probe_tremor(self._probe_on, time_s)
         visibility = self._visibility(time_s)
         if not self.registration.done:
             self._step_registration(time_s, visibility)
         angles = self._reamer_angles_now(time_s, visibility)
-        zone = None if angles is None else safe_zone_status(*angles["radiographic"], self.zone)
+        zone = None if angles is None else safe_zone_status(angles["radiographic"][0], angles["radiographic"][1], self.zone)
         if self._calibration["state"] == "sampling":
             self._step_calibration(time_s)
 
         self.log.trace_time.append(time_s)
-        self.log.trace_angles.extend((math.nan, math.nan, math.nan) if angles is None else (*angles["radiographic"], zone.distance_deg))
+        self.log.trace_angles.extend(
+            (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone.distance_deg)
+        )
         self.log.trace_phase.append(1 if self.result is not None else 0)
         self.log.trace_tools.extend(TOOL_STATES.index(visibility[t][0]) for t in TOOLS)
         return self._state(time_s, visibility, angles, zone)
 
-    def _set_page_probe_tremor(self, time_s: float) -> None:
+    def _set_page_probe_tremor(self, landmark: str, time_s: float) -> None:
         held = self.tools["Probe"]
-        tip = self.targets[self._probe_on] + self._probe_offset + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
+        tip = self.targets[landmark] + self._probe_offset + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
         origin = tip - held.pose[:3, :3] @ PROBE.tip
         self.tools["Probe"] = _ToolPose(make_pose(held.pose[:3, :3], origin), "page", held.time_s)
 
@@ -432,9 +437,9 @@ class NavigationTrainer:
         seen = {tool: visibility[tool][1] or Visibility(False, visibility[tool][0], 0.0, 0) for tool in ("Probe", "Reference")}
         events = self.registration.update(time_s, tip, seen["Probe"], seen["Reference"])
         for event in events:
-            if event.kind == "target":
+            if event.kind == "target" and event.landmark is not None:
                 self.log.target_started.setdefault(event.landmark, time_s)
-            if event.kind == "acquired":
+            if event.kind == "acquired" and event.landmark is not None:
                 started = self.log.target_started.get(event.landmark, time_s)
                 self.log.landmark_time_s[event.landmark] = time_s - started
                 # after a retake the next target's clock restarts when the retaken one is done
@@ -446,11 +451,11 @@ class NavigationTrainer:
                 self._complete_registration(time_s)
 
     def _complete_registration(self, time_s: float) -> None:
-        self.result = self.registration.result(self.model_landmarks, side=self.side)
-        self.app = self.result.app
+        self.result = result = self.registration.result(self.model_landmarks, side=self.side)
+        self.app = result.app
         self.app_source = "registered"
-        self.scene_to_reference = self.result.fit.pose
-        self._event(time_s, "app_built", detail=f"rms {self.result.rms_residual_m * 1e3:.2f} mm", value=self.result.rms_residual_m)
+        self.scene_to_reference = result.fit.pose
+        self._event(time_s, "app_built", detail=f"rms {result.rms_residual_m * 1e3:.2f} mm", value=result.rms_residual_m)
 
     def _step_calibration(self, time_s: float) -> None:
         # One paired observation of the image target per step: the tracker's and the display's.
@@ -467,7 +472,7 @@ class NavigationTrainer:
         self._calibration["samples"] = len(heads)
         if len(heads) < CALIBRATION_SAMPLES:
             return
-        attempt = {"time_s": time_s, "samples": len(heads)}
+        attempt: dict[str, Any] = {"time_s": time_s, "samples": len(heads)}
         try:
             result = calibrate_frames(np.array(heads), np.array(trackers))
         except ThrsimInputError as error:

@@ -49,8 +49,8 @@ class _Trace:
     time: list[float] = field(default_factory=list)
     frame: list[int] = field(default_factory=list)
     force_n: list[float] = field(default_factory=list)
-    axis: list[tuple[float, float, float]] = field(default_factory=list)
-    position_m: list[tuple[float, float, float]] = field(default_factory=list)
+    axis: list[tuple[float, ...]] = field(default_factory=list)
+    position_m: list[tuple[float, ...]] = field(default_factory=list)
     removed: list[int] = field(default_factory=list)
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
@@ -240,7 +240,7 @@ class ReamingTrainer:
                 if due > 0 and early is not None:
                     early(self._state(time_s, nav_state, axis, force, force_source, note))
                 for _ in range(min(due, self.max_frames_per_tick)):
-                    if not self._step_frame(time_s, axis, force, nav_state):
+                    if not self._step_frame(self.simulator, time_s, axis, force, nav_state):
                         break
                 if due > 0:
                     self._publish()
@@ -249,13 +249,13 @@ class ReamingTrainer:
                     self.running_s = self.frames_run / self.frame_rate_hz  # do not burst to catch up
         return self._state(time_s, nav_state, axis, force, force_source, note)
 
-    def _step_frame(self, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> bool:
+    def _step_frame(self, simulator: ReamingSimulator, time_s: float, axis: np.ndarray, force: float, nav_state: dict) -> bool:
         """One simulator frame, traced; False when the frame ended the reaming (perforation, or no
         bone left in the reamer's path): reaming pauses there, and undo or reset go on from it."""
-        if not self._history or self._history[-1].frame != self.simulator.frame:
-            self._history.append(self.simulator.snapshot())
-        result = self.simulator.step(axis, force)
-        self._history.append(self.simulator.snapshot())
+        if not self._history or self._history[-1].frame != simulator.frame:
+            self._history.append(simulator.snapshot())
+        result = simulator.step(axis, force)
+        self._history.append(simulator.snapshot())
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
@@ -267,12 +267,12 @@ class ReamingTrainer:
         trace.position_m.append(tuple(float(v) for v in result.reamer_position))
         trace.removed.append(int(result.removed.sum()))
         trace.removed_volume_mm3.append(result.removed_volume_m3 * 1e9)
-        trace.depth_mm.append(self.simulator.depth_m * 1e3)
+        trace.depth_mm.append(simulator.depth_m * 1e3)
         angles, zone = nav_state.get("angles"), nav_state.get("zone")
         trace.angles.append(
             (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"])
         )
-        self._check_push(time_s, force)
+        self._check_push(simulator, time_s, force)
         if result.end_reason is not None:
             self.running = False
             self._event(
@@ -286,11 +286,11 @@ class ReamingTrainer:
             return False
         return True
 
-    def _check_push(self, time_s: float, force: float) -> None:
+    def _check_push(self, simulator: ReamingSimulator, time_s: float, force: float) -> None:
         """An event where a frame's push leaves the range the model was trained on (once per stretch outside)."""
-        trained = self.simulator.model.trained_force_n
+        trained = simulator.model.trained_force_n
         outside = trained is not None and not trained[0] <= force <= trained[1]
-        if outside and not self._push_outside:
+        if trained is not None and outside and not self._push_outside:
             low, high = trained
             self._event(
                 time_s,
@@ -404,13 +404,13 @@ class ReamingTrainer:
             final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
             behind_frames=self.behind_frames,
             navigation=self.navigation.record(),
-            cavity={} if sim is None else self._cavity(),
+            cavity={} if sim is None else self._cavity(sim),
         )
 
-    def _cavity(self) -> dict:
+    def _cavity(self, simulator: ReamingSimulator) -> dict:
         """The patch's geometry as the report's depth map reads it (computed once per model)."""
         if self._cavity_geometry is None:
-            mesh = self.simulator.right_mesh
+            mesh = simulator.right_mesh
             radii = np.linalg.norm(mesh.nodes, axis=1)
             outer_nodes = np.zeros(mesh.n_nodes, dtype=bool)
             outer_nodes[mesh.node_sets.get(OUTER, np.flatnonzero(radii >= radii.max() - 1e-9))] = True
@@ -420,8 +420,8 @@ class ReamingTrainer:
                 "outer": outer_nodes[mesh.tets].sum(axis=1) >= 3,  # a face on the outer surface
                 "inner_radius_m": float(np.median(radii[inner])) if inner is not None and len(inner) else float(radii.min()),
                 "outer_radius_m": float(np.median(radii[outer_nodes])),
-                "teeth_radius_m": self.simulator.model.teeth_radius_m,
-                "threshold": self.simulator.model.threshold,
+                "teeth_radius_m": simulator.model.teeth_radius_m,
+                "threshold": simulator.model.threshold,
             }
         return self._cavity_geometry
 

@@ -27,6 +27,7 @@ import statistics
 import threading
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -93,7 +94,7 @@ def _ream(page, seconds: float) -> tuple[np.ndarray, float]:
         last = page.evaluate(_PROBE)
         cpu_last = chromium_cpu_seconds()
         totals += np.array(last) - np.array(first)
-        cpu_seconds += 0.0 if cpu_first is None else cpu_last - cpu_first
+        cpu_seconds += 0.0 if cpu_first is None or cpu_last is None else cpu_last - cpu_first
     return totals, cpu_seconds
 
 
@@ -117,7 +118,7 @@ def time_reaming_page(
         page.wait_for_function("trainer.stats.visibleFaces > 0", timeout=60_000)
         elements = int(page.evaluate("trainer.stats.hello.scene.reaming.elements"))
         tracker = _Tracker(int(page.evaluate("trainer.stats.hello.igtl[1]")))
-        streaming = {"pose": poses[40.0], "on": True}
+        streaming: dict[str, Any] = {"pose": poses[40.0], "on": True}
 
         period_s = 1.0 / TrackingVolumeConfig().rate_hz
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -44,6 +45,11 @@ class ReplayOutcome:
         return {**self.__dict__, "reproduced": self.reproduced}
 
 
+def _event_keys(events: Iterable[dict]) -> list[tuple]:
+    """What a replay must reproduce of each event: its kind, landmark or detail, and time (to 1 ns)."""
+    return [(e["kind"], e.get("landmark") or e.get("detail"), round(e["time_s"], 9)) for e in events]
+
+
 def replay_session(path: str | Path, on_state=None, model: str | Path | None = None) -> ReplayOutcome:
     """Re-live the session at ``path``; ``on_state(state)`` sees every step's state (e.g. to draw it).
     ``model``: the model folder a reaming session replays with (None: the shipped model; a session
@@ -61,7 +67,6 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
     _check_same_mesh(path, recorded, trainer)
     refused = relive(trainer, mode, session.inputs.replay(), on_state)
     replayed = trainer.record()
-    strip = lambda events: [(e["kind"], e.get("landmark") or e.get("detail"), round(e["time_s"], 9)) for e in events]
     same_shape = recorded.angles.shape == replayed.angles.shape
     difference = float(np.nanmax(np.abs(recorded.angles - replayed.angles), initial=0.0)) if same_shape else float("inf")
     trace_match = same_shape and bool(np.array_equal(np.isnan(recorded.angles), np.isnan(replayed.angles))) and difference <= 1e-9
@@ -78,13 +83,13 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
         inputs=session.inputs.count,
         refused_controls=refused,
         events=len(replayed.events),
-        events_match=strip(recorded.events) == strip(replayed.events),
+        events_match=_event_keys(recorded.events) == _event_keys(replayed.events),
         trace_match=trace_match,
         max_angle_difference_deg=difference,
     )
 
 
-def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, object]], on_state=None) -> int:
+def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, Any]], on_state=None) -> int:
     """Feed recorded ``(kind, time_s, payload)`` inputs, in order, to ``trainer`` as the live session fed
     them (a tick is a step; ``end_session`` is the app's, not the trainer's); the number it refused."""
     refused = 0

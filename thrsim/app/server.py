@@ -367,13 +367,15 @@ class TrainerHub:
         ``publish_early(seat, text)`` publishes a state a slow step hands out ahead of its end."""
         self.ticks += 1
         texts = {}
+
+        def early_for(seat: Seat) -> Callable[[dict], None] | None:
+            if publish_early is None or not seat.viewers:
+                return None
+            return lambda state: publish_early(seat, json.dumps(state, allow_nan=False))
+
         for seat in list(self.seats):
-
-            def early(state: dict, seat: Seat = seat) -> None:
-                publish_early(seat, json.dumps(state, allow_nan=False))
-
             try:
-                state = seat.session.tick(early if publish_early is not None and seat.viewers else None)
+                state = seat.session.tick(early_for(seat))
                 if seat.viewers:
                     texts[seat] = json.dumps(state, allow_nan=False)
             except Exception:  # a trainer bug must not stop the other sessions or lose this one
@@ -502,9 +504,10 @@ class _ForwardingTracker(TrackerState):
         super().update_pose(device, pose, time_s)  # validates; raises for a non-rigid pose
         self.hub.on_pose(device, self.poses[device].value, time_s)
 
-    def update_force(self, values, time_s: float) -> None:
-        super().update_force(values, time_s)
-        self.hub.on_force(self.force.value, time_s)
+    def update_force(self, values, time_s: float) -> float:
+        newton = super().update_force(values, time_s)
+        self.hub.on_force(newton, time_s)
+        return newton
 
 
 async def _retry_saves(hub: TrainerHub, period: float) -> None:

@@ -14,11 +14,22 @@ import typer
 from pydantic import ValidationError
 
 from thrsim import __version__
-from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
-from thrsim.cli import nav_cmd, track_cmd
-from thrsim.cli import dataset_cmd
-from thrsim.cli import verify_cmd
-from thrsim.cli import evaluate_cmd, ream_cmd, replay_cmd, report_cmd, review_cmd, serve_cmd, train_cmd
+from thrsim.cli import (
+    bench_cmd,
+    dataset_cmd,
+    evaluate_cmd,
+    fem_cmd,
+    mesh_cmd,
+    nav_cmd,
+    ream_cmd,
+    replay_cmd,
+    report_cmd,
+    review_cmd,
+    serve_cmd,
+    track_cmd,
+    train_cmd,
+    verify_cmd,
+)
 from thrsim.cli.output import UsageError, command_group, describe_os_error, describe_usage_error, format_validation_error, user_message
 from thrsim.errors import SimulationError, ThrsimInputError
 

@@ -76,13 +76,14 @@ def resolve_aim(
                 f"cup {cup_inclination:g}°/{cup_anteversion:g}° is γ {gamma:.1f}° from the socket axis: beyond 90° the reamer points out of the bone"
             )
         return Aim(gamma, theta, cup_inclination, cup_anteversion)
-    gamma, theta = inclination, anteversion
-    if gamma is None or theta is None:
+    if inclination is None or anteversion is None:
         if default is None:
             raise ThrsimInputError(
                 "give the aim: --inclination and --anteversion (bone frame), or --cup-inclination and --cup-anteversion (clinical)"
             )
-        gamma, theta = default[0] if gamma is None else gamma, default[1] if theta is None else theta
+        gamma, theta = default[0] if inclination is None else inclination, default[1] if anteversion is None else anteversion
+    else:
+        gamma, theta = inclination, anteversion
     _check(gamma, 0.0, 90.0, "--inclination")
     _check(theta, 0.0, 360.0, "--anteversion")
     cup = cup_angles_from_bone(gamma, theta)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -17,11 +16,13 @@ def bench(
     learned: bool = typer.Option(
         False, "--learned", help="also time the learned simulator (production step, the thesis's way, a 4x larger mesh)"
     ),
-    model: Optional[Path] = typer.Option(
+    model: Path | None = typer.Option(
         None, "--model", help="model directory to time (default: initial weights on the default mesh)", metavar="MODEL_DIR"
     ),
     socket: bool = typer.Option(
-        False, "--socket", help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch"
+        False,
+        "--socket",
+        help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch",
     ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),

@@ -16,7 +16,6 @@ import math
 import signal
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -44,7 +43,7 @@ _SOLVER_CHOICES = ("fem", "synthetic")  # thrsim.data.generate.SOLVERS, without 
 @app.callback(invoke_without_command=True)
 def dataset(
     ctx: typer.Context,
-    out: Optional[Path] = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
+    out: Path | None = typer.Option(None, "--out", help="dataset directory (created; rerun to resume)", metavar="DIR"),
     bone: str = typer.Option(
         "patch",
         "--bone",
@@ -58,7 +57,7 @@ def dataset(
     anteversions: str = typer.Option(
         format_list(_SWEEP.anteversions_deg), "--anteversions", help=f"anteversions θ in degrees ({_LIST_HELP})", metavar="LIST"
     ),
-    frames: Optional[int] = typer.Option(
+    frames: int | None = typer.Option(
         None,
         "--frames",
         help=f"output frames per case ({_SWEEP.frame_rate_hz:g} per simulated second) [default: {_SWEEP.frames} on the patch, "
@@ -80,27 +79,27 @@ def dataset(
         help="anteversions (every inclination) that get the extra forces",
         metavar="LIST",
     ),
-    socket_plan: Optional[Path] = typer.Option(
+    socket_plan: Path | None = typer.Option(
         None,
         "--socket-plan",
         help="JSON file of the socket plan's settings (any field of SocketSweepConfig: steps, windows, tilts, feeds, case counts, seed)",
         metavar="FILE",
     ),
-    element_sizes: Optional[str] = typer.Option(
+    element_sizes: str | None = typer.Option(
         None, "--element-sizes", "--element-size", help="bone element size(s) in mm (default: the configured 0.45)", metavar="LIST"
     ),
     workers: int = typer.Option(1, "--workers", help="local worker processes (numerical threads are split among them)", metavar="N"),
-    scheduler: Optional[str] = typer.Option(
+    scheduler: str | None = typer.Option(
         None, "--scheduler", help="Dask scheduler address, e.g. tcp://127.0.0.1:8786, instead of the local pool", metavar="ADDR"
     ),
     connect_timeout: float = typer.Option(5.0, "--connect-timeout", help="seconds to reach the scheduler before giving up", metavar="S"),
-    config: Optional[Path] = typer.Option(
+    config: Path | None = typer.Option(
         None,
         "--config",
         help="JSON file of the fixed case settings (any field of ReamingCaseConfig but the swept ones, nested), e.g. a wider patch or another u_f",
         metavar="FILE",
     ),
-    threads: Optional[int] = typer.Option(
+    threads: int | None = typer.Option(
         None,
         "--threads",
         help="numerical threads per case (default: cores ÷ --workers locally, 1 per task on Dask: start more worker processes instead)",
@@ -125,7 +124,7 @@ def dataset(
     if ctx.invoked_subcommand is not None:
         return
     from thrsim.data.generate import run_sweep
-    from thrsim.data.sweep import DEFAULT_SPLIT, SocketSplitRule, parse_list, plan_socket_sweep, plan_sweep
+    from thrsim.data.sweep import DEFAULT_SPLIT, SocketSplitRule, SplitRule, parse_list, plan_socket_sweep, plan_sweep
 
     if out is None:
         raise ThrsimInputError("thrsim dataset needs --out DIR (or the subcommand: thrsim dataset info DIR)")
@@ -140,10 +139,12 @@ def dataset(
     template_overrides = _template_overrides(config)
     if bone == "socket":
         if element_sizes is not None:
-            raise ThrsimInputError("--element-sizes applies to the patch sweep; the socket's mesh is set by socket.element_size_mm in --config")
+            raise ThrsimInputError(
+                "--element-sizes applies to the patch sweep; the socket's mesh is set by socket.element_size_mm in --config"
+            )
         socket_sweep = _socket_sweep(socket_plan, frames)
         plan = plan_socket_sweep(socket_sweep)
-        split = SocketSplitRule(socket_sweep)
+        split: SplitRule | SocketSplitRule = SocketSplitRule(socket_sweep)
         template_overrides = {**(template_overrides or {}), "bone_kind": "socket"}
     else:
         if socket_plan is not None:
@@ -163,9 +164,7 @@ def dataset(
         from thrsim.data.generate import check_sweep_target
 
         check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
-        rows = [
-            {**c.params(), "case_id": c.case_id, "split": split.of(c)} for c in plan.cases
-        ]
+        rows = [{**c.params(), "case_id": c.case_id, "split": split.of(c)} for c in plan.cases]
         payload = {"cases": len(plan.cases), "requested": plan.requested, "notes": plan.notes, "plan": rows}
         if as_json:
             print_json(payload)
@@ -263,7 +262,7 @@ def dataset(
 @app.command("info")
 def info(
     directory: Path = typer.Argument(..., help="dataset directory", metavar="DIR"),
-    plot: Optional[Path] = typer.Option(
+    plot: Path | None = typer.Option(
         None, "--plot", help="write the α histograms of removed vs remaining elements (Figure 44) to this PNG", metavar="PNG"
     ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -21,7 +20,7 @@ def evaluate(
     data: Path = typer.Option(
         ..., "--data", help="dataset directory (its test split unless --split) or one case file", metavar="DIR_OR_CASE"
     ),
-    model: Optional[Path] = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
+    model: Path | None = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
     split: str = typer.Option("test", "--split", help="split of a dataset directory to score: test, validation, train or all"),
     start_stride: int = typer.Option(30, "--start-stride", help="frames between the start frames of the rollout windows", metavar="N"),
     one_step_stride: int = typer.Option(

@@ -6,7 +6,6 @@ import math
 import os
 import re
 from pathlib import Path
-from typing import Optional
 
 import typer
 from pydantic import ValidationError
@@ -24,81 +23,81 @@ _CONTACT = ContactConfig()
 
 
 def fem(
-    inclination: Optional[float] = typer.Option(None, "--inclination", help=GAMMA_HELP, metavar="DEG"),
-    anteversion: Optional[float] = typer.Option(None, "--anteversion", help=THETA_HELP, metavar="DEG"),
-    cup_inclination: Optional[float] = CUP_INCLINATION,
-    cup_anteversion: Optional[float] = CUP_ANTEVERSION,
+    inclination: float | None = typer.Option(None, "--inclination", help=GAMMA_HELP, metavar="DEG"),
+    anteversion: float | None = typer.Option(None, "--anteversion", help=THETA_HELP, metavar="DEG"),
+    cup_inclination: float | None = CUP_INCLINATION,
+    cup_anteversion: float | None = CUP_ANTEVERSION,
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
-    frames: Optional[int] = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
-    force: Optional[float] = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
-    feed: Optional[float] = typer.Option(
+    frames: int | None = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
+    force: float | None = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
+    feed: float | None = typer.Option(
         None,
         "--feed",
         help="feed control instead: the reamer advances at this rate in mm/s and the push it takes is recorded",
         metavar="MM_S",
     ),
-    start_from: Optional[Path] = typer.Option(
+    start_from: Path | None = typer.Option(
         None, "--start-from", help="start from this case's last frame (same bone mesh, same thrsim): chains reamer sizes", metavar="CASE.h5"
     ),
     bone: str = typer.Option("patch", "--bone", help="which bone: patch (the thesis's 2 mm shell) or socket (the layered acetabulum)"),
-    reamer_diameter: Optional[float] = typer.Option(
+    reamer_diameter: float | None = typer.Option(
         None,
         "--reamer-diameter",
         help="reamer size in mm (the diameter its teeth cut), 31 to 80; its teeth follow the size [default: the thesis's 45 mm head]",
         metavar="MM",
     ),
-    pre_ream: Optional[float] = typer.Option(
+    pre_ream: float | None = typer.Option(
         None, "--pre-ream", help="start from a socket reamed geometrically to this diameter in mm (socket only)", metavar="MM"
     ),
-    pre_ream_centre: Optional[str] = typer.Option(
+    pre_ream_centre: str | None = typer.Option(
         None, "--pre-ream-centre", help="the prepared cavity's centre X,Y,Z in mm, bone frame [default: 0,0,0]", metavar="X,Y,Z"
     ),
-    reamer_centre: Optional[str] = typer.Option(
+    reamer_centre: str | None = typer.Option(
         None,
         "--reamer-centre",
         help="the point X,Y,Z in mm (bone frame) the reamer's axis passes through: medialise or raise the cavity (socket only) "
         "[default: 0,0,0, the native socket's centre]",
         metavar="X,Y,Z",
     ),
-    socket_diameter: Optional[float] = typer.Option(
+    socket_diameter: float | None = typer.Option(
         None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only) [default: 46]", metavar="MM"
     ),
-    window: Optional[str] = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
-    cancellous: Optional[str] = typer.Option(
+    window: str | None = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
+    cancellous: str | None = typer.Option(
         None, "--cancellous", help="cancellous bone behind the subchondral plate: normal or osteoporotic (socket only) [default: normal]"
     ),
-    element_size: Optional[float] = typer.Option(None, "--element-size", help="bone mesh element size in mm [default: 0.45]", metavar="MM"),
-    side: Optional[str] = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
-    failure_displacement: Optional[float] = typer.Option(
+    element_size: float | None = typer.Option(None, "--element-size", help="bone mesh element size in mm [default: 0.45]", metavar="MM"),
+    side: str | None = typer.Option(None, "--side", help="hip side: right or left [default: right]"),
+    failure_displacement: float | None = typer.Option(
         None, "--failure-displacement", help="damage u_f in mm (Table 8: 0.5, text: 0.1)", metavar="MM"
     ),
-    target_dt: Optional[float] = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
-    contact_factor: Optional[float] = typer.Option(
+    target_dt: float | None = typer.Option(None, "--target-dt", help="time step in s reached by mass scaling", metavar="S"),
+    contact_factor: float | None = typer.Option(
         None, "--contact-factor", help=f"contact penalty factor β (k_i = β·m_i/Δt²) [default: {_CONTACT.penalty_factor:g}]"
     ),
-    cutting_energy: Optional[float] = typer.Option(
+    cutting_energy: float | None = typer.Option(
         None,
         "--cutting-energy",
         help=f"bone's specific cutting energy in J/mm³ [default: {_CONTACT.specific_cutting_energy_j_m3 / 1e9:g}]",
         metavar="J_MM3",
     ),
-    effective_mass: Optional[float] = typer.Option(
+    effective_mass: float | None = typer.Option(
         None, "--effective-mass", help="hand-held reamer's effective axial mass in kg [default: 2]", metavar="KG"
     ),
-    axial_damping: Optional[float] = typer.Option(
+    axial_damping: float | None = typer.Option(
         None, "--axial-damping", help="arm and driver damping along the axis in N·s/m", metavar="NS_M"
     ),
-    threads: Optional[int] = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
+    threads: int | None = typer.Option(None, "--threads", help="solver threads (default: all cores)"),
     checkpoint_every: float = typer.Option(
         CHECKPOINT_EVERY_S,
         "--checkpoint-every",
         help="seconds of solving between checkpoints (CASE.h5.resume; rerun the same command to resume after a kill; 0: every frame)",
         metavar="S",
     ),
-    config: Optional[Path] = typer.Option(
+    config: Path | None = typer.Option(
         None, "--config", help="JSON file of case settings (any field of ReamingCaseConfig, nested); flags override it", metavar="FILE"
     ),
-    mesh_file: Optional[Path] = typer.Option(
+    mesh_file: Path | None = typer.Option(
         None, "--mesh", help="bone mesh to use instead of the generated patch (validated like `thrsim mesh --from`, mm)", metavar="FILE"
     ),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
@@ -165,12 +164,12 @@ def fem(
             if value is not None:
                 line = re.sub(rf"(?<=: |; ){re.escape(dotted)}:", f"{dotted} ({flag}):", line)
         raise ThrsimInputError(line) from None
-    bone = None
+    bone_mesh = None
     if mesh_file is not None:
         from thrsim.geometry.mesh_io import read_mesh
 
-        bone = read_mesh(mesh_file)
-        if len(bone.fixed_nodes) == 0:
+        bone_mesh = read_mesh(mesh_file)
+        if len(bone_mesh.fixed_nodes) == 0:
             raise ThrsimInputError(f"{mesh_file}: the mesh has no fixed nodes (a node set named 'fixed')")
     from thrsim.data.ground_truth import run_case  # Numba: loaded only when a case runs
 
@@ -178,7 +177,7 @@ def fem(
     with Progress(*columns, console=err_console, transient=as_json) as bar:
         task = bar.add_task("frames", total=case.frames)
         summary = run_case(
-            case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone,
+            case, out, progress=lambda done, total: bar.update(task, completed=done), mesh=bone_mesh,
             checkpoint=checkpoint_path(out), checkpoint_every_s=checkpoint_every,
         )  # fmt: skip
     summary = {**aim.as_dict(), **summary}

@@ -2,35 +2,37 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from functools import partial
 from pathlib import Path
-from typing import Optional
 
 import typer
 
 from thrsim.cli.output import console, print_json, print_table
+from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
 from thrsim.config import BonePatchConfig, SocketConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
-from thrsim.geometry.socket import generate_socket
+from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import WRITABLE_SUFFIXES, read_mesh, write_mesh
+from thrsim.geometry.socket import generate_socket
 
 
 def mesh(
     bone_kind: str = typer.Option("patch", "--bone", help="which bone: patch (the thesis's 2 mm shell) or socket (the layered acetabulum)"),
-    socket_diameter: Optional[float] = typer.Option(
+    socket_diameter: float | None = typer.Option(
         None, "--socket-diameter", help="native socket diameter in mm, 40 to 60 (socket only; default 46)", metavar="MM"
     ),
-    window: Optional[str] = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
-    element_size: Optional[float] = typer.Option(None, "--element-size", help="global element size in mm (default 0.45)", metavar="MM"),
+    window: str | None = typer.Option(None, "--window", help=WINDOW_HELP, metavar=WINDOW_METAVAR),
+    element_size: float | None = typer.Option(None, "--element-size", help="global element size in mm (default 0.45)", metavar="MM"),
     side: str = typer.Option("right", "--side", help="hip side: right, or left (mirror across the sagittal plane)"),
-    thickness: Optional[float] = typer.Option(None, "--thickness", help="shell thickness in mm (default 2.0)", metavar="MM"),
-    half_angle: Optional[float] = typer.Option(None, "--half-angle", help="patch half-angle about the pole in degrees", metavar="DEG"),
-    from_file: Optional[Path] = typer.Option(
+    thickness: float | None = typer.Option(None, "--thickness", help="shell thickness in mm (default 2.0)", metavar="MM"),
+    half_angle: float | None = typer.Option(None, "--half-angle", help="patch half-angle about the pole in degrees", metavar="DEG"),
+    from_file: Path | None = typer.Option(
         None, "--from", help="read and validate this mesh instead (.inp C3D4, .msh, .vtu, .h5, ...)", metavar="FILE"
     ),
     units: str = typer.Option("mm", "--units", help="coordinate units of --from/--out exchange files: mm or m (.h5 is always m)"),
-    out: Optional[Path] = typer.Option(None, "--out", help=f"write the mesh ({', '.join(WRITABLE_SUFFIXES)})", metavar="FILE"),
+    out: Path | None = typer.Option(None, "--out", help=f"write the mesh ({', '.join(WRITABLE_SUFFIXES)})", metavar="FILE"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
     """Generate a bone mesh (the patch, or the layered socket) or validate one read --from a file, and summarise it."""
@@ -93,22 +95,27 @@ def _generate(
     socket_diameter: float | None,
     window: dict[str, float],
     quiet: bool,
-):
+) -> TetMesh:
     """The generated bone the options ask for (flags that belong to the other bone refused)."""
+    generate: Callable[[], TetMesh]
     if bone_kind == "socket":
         wrong = [flag for flag, value in (("--thickness", thickness), ("--half-angle", half_angle)) if value is not None]
         if wrong:
             raise ThrsimInputError(f"{', '.join(wrong)} only apply to --bone patch")
         settings = {"side": side, "element_size_mm": element_size, "socket_diameter_mm": socket_diameter, **window}
-        config = SocketConfig(**{key: value for key, value in settings.items() if value is not None})
-        generate, what = generate_socket, "the layered socket"
+        generate, what = (
+            partial(generate_socket, SocketConfig(**{k: v for k, v in settings.items() if v is not None})),
+            "the layered socket",
+        )
     else:
         if socket_diameter is not None or window:
             raise ThrsimInputError("--socket-diameter and --window only apply to --bone socket")
         settings = {"side": side, "element_size_mm": element_size, "thickness_mm": thickness, "half_angle_deg": half_angle}
-        config = BonePatchConfig(**{key: value for key, value in settings.items() if value is not None})
-        generate, what = generate_bone_patch, "the bone patch"
+        generate, what = (
+            partial(generate_bone_patch, BonePatchConfig(**{k: v for k, v in settings.items() if v is not None})),
+            "the bone patch",
+        )
     if quiet:
-        return generate(config)
+        return generate()
     with console.status(f"meshing {what} with gmsh"):
-        return generate(config)
+        return generate()

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -29,7 +28,7 @@ def _vector(text: str, flag: str) -> list[float]:
     return values
 
 
-def _landmarks(from_file: Optional[Path], flags: dict[str, Optional[str]]) -> dict[str, list[float]]:
+def _landmarks(from_file: Path | None, flags: dict[str, str | None]) -> dict[str, list[float]]:
     landmarks: dict[str, list[float]] = {}
     if from_file is not None:
         try:
@@ -51,11 +50,11 @@ def _landmarks(from_file: Optional[Path], flags: dict[str, Optional[str]]) -> di
 @app.command("angles")
 def angles(
     axis: str = typer.Option(..., "--axis", help=f"unit cup axis pointing out of the acetabulum: {_VECTOR_HELP}"),
-    asis_right: Optional[str] = typer.Option(None, "--asis-right", help="right ASIS (any length unit, same for all)"),
-    asis_left: Optional[str] = typer.Option(None, "--asis-left", help="left ASIS"),
-    pubic_right: Optional[str] = typer.Option(None, "--pubic-right", help="right pubic tubercle"),
-    pubic_left: Optional[str] = typer.Option(None, "--pubic-left", help="left pubic tubercle"),
-    landmarks_file: Optional[Path] = typer.Option(
+    asis_right: str | None = typer.Option(None, "--asis-right", help="right ASIS (any length unit, same for all)"),
+    asis_left: str | None = typer.Option(None, "--asis-left", help="left ASIS"),
+    pubic_right: str | None = typer.Option(None, "--pubic-right", help="right pubic tubercle"),
+    pubic_left: str | None = typer.Option(None, "--pubic-left", help="left pubic tubercle"),
+    landmarks_file: Path | None = typer.Option(
         None, "--landmarks", help="JSON object of landmark name: [x, y, z]; flags override it", metavar="FILE"
     ),
     side: str = typer.Option("right", "--side", help="operated hip: right or left"),

@@ -95,9 +95,9 @@ def describe_usage_error(error: Exception) -> str:
     command = " ".join(["thrsim", *names])
     param = getattr(error, "param", None)
     if type(error).__name__ == "MissingParameter" or param is None:
-        text = error.format_message()
+        text = error.format_message()  # type: ignore[attr-defined]  # click's UsageError, typed through typer's MRO
     else:
-        text = f"{'/'.join(param.opts)}: {error.message}"
+        text = f"{'/'.join(param.opts)}: {error.message}"  # type: ignore[attr-defined]
         cause = error.__cause__
         if isinstance(cause, ValidationError) and cause.errors():  # typer parsed the value with pydantic: name it
             text += f", got {_SHOWN.repr(cause.errors()[0].get('input'))}"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -13,7 +12,7 @@ from thrsim.cli.output import print_json, print_table
 
 def replay(
     session: Path = typer.Argument(..., help="session file (.h5) saved by thrsim serve"),
-    model: Optional[Path] = typer.Option(
+    model: Path | None = typer.Option(
         None,
         "--model",
         help="model folder a reaming session replays with (default: the shipped model; a session reamed with another needs this)",

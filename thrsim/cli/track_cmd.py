@@ -7,7 +7,6 @@ import json
 import math
 import signal
 import time
-from typing import List, Optional
 
 import typer
 
@@ -43,7 +42,7 @@ def _log_line(event: str, payload: dict, json_log: bool) -> None:
     )
 
 
-async def _serve(config: IgtlConfig, duration: Optional[float], json_log: bool, interval: float) -> dict:
+async def _serve(config: IgtlConfig, duration: float | None, json_log: bool, interval: float) -> dict:
     from thrsim.io.server import NavigationServer  # asyncio server: loaded only when tracking
 
     server = NavigationServer(config)
@@ -78,7 +77,7 @@ async def _serve(config: IgtlConfig, duration: Optional[float], json_log: bool, 
 def track(
     igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port (0: any free port, printed at start)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on"),
-    duration: Optional[float] = typer.Option(
+    duration: float | None = typer.Option(
         None, "--duration", help="stop after this many seconds (default: until SIGINT/SIGTERM)", metavar="S"
     ),
     json_log: bool = typer.Option(False, "--json-log", help="log one JSON object per line on stdout instead of rich text"),
@@ -86,7 +85,7 @@ def track(
     idle_timeout: float = typer.Option(
         _DEFAULT.idle_timeout_s, "--idle-timeout", help="close a connection that sends nothing for this long", metavar="S"
     ),
-    devices: Optional[list[str]] = typer.Option(
+    devices: list[str] | None = typer.Option(
         None,
         "--device",
         help=f"accept TRANSFORMs under this device name too (repeatable; always: {', '.join(_DEFAULT.known_devices)})",

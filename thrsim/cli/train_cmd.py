@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -18,20 +17,20 @@ def train(
     arch: str = typer.Option(
         "production", "--arch", help="production (sized for an interactive CPU step) or thesis (the thesis's sizes and features)"
     ),
-    epochs: Optional[int] = typer.Option(None, "--epochs", help="training epochs (default 30)", metavar="N"),
-    samples_per_epoch: Optional[int] = typer.Option(
+    epochs: int | None = typer.Option(None, "--epochs", help="training epochs (default 30)", metavar="N"),
+    samples_per_epoch: int | None = typer.Option(
         None, "--samples-per-epoch", help="frame pairs drawn per epoch (default: all)", metavar="N"
     ),
-    max_minutes: Optional[float] = typer.Option(
+    max_minutes: float | None = typer.Option(
         None, "--max-minutes", help="stop after the epoch that crosses this time budget", metavar="MIN"
     ),
-    seed: Optional[int] = typer.Option(None, "--seed", help="random seed (default 0)"),
-    settings_file: Optional[Path] = typer.Option(
+    seed: int | None = typer.Option(None, "--seed", help="random seed (default 0)"),
+    settings_file: Path | None = typer.Option(
         None, "--settings", help="JSON of settings (arch / features / train sections, nested) over the --arch preset", metavar="FILE"
     ),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     overwrite: bool = typer.Option(False, "--overwrite", help="replace a finished model in MODEL_DIR"),
-    init_from: Optional[Path] = typer.Option(
+    init_from: Path | None = typer.Option(
         None,
         "--init-from",
         help="start from the networks of this trained model (same architecture and mesh) instead of fresh weights",

@@ -10,13 +10,19 @@ units and details.
 from __future__ import annotations
 
 import time
-from typing import List, Optional
 
 import typer
+from rich.console import JustifyMethod
 from rich.table import Table
 
 from thrsim.cli.output import console, err_console, print_json
 from thrsim.errors import ThrsimInputError
+
+#: the table's columns and how each is aligned
+_COLUMNS: tuple[tuple[str, JustifyMethod], ...] = (
+    ("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
+    ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center"),
+)  # fmt: skip
 
 
 def _number(value: float | None) -> str:
@@ -29,7 +35,7 @@ def _number(value: float | None) -> str:
 
 def verify(
     slow: bool = typer.Option(False, "--slow", help="include the slow checks (a short reaming case)"),
-    only: Optional[list[str]] = typer.Option(
+    only: list[str] | None = typer.Option(
         None, "--only", help="run only this check family or figure (repeatable, or comma-separated)", metavar="NAME"
     ),
     list_checks: bool = typer.Option(False, "--list", help="list the checks and their figures, run nothing"),
@@ -83,8 +89,7 @@ def verify(
         })  # fmt: skip
     else:
         table = Table(title="thrsim verification")
-        for column, justify in (("check", "left"), ("value", "right"), ("reference", "right"), ("error", "right"),
-                                ("tolerance", "right"), ("units", "left"), ("s", "right"), ("", "center")):  # fmt: skip
+        for column, justify in _COLUMNS:
             table.add_column(
                 column, justify=justify, no_wrap=column != "check", overflow="fold", min_width=24 if column == "check" else None
             )

@@ -42,7 +42,8 @@ def window_resistance(entry: dict, case_file: Path) -> dict | None:
     if "feed_mm_s" not in settings or "socket.window_polar_deg" not in settings:
         return None
     socket_mm = settings["socket.socket_diameter_mm"]
-    radius_mm = 0.5 * settings.get("pre_ream_mm", socket_mm)
+    prepared_mm = settings.get("pre_ream_mm")
+    radius_mm = 0.5 * float(socket_mm if prepared_mm is None else prepared_mm)
     with CaseReader(case_file) as reader:
         axial = reader.series("contact_force_axial")
     first = (entry.get("solver_summary") or {}).get("first_contact_frame")

@@ -35,7 +35,7 @@ import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from datetime import datetime, timezone, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +47,7 @@ from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import data_digest, file_sha256, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
-from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SplitRule, SweepPlan, coverage_order
+from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
 from thrsim.errors import ThrsimInputError, ThrsimOutputError
 from thrsim.provenance import config_hash, json_default
 
@@ -340,7 +340,7 @@ def _clean_stale(cases: Path) -> None:
             path.unlink()
 
 
-def _entry(spec: CaseSpec, split: SplitRule, solver: str) -> dict:
+def _entry(spec: CaseSpec, split: SplitRule | SocketSplitRule, solver: str) -> dict:
     return {
         "params": spec.params(),
         "split": split.of(spec),
@@ -410,7 +410,7 @@ def run_sweep(
     scheduler: str | None = None,
     executor: Executor | None = None,
     template_overrides: dict | None = None,
-    split: SplitRule = DEFAULT_SPLIT,
+    split: SplitRule | SocketSplitRule = DEFAULT_SPLIT,
     connect_timeout_s: float = 5.0,
     threads: int | None = None,
     on_event: Callable[[SweepEvent], None] | None = None,
@@ -470,7 +470,7 @@ def run_sweep(
             executor.close(cancel=True)
 
 
-def _open_manifest(manifest: dict | None, identity: dict, split: SplitRule) -> dict:
+def _open_manifest(manifest: dict | None, identity: dict, split: SplitRule | SocketSplitRule) -> dict:
     """The folder's manifest, or a new one for this identity; the split rule is this run's."""
     if manifest is None:
         manifest = {
@@ -504,7 +504,7 @@ class _Sweep:
 
     # ---- adoption: what is already on disk
 
-    def take_stock(self, specs: list[CaseSpec], split: SplitRule, solver: str) -> list[CaseSpec]:
+    def take_stock(self, specs: list[CaseSpec], split: SplitRule | SocketSplitRule, solver: str) -> list[CaseSpec]:
         """Skip cases whose file matches the manifest, adopt valid files it missed; return the rest."""
         cases = self.manifest["cases"]
         todo: list[CaseSpec] = []

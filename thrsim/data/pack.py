@@ -37,7 +37,7 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass
-from datetime import datetime, timezone, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -47,7 +47,7 @@ import numpy as np
 from thrsim import __version__
 from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.config import LabelConfig
-from thrsim.data.case_file import OPTIONAL_PER_ELEMENT, OPTIONAL_PER_FRAME, CaseReader, attr_value, decode_attrs, data_digest, file_sha256
+from thrsim.data.case_file import OPTIONAL_PER_ELEMENT, OPTIONAL_PER_FRAME, CaseReader, attr_value, data_digest, decode_attrs, file_sha256
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh

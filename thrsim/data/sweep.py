@@ -26,9 +26,8 @@ validation sets, so they train); :class:`SplitRule` changes the sets.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-
 import random
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from thrsim.config import CANCELLOUS_PRESETS, ReamingCaseConfig, SocketSweepConfig, SweepConfig, head_diameter_for_size
@@ -345,7 +344,8 @@ class _Balanced:
     """Draws from a list so each value comes about equally often: shuffled rounds through the values."""
 
     def __init__(self, values, rng: random.Random):
-        self.values, self.rng, self.queue = list(values), rng, []
+        self.values, self.rng = list(values), rng
+        self.queue: list[Any] = []
 
     def draw(self):
         if not self.queue:
@@ -396,8 +396,12 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
                 continue  # a repeat draw: draw again
             cases[spec.case_id] = spec
             made += 1
-    notes = [f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})"]
-    return SweepPlan(cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,))
+    notes = [
+        f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})"
+    ]
+    return SweepPlan(
+        cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
+    )
 
 
 def _socket_case(config: SocketSweepConfig, split: str, pick: dict) -> CaseSpec:

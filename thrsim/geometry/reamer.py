@@ -25,8 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from thrsim.config import ReamerConfig
 from thrsim import portable_math as pm
+from thrsim.config import ReamerConfig
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 

@@ -42,8 +42,8 @@ import ipaddress
 import json
 import logging
 import time
-from typing import Callable
-
+from collections.abc import Callable
+from typing import cast
 
 from thrsim.config import IgtlConfig
 from thrsim.errors import ThrsimInputError
@@ -65,7 +65,7 @@ class _Connection:
         self.writer = writer
         peer = writer.get_extra_info("peername")
         self.peer = f"{peer[0]}:{peer[1]}" if peer else "unknown peer"
-        self.handler_task = asyncio.current_task()
+        self.handler_task = cast(asyncio.Task, asyncio.current_task())  # made in its handler's task: never None
         self.connected_at = asyncio.get_running_loop().time()
         self.earned_at: float | None = None  # when it last sent a pose or force the trainer uses (loop time)
         self.version = 1
@@ -166,13 +166,15 @@ class NavigationServer:
         if len(self._connections) >= self.config.max_clients:
             now = asyncio.get_running_loop().time()
             never_earned = [c for c in self._connections if c.earned_at is None and now - c.connected_at >= self.config.reclaim_after_s]
-            gone_stale = [c for c in self._connections if c.earned_at is not None and now - c.earned_at >= self.config.idle_timeout_s]
+            gone_stale = [
+                (c.earned_at, c) for c in self._connections if c.earned_at is not None and now - c.earned_at >= self.config.idle_timeout_s
+            ]
             if never_earned:
                 victim = min(never_earned, key=lambda c: c.connected_at)
                 why = "no pose or force the trainer uses since connecting, and every client slot was wanted"
             elif gone_stale:
-                victim = min(gone_stale, key=lambda c: c.earned_at)
-                why = f"no pose or force the trainer uses for {now - victim.earned_at:.1f} s, and every client slot was wanted"
+                earned_at, victim = min(gone_stale, key=lambda stale: stale[0])
+                why = f"no pose or force the trainer uses for {now - earned_at:.1f} s, and every client slot was wanted"
             else:
                 self.stats["rejected_connections"] += 1
                 connection.say_goodbye(igtl.STATUS_BUSY, "ServerFull", f"all {self.config.max_clients} client slots are in use")

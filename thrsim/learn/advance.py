@@ -13,12 +13,15 @@ never unpickles. Regressors stored before the impulse (four features) or the sca
 
 from __future__ import annotations
 
+from typing import Literal, get_args
+
 import numpy as np
 
 from thrsim.config import PUSH_FORCE_N
 
 FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n", "impulse_n_s")
-KINDS = ("random_forest", "svr", "ridge", "linear")
+Kind = Literal["random_forest", "svr", "ridge", "linear"]
+KINDS: tuple[Kind, ...] = get_args(Kind)
 #: the arrays each kind's prediction reads (besides target_range)
 _KIND_ARRAYS = {
     "random_forest": ("left", "right", "feature", "threshold", "value", "roots"),
@@ -87,7 +90,11 @@ class ArrayRegressor:
             self._check_forest()
             return
         width = (self.n_features,)
-        shapes = {"mean": width, "scale": width, **({"coef": width} if "coef" in _KIND_ARRAYS[self.kind] else {})}
+        shapes: dict[str, tuple[int, ...]] = {
+            "mean": width,
+            "scale": width,
+            **({"coef": width} if "coef" in _KIND_ARRAYS[self.kind] else {}),
+        }
         if self.kind == "svr":
             shapes.update(support_vectors=(len(a["dual_coef"]), self.n_features), dual_coef=(len(a["dual_coef"]),))
         for name, shape in shapes.items():
@@ -176,7 +183,7 @@ def export(kind: str, estimator, target_range: tuple[float, float], *, reference
     if reference_force_n is not None:
         bounds["reference_force_n"] = np.array(float(reference_force_n))
     if kind == "random_forest":
-        parts = {k: [] for k in ("left", "right", "feature", "threshold", "value")}
+        parts: dict[str, list] = {k: [] for k in ("left", "right", "feature", "threshold", "value")}
         roots, offset = [], 0
         for tree in estimator.estimators_:
             t = tree.tree_
@@ -263,7 +270,7 @@ def fit_advance(
             "cv_mse_mm2": float(-search.best_score_),
             "best_params": {k.replace("model__", ""): v for k, v in search.best_params_.items()},
         }
-        if held_X is not None and len(held_y):
+        if held_X is not None and held_y is not None and len(held_y):
             error = exported[kind].predict(held_X) - held_y
             row.update(
                 held_out_mse_mm2=float(np.mean(error**2)), held_out_mae_mm=float(np.mean(np.abs(error))), held_out_samples=int(len(held_y))

@@ -26,6 +26,7 @@ from __future__ import annotations
 import copy
 import time
 from dataclasses import replace
+from typing import Any
 
 import numpy as np
 import torch
@@ -164,7 +165,7 @@ def run_learned_benchmarks(
 
     if model is None:
         model = untrained_model(generate_bone_patch(BonePatchConfig()), preset("production"))
-    result = {"threads": torch.get_num_threads(), "production": time_production(model, frames)}
+    result: dict[str, Any] = {"threads": torch.get_num_threads(), "production": time_production(model, frames)}
     compiled_model = replace(model, gn=copy.deepcopy(model.gn))  # compiling changes the network in place
     result["production_compiled"] = time_production(compiled_model, frames, compile=True)
     result["thesis_way"] = time_thesis_way(model.mesh, thesis_frames, model.teeth_radius_m)

@@ -64,7 +64,9 @@ def _case_arrays(
     case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis, damage: np.ndarray | None
 ) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
-    config = attrs.get("config") if isinstance(attrs.get("config"), dict) else {}
+    config = attrs.get("config")
+    if not isinstance(config, dict):
+        config = {}
     reamer = {**ReamerConfig().model_dump(), **config.get("reamer", {})}
     return CaseArrays(
         case_id=case_id,
@@ -112,11 +114,12 @@ def load_cases(
     labels = labels or LabelConfig()
     source = Path(source)
     if is_pack(source):
-        mesh, cases = _read_pack(source, splits, labels)
-        cases = [case for case in cases if case.frames >= 2]
-        if not cases:
+        packed_mesh, packed = _read_pack(source, splits, labels)
+        packed = [case for case in packed if case.frames >= 2]
+        if not packed:
             raise ThrsimInputError(f"{source}: no case with two frames or more{' in split(s) ' + ', '.join(splits) if splits else ''}")
-        return mesh, cases
+        return packed_mesh, packed
+    entries: list[dict]
     if source.is_file():
         if not h5py.is_hdf5(source):
             raise ThrsimInputError(f"{source}: not an HDF5 case file")
@@ -128,7 +131,9 @@ def load_cases(
     if not entries:
         wanted = f" in split(s) {', '.join(splits)}" if splits else ""
         raise ThrsimInputError(f"{source}: no complete cases{wanted}")
-    mesh, cases, digest = None, [], None
+    mesh: TetMesh | None = None
+    cases: list[CaseArrays] = []
+    digest = None
     for entry in entries:
         case_mesh, case = _read_case(Path(entry["path"]), entry["case_id"], entry.get("split"), entry.get("data_digest"), labels)
         if mesh is None:
@@ -138,6 +143,6 @@ def load_cases(
         if case.frames < 2:
             continue
         cases.append(case)
-    if not cases:
+    if mesh is None or not cases:
         raise ThrsimInputError(f"{source}: no case has two frames or more")
     return mesh, cases

@@ -160,6 +160,6 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
         for c in cases
     ]
     report["thesis_table_10_percent"] = {
-        g: {h: dict(zip(("precision", "recall", "f1"), v)) for h, v in row.items()} for g, row in THESIS_TABLE_10.items()
+        g: {h: dict(zip(("precision", "recall", "f1"), v, strict=True)) for h, v in row.items()} for g, row in THESIS_TABLE_10.items()
     }
     return report

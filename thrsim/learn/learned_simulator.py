@@ -22,6 +22,7 @@ falls below D(t), since damage only grows. The loss adds D's cross-entropy on th
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import torch
@@ -56,6 +57,9 @@ class Prediction(NamedTuple):
 class Normaliser(nn.Module):
     """Per-feature mean and standard deviation, fitted once on training inputs, then frozen."""
 
+    mean: torch.Tensor
+    std: torch.Tensor
+
     def __init__(self, width: int):
         super().__init__()
         self.register_buffer("mean", torch.zeros(width))
@@ -86,6 +90,8 @@ class LearnedSimulator(nn.Module):
         self.node_norm = Normaliser(node_in)
         self.edge_norm = Normaliser(edge_in)
         self.global_norm = Normaliser(global_in)
+        self.network: Callable[..., torch.Tensor]  # the GraphNetwork or NodeMLP; once compiled, its compiled form
+        self.network_compiled = False
         if kind == "gn":
             self.network = GraphNetwork(node_in, edge_in, global_in, settings.arch, outputs)
         elif kind == "mlp":
@@ -121,7 +127,7 @@ class LearnedSimulator(nn.Module):
         if self.damage:
             damage_logit = out[:, 1 + int(self.removal_head)]
             if self.residual_logit:
-                damage_logit = damage_logit + _logit(batch.damage)
+                damage_logit = damage_logit + _logit(_damage(batch))
         return Outputs(alpha_logit, removal_logit, damage_logit)
 
     def loss(self, batch: GraphBatch, alpha_next: torch.Tensor, damage_next: torch.Tensor | None = None) -> torch.Tensor:
@@ -157,7 +163,7 @@ class LearnedSimulator(nn.Module):
         )
         damage = None
         if out.damage is not None:
-            damage = torch.where(mask, torch.maximum(torch.sigmoid(out.damage), batch.damage), batch.damage)
+            damage = torch.where(mask, torch.maximum(torch.sigmoid(out.damage), _damage(batch)), _damage(batch))
         return Prediction(alpha, hazard, damage)
 
     def alpha_next(self, batch: GraphBatch) -> torch.Tensor:
@@ -167,6 +173,13 @@ class LearnedSimulator(nn.Module):
 
 def _logit(probability: torch.Tensor) -> torch.Tensor:
     return torch.logit(probability.clamp(_EPS, 1 - _EPS))
+
+
+def _damage(batch: GraphBatch) -> torch.Tensor:
+    """The batch's damage D(t), which a model that reads damage needs."""
+    if batch.damage is None:
+        raise ValueError("the model reads damage and the batch has none")
+    return batch.damage
 
 
 def masked_bce(logits: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:

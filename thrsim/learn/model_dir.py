@@ -22,7 +22,6 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
@@ -37,10 +36,10 @@ from thrsim.atomic import atomic_path
 from thrsim.config import FRAME_RATE_HZ, LabelConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.advance import KINDS, ArrayRegressor
+from thrsim.learn.advance import ArrayRegressor, Kind
 from thrsim.learn.graph import StaticGraph, mesh_digest
-from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import ModelSettings
 
 MODEL_FORMAT = "thrsim-model"
@@ -75,7 +74,7 @@ class DataCard(_CardSection):
 
 
 class AdvanceCard(_CardSection):
-    chosen: Literal[KINDS]
+    chosen: Kind
 
 
 class ModelCard(_CardSection):
@@ -93,7 +92,7 @@ class ModelCard(_CardSection):
 
 @dataclass
 class LoadedModel:
-    path: Path
+    path: Path | None  # None: a model built in memory (an untrained one to time)
     card: dict
     settings: ModelSettings
     gn: LearnedSimulator
@@ -227,7 +226,7 @@ def _check_arrays(file: Path, arrays: dict[str, np.ndarray], expected: dict[str,
         values = arrays[name]
         if values.dtype.kind != kind or values.dtype.itemsize not in (4, 8):
             raise ThrsimInputError(f"{file}: {name} has dtype {values.dtype}, expected {'float' if kind == 'f' else 'int'}32 or 64")
-        if values.ndim != len(shape) or any(want is not None and got != want for got, want in zip(values.shape, shape)):
+        if values.ndim != len(shape) or any(want is not None and got != want for got, want in zip(values.shape, shape, strict=True)):
             raise ThrsimInputError(f"{file}: {name} has shape {values.shape}, expected {tuple('n' if n is None else n for n in shape)}")
         if kind == "f" and not np.isfinite(values).all():
             raise ThrsimInputError(f"{file}: {name} holds NaN or infinite values")

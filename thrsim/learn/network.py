@@ -42,7 +42,7 @@ class _SplitFirstLayer(nn.Module):
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         total = self.parts[0](inputs[0])
-        for layer, x in zip(self.parts[1:], inputs[1:]):
+        for layer, x in zip(self.parts[1:], inputs[1:], strict=True):
             total = total + layer(x)
         return total
 
@@ -128,8 +128,9 @@ class GraphNetwork(nn.Module):
             out_g = arch.global_core[-1] if arch.global_block and arch.global_core else global_w
             core_in = (node_w + arch.node_core[-1], edge_w + arch.edge_core[-1], global_w + out_g)
         steps = 1 if arch.shared_core else arch.message_passing_steps
-        self.cores = nn.ModuleList([_Core(*core_in, arch) for _ in range(steps)])
-        latent_node = self.cores[-1].node_out
+        cores = [_Core(*core_in, arch) for _ in range(steps)]
+        self.cores = nn.ModuleList(cores)
+        latent_node = cores[-1].node_out
         self.node_decoder, dec_w = mlp(latent_node, arch.node_decoder, False)
         self.output = nn.Linear(dec_w, outputs)
 

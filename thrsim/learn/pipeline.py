@@ -13,15 +13,15 @@ import os
 import shutil
 import time
 from collections.abc import Callable
-from datetime import datetime, timezone, UTC
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from thrsim.config import LabelConfig
-from thrsim.errors import ThrsimInputError
 from thrsim.data.pack import ALPHA_LEVELS, is_pack
+from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import CaseArrays, load_cases
 from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.learn.model_dir import CARD, load_model, read_card, read_mesh, save_advance, save_model

@@ -69,7 +69,7 @@ def ream(
     except ValidationError as error:
         raise ThrsimInputError(f"{error.errors()[0]['msg']}, got {frames}", "frames") from None
     force = check_force(force_n)
-    check_side(side)
+    hip = check_side(side)
     if not (0 <= inclination_deg <= 90 and np.isfinite(inclination_deg)):
         raise ThrsimInputError(f"must lie in [0, 90] degrees, got {inclination_deg:g}", "inclination_deg")
     if not (0 <= anteversion_deg <= 360 and np.isfinite(anteversion_deg)):
@@ -78,9 +78,9 @@ def ream(
         raise ThrsimInputError(f"{png}: a picture is written as PNG; give a .png name", "png")
     check_out(out)
     simulator = ReamingSimulator(model_dir, threads=threads)
-    simulator.reset(side)
+    simulator.reset(hip)
     # γ, θ are the right hip's bone frame (as the case files'); the simulator takes the side's
-    axis = on_side(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis, side)
+    axis = on_side(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis, hip)
     mesh = simulator.mesh
     teeth = simulator.model.teeth_radius_m
     frame_dt = simulator.model.frame_dt_s

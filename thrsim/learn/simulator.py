@@ -19,7 +19,7 @@ import numpy as np
 import torch
 from threadpoolctl import threadpool_limits
 
-from thrsim.config import PUSH_FORCE_N, LabelConfig
+from thrsim.config import PUSH_FORCE_N, LabelConfig, Side
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
@@ -56,7 +56,7 @@ class StepResult:
 class SimulatorSnapshot:
     """Everything :meth:`ReamingSimulator.restore` needs to go back to a frame (undo)."""
 
-    side: str
+    side: Side
     frame: int
     bone: BoneState
     centre: np.ndarray | None
@@ -234,7 +234,7 @@ class ReamingSimulator:
             if self._centre is None:
                 self._centre = self._start = new_centre
         else:
-            if self._centre is None:
+            if self._centre is None or self._start is None:  # set together
                 self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
             gamma, theta = angles_of(axis)
             new_centre = (
@@ -249,7 +249,7 @@ class ReamingSimulator:
         self._centre = new_centre
         self._impulse_n_s += force * self.model.frame_dt_s
         self.frame += 1
-        end_reason = self._end_reason(axis, after)
+        end_reason = self._end_reason(new_centre, axis, after)
         return StepResult(
             frame=self.frame,
             alpha=self.alpha.copy(),
@@ -262,17 +262,17 @@ class ReamingSimulator:
             end_reason=end_reason,
         )
 
-    def _end_reason(self, axis: np.ndarray, removed: np.ndarray) -> str | None:
+    def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:
         """The solver's end conditions, checked on the learned state (right-side frame)."""
         key = tuple(axis.tolist())
         if self._tip_exit is None or self._tip_exit[0] != key:
             self._tip_exit = (key, tip_exit_depth(self.model.mesh, axis))
         exit_depth = self._tip_exit[1]
         teeth = self.model.teeth_radius_m
-        if exit_depth is not None and float(self._centre @ axis) + teeth > exit_depth:
+        if exit_depth is not None and float(centre @ axis) + teeth > exit_depth:
             return PERFORATED
         attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)
-        if not bone_in_path(self.model.mesh.nodes[attached], self._centre, axis, teeth):
+        if not bone_in_path(self.model.mesh.nodes[attached], centre, axis, teeth):
             return PASSED_THROUGH
         return None
 

@@ -41,8 +41,8 @@ from thrsim.learn.cases import CaseArrays, require_damage
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
-from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.metrics import Counts
+from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.rollout import BoneState, LearnedStep, rollout
 from thrsim.learn.settings import ModelSettings
 from thrsim.provenance import config_hash
@@ -146,6 +146,7 @@ class Trainer:
         case = self.train_cases[case_index]
         pushed = self._pushed_steps(int(t), rng)
         with_damage = self.settings.features.damage
+        damage_t: np.ndarray | None
         if pushed:
             state = self._pushed_state(case, int(t), pushed)
             alpha_t, damage_t = state.alpha, state.damage
@@ -164,7 +165,7 @@ class Trainer:
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         active = alpha_in >= self.threshold
         alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
-        damage_in = None if not with_damage else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
+        damage_in = None if not with_damage or damage_t is None else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
         reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
         arrays = frame_arrays(
@@ -327,6 +328,8 @@ def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int
     X = np.concatenate([p[0] for p in parts])
     y = np.concatenate([p[1] for p in parts])
     groups = np.concatenate([np.full(len(p[1]), i) for i, p in enumerate(parts)])
+    held_X: np.ndarray | None
+    held_y: np.ndarray | None
     if held_out:
         held = [case_samples(c) for c in held_out]
         held_X, held_y = np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])

@@ -23,8 +23,9 @@ In that frame the cup axis ``a`` (pointing out of the acetabulum) gives Murray's
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal, Mapping
+from typing import Literal
 
 import numpy as np
 

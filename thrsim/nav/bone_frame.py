@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from thrsim.config import SIDES, Orientation, SafeZone, Side
 from thrsim.errors import ThrsimInputError
@@ -31,14 +32,14 @@ def check_side(side: str) -> Side:
     """``side`` when it is a hip side; ThrsimInputError otherwise."""
     if side not in SIDES:
         raise ThrsimInputError(f"must be right or left, got {side!r}", "side")
-    return side  # type: ignore[return-value]
+    return side
 
 
 def other_side(side: Side) -> Side:
     return "left" if side == "right" else "right"
 
 
-def on_side(right: np.ndarray, side: Side) -> np.ndarray:
+def on_side(right: ArrayLike, side: Side) -> np.ndarray:
     """Points or directions (…×3) of a right hip as they are on ``side``; the mirror is its own
     inverse, so a left hip's given here come back as the right hip's."""
     right = np.asarray(right, dtype=np.float64)

@@ -74,7 +74,10 @@ def calibrate_frames(
     if count < min_samples:
         raise CalibrationRefused(f"too few samples: {count} < {min_samples}")
     estimates = np.array(
-        [check_pose(h, f"headset pose {i}") @ invert(check_pose(t, f"tracker pose {i}")) for i, (h, t) in enumerate(zip(head, tracker))]
+        [
+            check_pose(h, f"headset pose {i}") @ invert(check_pose(t, f"tracker pose {i}"))
+            for i, (h, t) in enumerate(zip(head, tracker, strict=True))
+        ]
     )
 
     rotations = Rotation.from_matrix(estimates[:, :3, :3])

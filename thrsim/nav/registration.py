@@ -12,8 +12,8 @@ frame.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Mapping
 
 import numpy as np
 
@@ -89,7 +89,8 @@ class LandmarkRegistration:
         if not self._started:
             self._started = True
             events.append(RegistrationEvent("target", time_s, self.current_target))
-        if self.done:
+        name = self.current_target
+        if name is None:  # done
             return events
         blocked = [f"{tool} {v.reason}" for tool, v in (("probe", probe), ("reference", reference)) if not v.tracked]
         if blocked or probe_tip is None:
@@ -98,14 +99,14 @@ class LandmarkRegistration:
                 return events  # a probe not in use (none picked up yet, or put down) has no tracking to lose
             if not self._lost:
                 self._lost = True
-                events.append(RegistrationEvent("tracking_lost", time_s, self.current_target, ", ".join(blocked) or "probe not measured"))
+                events.append(RegistrationEvent("tracking_lost", time_s, name, ", ".join(blocked) or "probe not measured"))
             return events
         if self._lost:
             self._lost = False
-            events.append(RegistrationEvent("tracking_regained", time_s, self.current_target))
+            events.append(RegistrationEvent("tracking_regained", time_s, name))
 
         tip = np.asarray(probe_tip, dtype=float)
-        target = self.targets[self.current_target]
+        target = self.targets[name]
         if np.linalg.norm(tip - target) > self.config.landmark_tolerance_mm * 1e-3:
             self._dwell = []
             return events
@@ -117,7 +118,6 @@ class LandmarkRegistration:
         if time_s - self._dwell_start < self.config.dwell_s:
             return events
 
-        name = self.current_target
         point = np.mean(self._dwell, axis=0)
         self.acquired[name] = point
         self._dwell = []

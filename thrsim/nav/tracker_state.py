@@ -10,12 +10,13 @@ reference frame.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Mapping
+from typing import Generic, TypeVar
 
 import numpy as np
 
-from thrsim.config import SafeZone, TrackingVolumeConfig
+from thrsim.config import SafeZone, Side, TrackingVolumeConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.anatomy import AppFrame, angles_in_frame, app_frame
 from thrsim.nav.pelvis import synthetic_pelvis_landmarks
@@ -27,13 +28,14 @@ REAMER_TO_REFERENCE = "ReamerToReference"
 REAMER_TO_TRACKER = "ReamerToTracker"
 REFERENCE_TO_TRACKER = "ReferenceToTracker"
 CUP_AXIS_IN_REAMER = np.array([0.0, 0.0, 1.0])
+Reading = TypeVar("Reading")
 
 _TOOLS_SEEN_BY_CAMERA = {"Reamer": (REAMER_TO_TRACKER, REAMER), "Reference": (REFERENCE_TO_TRACKER, REFERENCE_FRAME)}
 
 
 @dataclass
-class _Stamped:
-    value: object
+class _Stamped(Generic[Reading]):
+    value: Reading
     time_s: float
 
 
@@ -41,13 +43,13 @@ class _Stamped:
 class TrackerState:
     """Latest poses and force, and the navigation state they imply at a given time."""
 
-    side: str = "right"
+    side: Side = "right"
     landmarks: Mapping[str, object] | None = None
     zone: SafeZone = SafeZone()
     tracking: TrackingVolumeConfig = TrackingVolumeConfig()
     stale_after_s: float = 0.5
-    poses: dict[str, _Stamped] = field(default_factory=dict)
-    force: _Stamped | None = None
+    poses: dict[str, _Stamped[np.ndarray]] = field(default_factory=dict)
+    force: _Stamped[float] | None = None
 
     def __post_init__(self) -> None:
         landmarks = synthetic_pelvis_landmarks(self.side) if self.landmarks is None else self.landmarks
@@ -59,8 +61,8 @@ class TrackerState:
         """Store a pose (4×4, metres); raises ThrsimInputError for a NaN or non-rigid one."""
         self.poses[device] = _Stamped(check_pose(pose, f"{device} pose"), time_s)
 
-    def update_force(self, values: np.ndarray, time_s: float) -> None:
-        """Store a force reading in newtons: one value, or a vector whose magnitude is used."""
+    def update_force(self, values: np.ndarray, time_s: float) -> float:
+        """Store a force reading in newtons: one value, or a vector whose magnitude is used; that force."""
         values = np.asarray(values, dtype=float)
         if values.size == 0 or not np.all(np.isfinite(values)):
             raise ThrsimInputError("force reading is empty or not finite")
@@ -69,6 +71,7 @@ class TrackerState:
         if not np.isfinite(newton):  # finite components whose magnitude overflows (1e300 N each)
             raise ThrsimInputError(f"force reading's magnitude overflows: components up to {np.abs(values).max():.3g} N")
         self.force = _Stamped(newton, time_s)
+        return newton
 
     def _fresh(self, device: str, time_s: float) -> np.ndarray | None:
         stamped = self.poses.get(device)

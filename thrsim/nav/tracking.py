@@ -15,8 +15,8 @@ which this model folds into one viewpoint. Pure numerics, no I/O.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Iterator, Sequence, Union
 
 import numpy as np
 
@@ -66,7 +66,7 @@ class Box:
         return True
 
 
-Occluder = Union[Sphere, Box]
+Occluder = Sphere | Box
 
 
 @dataclass(frozen=True)
@@ -116,19 +116,19 @@ class TrackedSample:
 
 def look_at(position: Sequence[float], target: Sequence[float], up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
     """``T_world←camera`` for a camera at ``position`` viewing ``target`` (y down ≈ −up)."""
-    position, target, up = (np.asarray(v, dtype=float) for v in (position, target, up))
-    view = target - position
+    eye, centre, up_axis = (np.asarray(v, dtype=float) for v in (position, target, up))
+    view = centre - eye
     if np.linalg.norm(view) == 0.0:
         raise ThrsimInputError("camera position and target coincide")
     view /= np.linalg.norm(view)
-    right = np.cross(view, up)
+    right = np.cross(view, up_axis)
     if np.linalg.norm(right) < 1e-9:
         raise ThrsimInputError("camera up vector is parallel to the view direction")
     right /= np.linalg.norm(right)
     down = np.cross(view, right)
     pose = np.eye(4)
     pose[:3, :3] = np.column_stack([right, down, view])
-    pose[:3, 3] = position
+    pose[:3, 3] = eye
     return pose
 
 

@@ -82,8 +82,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit, prange
 
-from thrsim.config import STICK_FRACTION
 from thrsim import portable_math as pm
+from thrsim.config import STICK_FRACTION
 
 
 class ReamerTeeth(NamedTuple):

@@ -57,15 +57,15 @@ import numba
 import numpy as np
 from numba import njit
 
-from thrsim.config import ReamingCaseConfig
 from thrsim import portable_math as pm
+from thrsim.config import ReamingCaseConfig
 from thrsim.errors import SimulationError, ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, SIDE, SUPPORTED, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
+from thrsim.geometry.socket import generate_socket
 from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
-from thrsim.geometry.socket import generate_socket
 from thrsim.physics.explicit import ExplicitSolid, Tissue, solid_step, tissues_of
 from thrsim.physics.support import foundation_stiffness
 
@@ -177,7 +177,9 @@ class FrameLog:
 
 
 @njit(cache=True)
-def advance_reaming(steps, time, nodes, rotation, line_point, omega, solid, constants, teeth, law, contact, drive, reamer, ledger, stats, totals):
+def advance_reaming(
+    steps, time, nodes, rotation, line_point, omega, solid, constants, teeth, law, contact, drive, reamer, ledger, stats, totals
+):
     """The reaming loop, compiled: contact, solid step and the reamer's axial motion, ``steps`` times.
 
     ``solid``/``constants``: :class:`~thrsim.physics.explicit.SolidArrays` and

@@ -195,7 +195,7 @@ def _dropouts(record: NavigationRecord, dt: np.ndarray) -> Section:
             axes[1].barh(k, seconds, left=left, color=colour)
             left += seconds
     handles, labels = axes[0].get_legend_handles_labels()
-    unique = dict(zip(labels, handles))
+    unique = dict(zip(labels, handles, strict=True))
     if unique:
         axes[0].legend(unique.values(), unique.keys(), fontsize=8, loc="upper right")
     for ax in axes:

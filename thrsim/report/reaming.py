@@ -146,7 +146,7 @@ def criteria(record: ReamingRecord) -> list[Criterion]:
                       "never through; ≥ 80 %: 1; ≥ 50 %: 0.5", 0.0 if failed else _tier(prepared, 0.8, 0.5), 1.0),
         ]  # fmt: skip
     in_range = _in_range(record)
-    if in_range is not None:
+    if in_range is not None and record.trained_force_n is not None:
         low, high = record.trained_force_n
         share = float(np.mean(in_range))
         out.append(

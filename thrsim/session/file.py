@@ -24,10 +24,11 @@ mid-write leaves no half file, and the journal is removed only once the file is 
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Iterable, Iterator
 from array import array
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -91,16 +92,16 @@ class InputLog:
     def pose_devices(self) -> list[str]:
         return [self.devices[i] for i in self.pose_device.data]
 
-    def replay(self) -> Iterator[tuple[str, float, object]]:
+    def replay(self) -> Iterator[tuple[str, float, Any]]:
         """(kind, time, payload) in lived order: kind is control, pose, force or tick."""
         matrices = self.pose_matrix.numpy(float).reshape(-1, 4, 4)
         merged = [(s, "control", t, json.loads(m)) for s, t, m in self.controls]
         merged += [
             (s, "pose", t, (self.devices[d], matrices[k]))
-            for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data))
+            for k, (s, t, d) in enumerate(zip(self.pose_seq.data, self.pose_time.data, self.pose_device.data, strict=True))
         ]
-        merged += [(s, "force", t, f) for s, t, f in zip(self.force_seq.data, self.force_time.data, self.force_newton.data)]
-        merged += [(s, "tick", t, None) for s, t in zip(self.tick_seq.data, self.tick_time.data)]
+        merged += [(s, "force", t, f) for s, t, f in zip(self.force_seq.data, self.force_time.data, self.force_newton.data, strict=True)]
+        merged += [(s, "tick", t, None) for s, t in zip(self.tick_seq.data, self.tick_time.data, strict=True)]
         for _, kind, time_s, payload in sorted(merged, key=lambda item: item[0]):
             yield kind, time_s, payload
 
@@ -156,7 +157,7 @@ class _TableWriter:
 def write_session(
     path: str | Path,
     attrs: dict,
-    inputs: Iterable[tuple[str, float, object]],
+    inputs: Iterable[tuple[str, float, Any]],
     mode_writers: dict[str, Callable[[h5py.Group], None]],
 ) -> Path:
     """Write the whole session atomically: ``inputs`` as ``(kind, time_s, payload)`` in lived order
@@ -238,14 +239,18 @@ def read_session(path: str | Path) -> SessionFile:
         raise ThrsimInputError(f"{path}: session file has no inputs group")
     try:
         inputs = InputLog()
-        inputs.controls = list(zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"]))
+        inputs.controls = list(
+            zip(raw["controls"]["seq"].tolist(), raw["controls"]["time"].tolist(), raw["controls"]["message"], strict=True)
+        )
         poses = raw["poses"]
         for seq, time_s, device, matrix in zip(
-            poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4)
+            poses["seq"].tolist(), poses["time"].tolist(), poses["device"], np.asarray(poses["matrix"]).reshape(-1, 4, 4), strict=True
         ):
             inputs._seq = seq - 1
             inputs.pose(time_s, device, matrix)
         forces, ticks = raw["forces"], raw["ticks"]
+        if len({len(forces[k]) for k in ("seq", "time", "newton")}) > 1 or len(ticks["seq"]) != len(ticks["time"]):
+            raise ValueError("columns of unequal length")
         inputs.force_seq, inputs.force_time, inputs.force_newton = (
             _Column(t, 1, forces[k].tolist()) for t, k in (("q", "seq"), ("d", "time"), ("d", "newton"))
         )

@@ -34,6 +34,7 @@ import threading
 import zlib
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -173,7 +174,7 @@ class Journal:
             raise ThrsimInputError(f"{self.path}: not a thrsim session journal ({error})") from None
         self.attrs: dict = header["session"]
 
-    def inputs(self) -> Iterator[tuple[str, float, object]]:
+    def inputs(self) -> Iterator[tuple[str, float, Any]]:
         with open(self.path, "rb") as handle:
             _read_record(handle)  # the header
             while (body := _read_record(handle)) is not None:

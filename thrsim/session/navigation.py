@@ -99,7 +99,7 @@ def read_navigation(group: dict) -> NavigationRecord:
             tool_codes=np.asarray(trace["tools"]),
             events=[
                 {"time_s": float(t), "kind": k, "landmark": n or None, "detail": d, "value": nan_to_none(v)}
-                for t, k, n, d, v in zip(events["time"], events["kind"], events["landmark"], events["detail"], events["value"])
+                for t, k, n, d, v in zip(events["time"], events["kind"], events["landmark"], events["detail"], events["value"], strict=True)
             ],
             names=list(registration["names"]),
             targets=np.asarray(registration["targets"], dtype=float),

@@ -113,7 +113,7 @@ def read_reaming(group: dict) -> ReamingRecord:
             **{name: np.asarray(trace[name]) for name in _TRACE},
             events=[
                 {"time_s": float(t), "kind": _RENAMED.get(str(k), str(k)), "detail": str(d), "frame": int(f), **extra}
-                for t, k, d, f, extra in zip(events["time"], events["kind"], events["detail"], events["frame"], data)
+                for t, k, d, f, extra in zip(events["time"], events["kind"], events["detail"], events["frame"], data, strict=True)
             ],
             trained_force_n=None if trained is None else (float(trained[0]), float(trained[1])),
             frame_dt_s=float(model.get("frame_dt_s", 1.0 / FRAME_RATE_HZ)),

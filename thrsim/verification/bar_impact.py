@@ -144,8 +144,8 @@ def write_ccx_input(
     lines += [f"{e + 1}, {a + 1}, {b + 1}, {c + 1}, {d + 1}" for e, (a, b, c, d) in enumerate(mesh.tets)]
 
     def nset(name: str, ids: np.ndarray) -> list[str]:
-        ids = [str(int(i) + 1) for i in ids]
-        return [f"*NSET, NSET={name}"] + [", ".join(ids[k : k + 12]) for k in range(0, len(ids), 12)]
+        labels = [str(int(i) + 1) for i in ids]
+        return [f"*NSET, NSET={name}"] + [", ".join(labels[k : k + 12]) for k in range(0, len(labels), 12)]
 
     wall = mesh.node_sets["xmin"]
     moving = np.setdiff1d(np.arange(mesh.n_nodes), wall)

@@ -45,7 +45,7 @@ def free_vibration() -> list[CheckResult]:
         inertia_ratio = side**2 / 12.0
         omega = 1.875**2 * math.sqrt(material.youngs_modulus_pa * inertia_ratio / material.density_kg_m3) / length**2
         steps = int(VIBRATION_PERIODS * 2 * math.pi / omega / solid.dt)
-        energies, kinetic, elastic = [], [], []
+        totals, kinetic, elastic = [], [], []
         for _ in range(steps):
             v_before = solid.velocity.copy()
             solid.step()
@@ -54,8 +54,8 @@ def free_vibration() -> list[CheckResult]:
             u = solid.elastic_energy()
             kinetic.append(k)
             elastic.append(u)
-            energies.append(k + u)
-        energies = np.array(energies)
+            totals.append(k + u)
+        energies = np.array(totals)
         e0 = 0.5 * float((solid.nodal_mass * (0.1 * (z / length) ** 2) ** 2 * (~solid.held)).sum())
         deviation = float(np.abs(energies - e0).max() / e0)
         third = len(energies) // 3

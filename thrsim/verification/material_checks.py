@@ -37,16 +37,16 @@ def _jc_uniaxial_at(rate: float, material: BoneMaterial, hardening: JohnsonCookH
         e = material.youngs_modulus_pa
         yield_strain = hardening.a_pa / e
         increments = graded_increments(JC_TARGET_PEEQ + 0.2, first=0.02 * yield_strain, largest=0.01)
-        strain, stress, peeq_kernel = [0.0], [0.0], [0.0]
+        strains, stresses, peeq_kernel = [0.0], [0.0], [0.0]
         for d_axial in increments:
             dt = d_axial / rate
             element.uniaxial_stress_increment(d_axial, dt)
-            strain.append(strain[-1] + d_axial)
-            stress.append(float(element.stress[0, 0]))
+            strains.append(strains[-1] + d_axial)
+            stresses.append(float(element.stress[0, 0]))
             peeq_kernel.append(float(element.peeq[0]))
             if element.peeq[0] >= JC_TARGET_PEEQ:
                 break
-        strain, stress, peeq = map(np.array, (strain, stress, peeq_kernel))
+        strain, stress, peeq = map(np.array, (strains, stresses, peeq_kernel))
         dts = np.diff(strain) / rate
         plastic_rate = np.diff(peeq) / dts
         # the uniaxial-stress identity εᵖ = ε − σ/E checks the kernel's PEEQ independently (to

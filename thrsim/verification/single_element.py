@@ -17,8 +17,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
-from thrsim.physics.explicit import MaterialConstants, SolidArrays, Tissue, element_update
 from thrsim.geometry.tet_metrics import signed_volumes
+from thrsim.physics.explicit import MaterialConstants, SolidArrays, Tissue, element_update
 from thrsim.physics.material import characteristic_length
 from thrsim.physics.tet_kinematics import shape_gradients
 

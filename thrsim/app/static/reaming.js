@@ -187,11 +187,12 @@ const PLAN_FIELDS = { "plan-cup": "cup_diameter_mm", "plan-inc": "inclination_de
 
 function showPlanAndReamer(r) {
   const p = r.plan;
+  const locked = p.fixed || stats.role === "observer";
   for (const [id, key] of Object.entries(PLAN_FIELDS)) {
     if (!planEdited) $(id).value = p[key];
-    $(id).disabled = p.fixed;
+    $(id).disabled = locked;
   }
-  $("plan-set").disabled = p.fixed;
+  $("plan-set").disabled = locked;
   setText("plan-status", p.source === "case file" ? "Set by the instructor's case file." : p.fixed ? "Fixed: reaming has started." : "Set before reaming: the report measures the cavity against it.");
   setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior`);
   const select = $("reamer-size");

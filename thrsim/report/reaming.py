@@ -87,6 +87,10 @@ def _tier_at_most(value: float, entry: AtMost) -> float:
     return 1.0 if value <= entry.full else 0.5 if value <= entry.partial else 0.0
 
 
+def _count(limit: float) -> str:
+    return {0: "none", 1: "one"}.get(limit, f"at most {limit:g}")
+
+
 def _rule_at_least(entry: AtLeast, points: float, percent: bool = True) -> str:
     shown = (lambda v: f"{100 * v:g} %") if percent else (lambda v: f"{v:g}")
     return f"≥ {shown(entry.full)}: {points:g}; ≥ {shown(entry.partial)}: {points / 2:g}"
@@ -158,7 +162,7 @@ def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> lis
         Criterion(
             "no undo or restore",
             f"{undos} undo{'s' * (undos != 1)}, {restores} restore{'s' * (restores != 1)}",
-            _rule_at_most(t.corrections, 1.0),
+            f"{_count(t.corrections.full)}: 1; {_count(t.corrections.partial)}: 0.5",
             _tier_at_most(undos + restores, t.corrections),
             1.0,
         )

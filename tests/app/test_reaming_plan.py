@@ -149,6 +149,15 @@ def test_plan_criteria_score_against_the_thresholds_file(tmp_path):
     ignored = _record(range(1, 19), np.arange(1.0, 19.0), reamer=reamer, cut=[45.8] * 18)
     names = {c.name for c in criteria(ignored)}
     assert "cavity diameter against the plan" not in names and "reamer sequence" in names
+    # a cavity reamed through is no cavity to plan, however it was undone: no points for its orientation, centre, diameter
+    record.events = [
+        {"time_s": 0.1, "kind": "perforated", "detail": "", "frame": 6},
+        {"time_s": 0.2, "kind": "undo", "detail": "", "frame": 0},
+    ]
+    through = {c.name: c for c in criteria(record)}
+    for name in ("cavity orientation against the plan", "centre of rotation against the plan", "cavity diameter against the plan"):
+        assert through[name].points == 0.0 and through[name].measured.startswith("not a prepared cavity: perforated at 0.1 s, then undone")
+    assert through["reamer sequence"].points == 1.0 and through["reaming within 10° of the plan"].points == 1.0
     down = {c.name: c for c in criteria(_record(range(1, 4), [1, 2, 3.0], reamer=[46, 44, 50], cut=[46, 44, 50]))}
     assert down["reamer sequence"].points == 0.0 and "stepped down" in down["reamer sequence"].measured
 

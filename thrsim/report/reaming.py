@@ -179,20 +179,27 @@ def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> lis
                 2.0,
             )
         )
-    return out + _plan_criteria(record, t)
+    return out + _plan_criteria(record, t, failed)
 
 
-def _plan_criteria(record: ReamingRecord, t: Thresholds) -> list[Criterion]:
-    """The criteria against the plan and of the reamer sequence (none for a file before the plan)."""
+def _plan_criteria(record: ReamingRecord, t: Thresholds, failed: str) -> list[Criterion]:
+    """The criteria against the plan and of the reamer sequence (none for a file before the plan). A cavity
+    reamed through (``failed`` says how) is not a cavity to plan: its orientation, centre and diameter score nothing."""
     if record.plan is None:
         return []
     found = metrics(record)
     plan = Plan(**record.plan)
     out = []
+
+    def cavity(name: str, measured: str, rule: str, points: float, max_points: float) -> Criterion:
+        if failed:
+            return Criterion(name, f"not a prepared cavity: {failed} ({measured})", f"never through; {rule}", 0.0, max_points)
+        return Criterion(name, measured, rule, points, max_points)
+
     if found["inclination_error_deg"] is not None:
         worst = max(found["inclination_error_deg"], found["anteversion_error_deg"])
         out.append(
-            Criterion(
+            cavity(
                 "cavity orientation against the plan",
                 f"inclination {found['inclination_error_deg']:.1f}°, anteversion {found['anteversion_error_deg']:.1f}° off the planned "
                 f"{plan.inclination_deg:g}°/{plan.anteversion_deg:g}°",
@@ -216,7 +223,7 @@ def _plan_criteria(record: ReamingRecord, t: Thresholds) -> list[Criterion]:
     if shift[0] is not None:
         worst = max(abs(shift[0] - plan.medialisation_mm), abs(shift[1] - plan.superior_shift_mm))
         out.append(
-            Criterion(
+            cavity(
                 "centre of rotation against the plan",
                 f"{shift[0]:.1f} mm medial, {shift[1]:.1f} mm superior for a plan of {plan.medialisation_mm:g} and {plan.superior_shift_mm:g} mm",
                 "each way " + _rule_at_most(t.centre_error_mm, 1.0, " mm"),
@@ -228,7 +235,7 @@ def _plan_criteria(record: ReamingRecord, t: Thresholds) -> list[Criterion]:
     if simulated is not None and record.reamer_mm is not None and np.allclose(record.reamer_mm, cut_sizes_mm(record)):
         error = found["cavity_diameter_error_mm"]
         out.append(
-            Criterion(
+            cavity(
                 "cavity diameter against the plan",
                 f"{simulated:g} mm for a {plan.cup_diameter_mm:g} mm cup ({error:+.1f} mm)",
                 "either way " + _rule_at_most(t.cavity_diameter_error_mm, 1.0, " mm"),

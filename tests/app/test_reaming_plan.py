@@ -5,21 +5,26 @@ the shipped model), the instructor's case and thresholds files, and the session 
 from __future__ import annotations
 
 import json
+import urllib.request
 
 import numpy as np
 import pytest
+from app_helpers import ServedTrainer, next_of_type, wait_for
 from checkout_cli import run_main
+from websockets.sync.client import connect
 
 from thrsim.app.controls import parse_reaming_control
 from thrsim.app.live import LiveSession
 from thrsim.app.modes import MODES
 from thrsim.app.reaming import ReamingTrainer
+from thrsim.app.replay import replay_session
+from thrsim.app.server import ServeSettings
 from thrsim.config import SafeZone
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator
 from thrsim.nav.anatomy import local_axis_from_angles
 from thrsim.nav.bone_frame import patch_in_app, reamer_axis_from_cup
-from thrsim.report import build_assessment
+from thrsim.report import build_assessment, build_report
 from thrsim.report.reaming import criteria
 from thrsim.report.reaming_metrics import final_rows, metrics
 from thrsim.report.thresholds import default_thresholds, load_thresholds
@@ -251,6 +256,44 @@ def test_an_instructors_case_fixes_the_plan_and_the_session_file_keeps_it(tmp_pa
     for _ in range(12):
         now[0] += DT
         session.tick()
-    found = build_assessment(session.save(tmp_path)).metrics
+    session.control(json.dumps({"type": "reamer_size", "size_mm": 52}))  # pauses, and the swap is an event
+    session.control(json.dumps({"type": "run", "action": "start"}))
+    for _ in range(12):
+        now[0] += DT
+        session.tick()
+    path = session.save(tmp_path)
+    found = build_assessment(path).metrics
     assert found["plan"]["source"] == "case file" and found["plan"]["cup_diameter_mm"] == 54
-    assert found["reamer_sequence_mm"] == [50.0] and found["time_per_reamer_s"][0] == pytest.approx(len(session.trainer.trace.frame) * DT)
+    frames = [session.trainer.trace.reamer_mm.count(size) for size in (50.0, 52.0)]
+    assert found["reamer_sequence_mm"] == [50.0, 52.0] and found["time_per_reamer_s"] == pytest.approx([n * DT for n in frames])
+    page = build_report(path)
+    assert "Reaming: against the plan" in page and "Plan set by the case file" in page and "trained on that size only" in page
+    replayed = replay_session(path)  # the plan, the refused plan and the swap live again alike
+    assert replayed.reproduced and replayed.refused_controls == 1
+
+
+def test_serve_takes_the_case_and_scores_its_reports_against_the_thresholds(tmp_path):
+    case = tmp_path / "case.json"
+    case.write_text(json.dumps({"cup_diameter_mm": 56, "inclination_deg": 45}))
+    assert MODES["reaming"].session_settings(ServeSettings(plan=load_plan(case)))["plan"]["cup_diameter_mm"] == 56
+    thresholds = tmp_path / "thresholds.yaml"
+    thresholds.write_text("within_10deg_fraction: {full: 0.95, partial: 0.85, source: our experts}\n")
+    sessions = tmp_path / "sessions"
+    sessions.mkdir()
+    served = ServedTrainer(sessions, "--plan", str(case), "--thresholds", str(thresholds))
+    try:
+        with connect(f"ws://127.0.0.1:{served.port}/ws/reaming", open_timeout=10) as ws:
+            next_of_type(ws, "hello")
+            state = next_of_type(ws, "state")["reaming"]
+            assert state["plan"]["cup_diameter_mm"] == 56 and state["plan"]["source"] == "case file" and state["plan"]["fixed"]
+            assert state["reamer"]["size_mm"] == 52
+            ws.send(json.dumps({"type": "run", "action": "start"}))
+            assert wait_for(lambda: next_of_type(ws, "state")["reaming"]["frame"] > 5, timeout=30)
+            ws.send(json.dumps({"type": "end_session"}))
+            saved = next_of_type(ws, "session_saved")
+        with urllib.request.urlopen(served.url + saved["report"], timeout=60) as response:
+            page = response.read().decode()
+    finally:
+        served.stop()
+    assert "≥ 95 %: 1; ≥ 85 %: 0.5" in page  # the served report scored against the instructor's thresholds
+    assert "Plan set by the case file" in page

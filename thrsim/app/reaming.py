@@ -13,6 +13,11 @@ is the dataset's γ = 0 and the model's trained range (the card's, γ ≤ 45° f
 APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
 sides; only the placement in the pelvis (``patch_to_model``) is mirrored.
 
+Plan and reamer. The session is measured against a plan (:class:`~thrsim.session.plan.Plan`): the
+trainee's, which the page may set until the first frame is reamed, or an instructor's case, fixed.
+The trainee holds one reamer size at a time (every swap an event); each frame passes it to the
+simulator, which cuts with the nearest size its model learned, and the trace keeps both sizes.
+
 Time. The simulator steps the model's frame time of reaming per frame (its card's: the training cases', 1/60 s). While running,
 every tick steps the frames that are due by the running time (at most ``max_frames_per_tick``;
 beyond that the simulation falls behind real time and says so). Frames are driven by the tick

@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from thrsim.report.parts import Criterion, Part, Section, figure_png, table
-from thrsim.report.reaming_metrics import cut_sizes_mm, in_range, metrics
+from thrsim.report.reaming_metrics import cavity_axis_angles, cut_sizes_mm, in_range, metrics
 from thrsim.report.thresholds import AtLeast, AtMost, Thresholds, default_thresholds
 from thrsim.session.file import SessionFile
 from thrsim.session.plan import Plan
@@ -364,7 +364,8 @@ def _against_plan(record: ReamingRecord) -> Section:
     def shown(value: float | None, unit: str) -> str:
         return "—" if value is None else f"{value:.1f}{unit}"
 
-    axis_error = [found["inclination_error_deg"], found["anteversion_error_deg"]]
+    axis = cavity_axis_angles(record) or (None, None)
+    medial, superior = found["medialisation_mm"], found["superior_shift_mm"]
     rows = [
         [
             "cup diameter",
@@ -372,10 +373,20 @@ def _against_plan(record: ReamingRecord) -> Section:
             shown(found["cavity_diameter_mm"], " mm"),
             shown(found["cavity_diameter_error_mm"], " mm"),
         ],
-        ["inclination", f"{plan.inclination_deg:g}°", "", shown(axis_error[0], "°")],
-        ["anteversion", f"{plan.anteversion_deg:g}°", "", shown(axis_error[1], "°")],
-        ["centre, medial", f"{plan.medialisation_mm:g} mm", shown(found["medialisation_mm"], " mm"), ""],
-        ["centre, superior", f"{plan.superior_shift_mm:g} mm", shown(found["superior_shift_mm"], " mm"), ""],
+        ["cavity axis inclination", f"{plan.inclination_deg:g}°", shown(axis[0], "°"), shown(found["inclination_error_deg"], "°")],
+        ["cavity axis anteversion", f"{plan.anteversion_deg:g}°", shown(axis[1], "°"), shown(found["anteversion_error_deg"], "°")],
+        [
+            "centre, medial",
+            f"{plan.medialisation_mm:g} mm",
+            shown(medial, " mm"),
+            shown(None if medial is None else medial - plan.medialisation_mm, " mm"),
+        ],
+        [
+            "centre, superior",
+            f"{plan.superior_shift_mm:g} mm",
+            shown(superior, " mm"),
+            shown(None if superior is None else superior - plan.superior_shift_mm, " mm"),
+        ],
     ]
     five, ten = found["within_5deg_fraction"], found["within_10deg_fraction"]
     body = f"<p>Plan set by the {html.escape(record.plan_source)}.</p>" + table(["", "plan", "reamed", "error"], rows)

@@ -280,7 +280,7 @@ def test_serve_takes_the_case_and_scores_its_reports_against_the_thresholds(tmp_
     thresholds.write_text("within_10deg_fraction: {full: 0.95, partial: 0.85, source: our experts}\n")
     sessions = tmp_path / "sessions"
     sessions.mkdir()
-    served = ServedTrainer(sessions, "--plan", str(case), "--thresholds", str(thresholds))
+    served = ServedTrainer(sessions, "--plan", str(case), "--thresholds", str(thresholds), timeout=180.0)  # a loaded machine starts slowly
     try:
         with connect(f"ws://127.0.0.1:{served.port}/ws/reaming", open_timeout=10) as ws:
             next_of_type(ws, "hello")

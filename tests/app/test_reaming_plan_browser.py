@@ -40,7 +40,7 @@ def _ream(page, frames: int) -> None:
 def test_a_planned_session_with_three_reamers_is_measured_against_its_plan(tmp_path, monkeypatch, capsys):
     from playwright.sync_api import sync_playwright
 
-    served = ServedTrainer(tmp_path)  # the shipped model
+    served = ServedTrainer(tmp_path, timeout=180.0)  # the shipped model; a loaded machine starts it slowly
     try:
         with sync_playwright() as playwright:
             browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_FLAGS, "--no-first-run"])

@@ -244,6 +244,18 @@ def test_the_trainee_plans_before_reaming_and_swaps_reamers(shipped_simulator):
     assert set(record.reamer_mm) == {46.0} and np.allclose(record.cut_mm, learned[0]) and record.plan["cup_diameter_mm"] == 50
 
 
+def test_a_model_that_learned_several_sizes_cuts_with_the_nearest(shipped_simulator):
+    reamer = shipped_simulator.model.card["reamer"]
+    reamer["sizes_mm"] = [44.0, 48.0]  # a card of a model trained on two reamers
+    try:
+        assert shipped_simulator.cutting_size_mm(45) == 44.0 and shipped_simulator.cutting_size_mm(47) == 48.0
+        trainer = ReamingTrainer(simulator=shipped_simulator)
+        _control(trainer, 0.0, type="reamer_size", size_mm=48)
+        assert trainer.step(0.1)["reaming"]["reamer"]["note"] == ""  # it cuts what is held: nothing to say
+    finally:
+        del reamer["sizes_mm"]
+
+
 def test_an_instructors_case_fixes_the_plan_and_the_session_file_keeps_it(tmp_path):
     now = [0.0]
     case = Plan(cup_diameter_mm=54, inclination_deg=45, anteversion_deg=20)

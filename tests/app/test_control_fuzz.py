@@ -49,6 +49,8 @@ def _values_of(annotation) -> st.SearchStrategy:
         return st.sampled_from(typing.get_args(annotation))
     if annotation is float:
         return st.floats(0, 90) | st.floats(-200, 4000) | st.integers(-200, 4000) | st.floats() | st.integers(-(10**400), 10**400)
+    if annotation is int:
+        return st.integers(30, 70) | st.integers(-(10**400), 10**400) | st.floats(30, 70)
     if annotation is bool:
         return st.booleans()
     if annotation == list[float]:

@@ -16,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
 
 from thrsim.config import Side
 from thrsim.errors import ThrsimInputError
+from thrsim.session.plan import REAMER_SIZES_MM
 
 MAX_MESSAGE_BYTES = 16 * 1024
 
@@ -119,6 +120,24 @@ class ForceControl(_Control):
     newton: float = Field(..., ge=0, le=MAX_FORCE_N)
 
 
+class PlanControl(_Control):
+    """Reaming: the trainee's plan, before reaming starts (:class:`~thrsim.session.plan.Plan`: cup size, centre, angles)."""
+
+    type: Literal["plan"]
+    cup_diameter_mm: float = Field(..., ge=REAMER_SIZES_MM[0], le=REAMER_SIZES_MM[-1])
+    medialisation_mm: float = Field(..., ge=-10, le=10)
+    superior_shift_mm: float = Field(..., ge=-10, le=10)
+    inclination_deg: float = Field(..., ge=0, le=90)
+    anteversion_deg: float = Field(..., ge=-90, le=90)
+
+
+class ReamerSizeControl(_Control):
+    """Reaming: swap to the reamer of this size (mm; the sizes the trainer offers)."""
+
+    type: Literal["reamer_size"]
+    size_mm: int = Field(..., ge=REAMER_SIZES_MM[0], le=REAMER_SIZES_MM[-1])
+
+
 _NAVIGATION = (
     CameraControl,
     ReamerControl,
@@ -133,7 +152,7 @@ _NAVIGATION = (
     EndSessionControl,
 )
 # the reaming mode keeps the navigation trainer's controls (it composes that trainer) and adds its own
-_REAMING = (*_NAVIGATION, RunControl, ForceControl, PageControl)
+_REAMING = (*_NAVIGATION, RunControl, ForceControl, PageControl, PlanControl, ReamerSizeControl)
 
 
 class _Parser:

@@ -63,7 +63,8 @@ class Mode:
     make_trainer: Callable[[dict], Trainer]  # from the session settings (side, seed, and the mode's own)
     parse_control: Callable[[Any], Any]  # raises ThrsimInputError with the reason
     read_record: Callable[[dict], Any]  # the mode's group of a session file → its record (events, trace)
-    report_part: Callable[[Any], Any]  # a session file → the mode's part of its report (None: the file has no such group)
+    #: (a session file, the competency thresholds) → the mode's part of its report (None: the file has no such group)
+    report_part: Callable[[Any, Any], Any]
     #: the mode's own session settings from the server's (``thrsim serve``'s options)
     session_settings: Callable[[Any], dict] = _none
     #: (path, handler) of the mode's GET routes, given the mode's trainer every session shares data with
@@ -92,7 +93,8 @@ def _read_navigation(group: dict) -> Any:
     return read_navigation(group)
 
 
-def _navigation_report(session: Any) -> Any:
+def _navigation_report(session: Any, _thresholds: Any) -> Any:
+    """The navigation part (its rubric is its own: the thresholds file is the reaming report's)."""
     from thrsim.report.navigation import navigation_part
 
     return navigation_part(session)
@@ -108,20 +110,22 @@ def _reaming(settings: dict) -> Trainer:
     from thrsim.errors import ThrsimInputError
     from thrsim.learn.model_dir import load_model
     from thrsim.learn.simulator import ReamingSimulator
+    from thrsim.session.plan import Plan
 
     model_dir, compile_wanted = settings.get("model"), bool(settings.get("compile"))
+    plan = None if settings.get("plan") is None else Plan(**settings["plan"])  # an instructor's case (thrsim serve --plan)
     try:
         if (model_dir, compile_wanted) not in _MODELS:
             _MODELS[model_dir, compile_wanted] = load_model(model_dir)
         simulator = ReamingSimulator(model=_MODELS[model_dir, compile_wanted], threads=1, compile=compile_wanted)
     except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
-        return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error))
+        return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error), plan=plan)
     if compile_wanted:
         if simulator.compile_error is not None:
             log.warning("the reaming network runs uncompiled (slower steps): %s", simulator.compile_error)
         # the session records what ran, so that its replay runs the same network (rounding differs)
         settings["compile"] = simulator.compiled
-    return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator)
+    return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator, plan=plan)
 
 
 def _parse_reaming(message: Any) -> Any:
@@ -136,10 +140,10 @@ def _read_reaming(group: dict) -> Any:
     return read_reaming(group)
 
 
-def _reaming_report(session: Any) -> Any:
+def _reaming_report(session: Any, thresholds: Any) -> Any:
     from thrsim.report.reaming import reaming_part
 
-    return reaming_part(session)
+    return reaming_part(session, thresholds)
 
 
 def _as_reaming(trainer: Trainer) -> ReamingTrainer:
@@ -148,8 +152,9 @@ def _as_reaming(trainer: Trainer) -> ReamingTrainer:
 
 
 def _reaming_settings(serve: Any) -> dict:
-    """The model folder (None: the shipped one) and whether to compile its network."""
+    """The model folder (None: the shipped one), whether to compile its network, and an instructor's plan."""
     settings: dict = {} if serve.model is None else {"model": str(serve.model)}
+    settings |= {} if serve.plan is None else {"plan": serve.plan.model_dump()}
     return settings | ({"compile": True} if serve.compile else {})
 
 

@@ -13,6 +13,11 @@ is the dataset's γ = 0 and the model's trained range (the card's, γ ≤ 45° f
 APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
 sides; only the placement in the pelvis (``patch_to_model``) is mirrored.
 
+Plan and reamer. The session is measured against a plan (:class:`~thrsim.session.plan.Plan`): the
+trainee's, which the page may set until the first frame is reamed, or an instructor's case, fixed.
+The trainee holds one reamer size at a time (every swap an event); each frame passes it to the
+simulator, which cuts with the nearest size its model learned, and the trace keeps both sizes.
+
 Time. The simulator steps the model's frame time of reaming per frame (its card's: the training cases', 1/60 s). While running,
 every tick steps the frames that are due by the running time (at most ``max_frames_per_tick``;
 beyond that the simulation falls behind real time and says so). Frames are driven by the tick
@@ -36,6 +41,7 @@ from thrsim.geometry.mesh import INNER, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
+from thrsim.session.plan import REAMER_SIZES_MM, Plan
 from thrsim.session.reaming import ReamingRecord, write_reaming
 
 #: α is sent to viewers in this many levels above the removal threshold (0 = removed)
@@ -52,6 +58,8 @@ class _Trace:
     axis: list[tuple[float, ...]] = field(default_factory=list)
     position_m: list[tuple[float, ...]] = field(default_factory=list)
     removed: list[int] = field(default_factory=list)
+    reamer_mm: list[float] = field(default_factory=list)  # the size the trainee holds
+    cut_mm: list[float] = field(default_factory=list)  # the size the simulator cut with
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
@@ -71,6 +79,7 @@ class ReamingTrainer:
         max_frames_per_tick: int = 2,
         undo_s: float = 1.0,
         zone: SafeZone = SafeZone(),
+        plan: Plan | None = None,
     ):
         # the reamer starts at the zone's centre, γ = 0 (the module docstring), where the page's aim starts too
         self.navigation = NavigationTrainer(
@@ -93,6 +102,10 @@ class ReamingTrainer:
         self._pending_events: list[dict] = []
         self.page_hidden = False  # the trainee's page is hidden or left: reaming holds (a running reamer resumes when it shows)
         self._push_outside = False  # the last frame's push was outside the range the model learned
+        #: the plan the session is measured against: an instructor's case (fixed) or the trainee's, fixed once reaming starts
+        self.plan = plan or Plan()
+        self.plan_source = "trainee" if plan is None else "case file"
+        self.reamer_mm = self.plan.first_reamer_mm()
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -163,6 +176,10 @@ class ReamingTrainer:
             return f"push {control.newton:g} N"
         if isinstance(control, c.PageControl):
             return self._page_control(control.visible, time_s)
+        if isinstance(control, c.PlanControl):
+            return self._plan_control(control, time_s)
+        if isinstance(control, c.ReamerSizeControl):
+            return self._swap_reamer(control.size_mm, time_s)
         if isinstance(control, c.SideControl):
             ack = self.navigation.apply_control(control, time_s)
             self._reset_run()
@@ -201,6 +218,35 @@ class ReamingTrainer:
         self._publish()
         self._event(time_s, "undo", f"{undone} frames", frames=undone)
         return f"undid {undone} frames"
+
+    def _plan_control(self, control: c.PlanControl, time_s: float) -> str:
+        """The trainee's plan: refused once bone was reamed (measured against a plan set after seeing
+        the cavity, a session would grade itself) and where an instructor's case file sets it."""
+        if self.plan_source == "case file":
+            raise ThrsimInputError("the instructor's case file sets this session's plan")
+        if self.trace.frame:
+            raise ThrsimInputError("the plan is fixed once reaming has started")
+        self.plan = Plan(**control.model_dump(exclude={"type"}))
+        self._event(time_s, "plan_set", self._plan_words(), plan=self.plan.model_dump())
+        return f"plan: {self._plan_words()}"
+
+    def _plan_words(self) -> str:
+        p = self.plan
+        return (
+            f"cup {p.cup_diameter_mm:g} mm at {p.inclination_deg:g}° inclination, {p.anteversion_deg:g}° anteversion, "
+            f"centre {p.medialisation_mm:g} mm medial, {p.superior_shift_mm:g} mm superior"
+        )
+
+    def _swap_reamer(self, size_mm: int, time_s: float) -> str:
+        """Another reamer: reaming pauses first (a reamer is changed out of the socket). Every swap is an event."""
+        if size_mm == self.reamer_mm:
+            return f"reamer {size_mm} mm"
+        if self.running:
+            self.running = False
+            self._event(time_s, "pause")
+        before, self.reamer_mm = self.reamer_mm, size_mm
+        self._event(time_s, "reamer_changed", f"{before} → {size_mm} mm", from_mm=before, to_mm=size_mm)
+        return f"reamer {size_mm} mm"
 
     def _page_control(self, visible: bool, time_s: float) -> str:
         """The trainee's page shown or hidden: a hidden page holds reaming (see :meth:`step`), never the record."""
@@ -254,7 +300,7 @@ class ReamingTrainer:
         bone left in the reamer's path): reaming pauses there, and undo or reset go on from it."""
         if not self._history or self._history[-1].frame != simulator.frame:
             self._history.append(simulator.snapshot())
-        result = simulator.step(axis, force)
+        result = simulator.step(axis, force, reamer_mm=self.reamer_mm)
         self._history.append(simulator.snapshot())
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
@@ -266,6 +312,8 @@ class ReamingTrainer:
         trace.axis.append(tuple(float(v) for v in axis))
         trace.position_m.append(tuple(float(v) for v in result.reamer_position))
         trace.removed.append(int(result.removed.sum()))
+        trace.reamer_mm.append(float(self.reamer_mm))
+        trace.cut_mm.append(math.nan if result.reamer_mm is None else result.reamer_mm)
         trace.removed_volume_mm3.append(result.removed_volume_m3 * 1e9)
         trace.depth_mm.append(simulator.depth_m * 1e3)
         angles, zone = nav_state.get("angles"), nav_state.get("zone")
@@ -338,10 +386,27 @@ class ReamingTrainer:
             if self._reamer_position is None
             else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
             "paused": "page hidden" if self.running and self.page_hidden else None,
+            "plan": {
+                **self.plan.model_dump(),
+                "source": self.plan_source,
+                "fixed": self.plan_source == "case file" or bool(self.trace.frame),
+            },
+            "reamer": self._reamer_state(),
             "note": note,
             "events": events,
         }
         return {**nav_state, "mode": self.mode, "reaming": reaming}
+
+    def _reamer_state(self) -> dict:
+        """The reamer held, the sizes offered, and the size the simulator cuts with for it (its model's: see its card)."""
+        sim = self.simulator
+        cuts = None if sim is None else sim.cutting_size_mm(self.reamer_mm)
+        learned = None if sim is None else list(sim.model.trained_reamer_mm)
+        note = ""
+        if cuts is not None and abs(cuts - self.reamer_mm) > 1e-6:
+            sizes = ", ".join(f"{size:g}" for size in learned or [])
+            note = f"the model was trained on {sizes} mm only: it cuts {cuts:g} mm whatever reamer is chosen"
+        return {"size_mm": self.reamer_mm, "sizes_mm": list(REAMER_SIZES_MM), "cuts_mm": cuts, "trained_mm": learned, "note": note}
 
     # ---- what the page and the session file get -----------------------------------------------
 
@@ -377,6 +442,7 @@ class ReamingTrainer:
                 "data_digest": sim.model.card["data"]["digest"],
                 "trained_force_n": sim.model.trained_force_n,
                 "trained_inclination_deg": sim.model.trained_inclination_deg,
+                "trained_reamer_mm": list(sim.model.trained_reamer_mm),
                 "frame_dt_s": sim.model.frame_dt_s,
             },
         }
@@ -395,6 +461,8 @@ class ReamingTrainer:
             axis=np.array(t.axis, dtype=float).reshape(-1, 3),
             position_m=np.array(t.position_m, dtype=float).reshape(-1, 3),
             removed=np.array(t.removed, dtype=np.int64),
+            reamer_mm=np.array(t.reamer_mm, dtype=float),
+            cut_mm=np.array(t.cut_mm, dtype=float),
             removed_volume_mm3=np.array(t.removed_volume_mm3, dtype=float),
             depth_mm=np.array(t.depth_mm, dtype=float),
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
@@ -405,6 +473,8 @@ class ReamingTrainer:
             behind_frames=self.behind_frames,
             navigation=self.navigation.record(),
             cavity={} if sim is None else self._cavity(sim),
+            plan=self.plan.model_dump(),
+            plan_source=self.plan_source,
         )
 
     def _cavity(self, simulator: ReamingSimulator) -> dict:

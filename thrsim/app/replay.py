@@ -75,6 +75,7 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
             trace_match
             and np.array_equal(recorded.removed, replayed.removed)
             and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
+            and (recorded.reamer_mm is None or np.array_equal(recorded.reamer_mm, replayed.reamer_mm))  # the sequence, where recorded
         )
     used = trainer.settings().get("model")
     return ReplayOutcome(

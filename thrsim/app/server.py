@@ -69,7 +69,9 @@ from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSess
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.bone_frame import check_side
 from thrsim.nav.tracker_state import TrackerState
+from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import is_interrupted
+from thrsim.session.plan import Plan
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +144,8 @@ class ServeSettings:
     session_ends: SessionEndLimit = SessionEndLimit()
     live_sessions: LiveSessionLimit = LiveSessionLimit()
     save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
+    plan: Plan | None = None  # an instructor's case: the reaming plan every session starts with (None: the trainee's)
+    thresholds: Thresholds | None = None  # what the served reports score against (None: the shipped defaults)
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:
@@ -643,7 +647,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
 
         path = _session_file(session_id)
         try:
-            html = await run_in_threadpool(_locked_report, build_report, path)
+            html = await run_in_threadpool(_locked_report, build_report, path, settings.thresholds)
         except ThrsimInputError as error:
             return JSONResponse({"error": str(error)}, status_code=422)
         return HTMLResponse(html)
@@ -688,9 +692,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
     return app
 
 
-def _locked_report(build, path: Path) -> str:
+def _locked_report(build, path: Path, thresholds: Thresholds | None) -> str:
     with _REPORT_LOCK:
-        return build(path)
+        return build(path, thresholds)
 
 
 def _handle(hub: TrainerHub, seat: Seat, viewer: _Viewer, text: str | None) -> list[tuple[str, dict | str]]:

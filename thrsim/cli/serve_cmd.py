@@ -88,6 +88,15 @@ def serve(
         "--compile/--no-compile",
         help="compile the reaming network in the background (torch.compile; about 10 s, a minute on a first run; faster steps once done)",
     ),
+    plan_file: Path | None = typer.Option(
+        None, "--plan", help="an instructor's case file: the reaming plan every session starts with, fixed (JSON or YAML)", metavar="FILE"
+    ),
+    thresholds_file: Path | None = typer.Option(
+        None,
+        "--thresholds",
+        help="competency thresholds the served reports score against (JSON or YAML; default: the shipped ones)",
+        metavar="FILE",
+    ),
     as_json: bool = typer.Option(
         False,
         "--json",
@@ -98,6 +107,8 @@ def serve(
     import uvicorn
 
     from thrsim.app.server import ServeSettings, create_app
+    from thrsim.report.thresholds import load_thresholds
+    from thrsim.session.plan import load_plan
 
     if not 0 <= port <= 65535 or not 0 <= igtl_port <= 65535:
         raise ThrsimInputError("ports must lie in 0..65535")
@@ -105,9 +116,12 @@ def serve(
         raise ThrsimInputError(f"--seed must be a non-negative integer, got {seed}")
     if not sessions.exists() and not sessions.parent.is_dir():
         raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
+    plan = None if plan_file is None else load_plan(plan_file)
+    thresholds = load_thresholds(thresholds_file)
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
         model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow),
+        plan=plan, thresholds=thresholds,
     )  # fmt: skip
     # refusals are one line, before the ports are taken, the network compiled or the sessions folder made
     # (checked as the folder it will be made in, so that a refused start leaves nothing behind)

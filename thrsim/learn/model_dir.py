@@ -120,6 +120,13 @@ class LoadedModel:
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
+    def trained_reamer_mm(self) -> tuple[float, ...]:
+        """The reamer sizes (mm, the diameter the teeth cut) of the training cases: the card's
+        ``reamer.sizes_mm`` where it lists them, else the one reamer its teeth radius says."""
+        sizes = self.card["reamer"].get("sizes_mm")
+        return tuple(float(s) for s in sizes) if sizes else (round(2e3 * self.teeth_radius_m, 3),)
+
+    @property
     def trained_inclination_deg(self) -> tuple[float, float] | None:
         """The lowest and highest γ (reamer axis from the socket axis) of the training cases (None on a
         card written before cards recorded it)."""

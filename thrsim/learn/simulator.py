@@ -50,6 +50,8 @@ class StepResult:
     #: None while there is bone to ream; PERFORATED when the teeth's tip has passed the outer face
     #: where bone is under it, PASSED_THROUGH when no bone is left in the reamer's path
     end_reason: str | None = None
+    #: the reamer size (mm) this frame cut with (:meth:`ReamingSimulator.cutting_size_mm`)
+    reamer_mm: float | None = None
 
 
 @dataclass(frozen=True)
@@ -221,8 +223,16 @@ class ReamingSimulator:
 
     _to_side = _to_right  # the mirror is its own inverse
 
-    def step(self, reamer_axis, force_n: float, reamer_position=None) -> StepResult:
-        """Advance one frame; returns the new state (arrays are copies, in this side's frame)."""
+    def cutting_size_mm(self, reamer_mm: float | None) -> float:
+        """The reamer size (mm) a frame cuts with when ``reamer_mm`` is asked for: the model's learned
+        size nearest to it (:attr:`LoadedModel.trained_reamer_mm`), so a model trained on one size
+        cuts with that size whatever is asked; None asks for the first learned size."""
+        sizes = self.model.trained_reamer_mm
+        return sizes[0] if reamer_mm is None else min(sizes, key=lambda size: abs(size - reamer_mm))
+
+    def step(self, reamer_axis, force_n: float, reamer_position=None, reamer_mm: float | None = None) -> StepResult:
+        """Advance one frame with the reamer of size ``reamer_mm`` (mm; see :meth:`cutting_size_mm`);
+        returns the new state (arrays are copies, in this side's frame)."""
         started = time.perf_counter()
         axis = self._to_right(check_axis(reamer_axis))
         force = check_force(force_n)
@@ -260,6 +270,7 @@ class ReamingSimulator:
             advance_m=advance,
             seconds=time.perf_counter() - started,
             end_reason=end_reason,
+            reamer_mm=self.cutting_size_mm(reamer_mm),
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:

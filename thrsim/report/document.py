@@ -15,6 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from thrsim.report.parts import Criterion, Part, Section
+from thrsim.report.thresholds import Thresholds, default_thresholds
 from thrsim.session.file import SessionFile, read_session
 
 
@@ -69,8 +70,8 @@ def render(session: SessionFile, assessment: Assessment, sections: list[Section]
             f'<p class="score">{assessment.score:g} / {assessment.max_score:g}</p>'
             "<table><thead><tr><th>criterion</th><th>measured</th><th>rule</th><th>points</th></tr></thead>"
             f"<tbody>{''.join(rows)}</tbody></table>"
-            "<p>The criteria and their thresholds are thrsim's trainer defaults: the thesis asks for a detailed "
-            "assessment report [2.2.1] but gives no scoring rubric for it.</p>"
+            "<p>The thresholds are the trainer's competency thresholds file (thrsim's defaults, each with its published "
+            "source, or an instructor's): the thesis asks for a detailed assessment report [2.2.1] but gives no scoring rubric for it.</p>"
         )
     attrs = session.attrs
     versions = ", ".join(f"{k} {v}" for k, v in session.versions.items())
@@ -89,14 +90,16 @@ def render(session: SessionFile, assessment: Assessment, sections: list[Section]
     return f"<!doctype html><html lang=en><head><meta charset=utf-8><title>thrsim assessment report</title><style>{_STYLE}</style></head><body>{''.join(parts)}</body></html>"
 
 
-def _parts(session: SessionFile) -> list[Part]:
-    """Every mode's part of the session's report (a mode whose group the file lacks has none)."""
+def _parts(session: SessionFile, thresholds: Thresholds | None) -> list[Part]:
+    """Every mode's part of the session's report (a mode whose group the file lacks has none),
+    scored against ``thresholds`` (None: the shipped defaults)."""
     import matplotlib
 
     from thrsim.app.modes import MODES
 
     matplotlib.use("Agg")
-    return [part for mode in MODES.values() if (part := mode.report_part(session)) is not None]
+    thresholds = thresholds or default_thresholds()
+    return [part for mode in MODES.values() if (part := mode.report_part(session, thresholds)) is not None]
 
 
 def _assessment(parts: list[Part]) -> Assessment:
@@ -105,13 +108,14 @@ def _assessment(parts: list[Part]) -> Assessment:
     )
 
 
-def build_assessment(path: str | Path) -> Assessment:
-    """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be read)."""
-    return _assessment(_parts(read_session(path)))
+def build_assessment(path: str | Path, thresholds: Thresholds | None = None) -> Assessment:
+    """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be read),
+    scored against ``thresholds`` (None: the shipped defaults)."""
+    return _assessment(_parts(read_session(path), thresholds))
 
 
-def build_report(path: str | Path) -> str:
-    """The report of the session file at ``path`` (ThrsimInputError when it cannot be read)."""
+def build_report(path: str | Path, thresholds: Thresholds | None = None) -> str:
+    """The report of the session file at ``path`` (ThrsimInputError when it cannot be read), scored as :func:`build_assessment`."""
     session = read_session(path)
-    parts = _parts(session)
+    parts = _parts(session, thresholds)
     return render(session, _assessment(parts), [section for part in parts for section in part.sections()])

@@ -18,12 +18,16 @@ surface.
 
 from __future__ import annotations
 
+import html
 import math
 
 import numpy as np
 
 from thrsim.report.parts import Criterion, Part, Section, figure_png, table
+from thrsim.report.reaming_metrics import cavity_axis_angles, cut_sizes_mm, in_range, metrics
+from thrsim.report.thresholds import AtLeast, AtMost, Thresholds, default_thresholds
 from thrsim.session.file import SessionFile
+from thrsim.session.plan import Plan
 from thrsim.session.reaming import BONE_ERRORS, ReamingRecord, read_reaming
 
 GRID_M = 0.5e-3
@@ -74,34 +78,26 @@ def cavity_map(record: ReamingRecord) -> dict:
     }
 
 
-def _tier(value: float, full: float, half: float) -> float:
-    return 1.0 if value >= full else 0.5 if value >= half else 0.0
+def _tier(value: float, entry: AtLeast) -> float:
+    """1, 0.5 or 0 of a criterion's points: ``value`` reaching the entry's full or partial threshold."""
+    return 1.0 if value >= entry.full else 0.5 if value >= entry.partial else 0.0
 
 
-def _in_range(record: ReamingRecord) -> np.ndarray | None:
-    """Per frame: the push within the range the model learned (None when the session does not say it)."""
-    if record.trained_force_n is None:
-        return None
-    low, high = record.trained_force_n
-    return (record.force_n >= low) & (record.force_n <= high)
+def _tier_at_most(value: float, entry: AtMost) -> float:
+    return 1.0 if value <= entry.full else 0.5 if value <= entry.partial else 0.0
 
 
-def metrics(record: ReamingRecord) -> dict:
-    """The metrics the bone patch measures (the plan's and the reamer sequence's come with them)."""
-    kinds = [e["kind"] for e in record.events]
-    steps = np.linalg.norm(np.diff(record.position_m, axis=0), axis=1) * 1e3
-    consecutive = np.diff(record.frame) == 1  # an undo or a restore moves the reamer back: no travel
-    in_range = _in_range(record)
-    found = {
-        "perforations": kinds.count("perforated"),
-        "undos": kinds.count("undo"),
-        "restores": kinds.count("restore"),
-        "push_mean_n": float(np.mean(record.force_n)),
-        "reamer_path_length_mm": float(steps[consecutive].sum()),
-    }
-    if in_range is not None:
-        found["push_out_of_range_fraction"] = float(1.0 - np.mean(in_range))
-    return found
+def _count(limit: float) -> str:
+    return "none" if limit == 0 else "one" if limit == 1 else f"at most {limit:g}"
+
+
+def _rule_at_least(entry: AtLeast, points: float, percent: bool = True) -> str:
+    shown = (lambda v: f"{100 * v:g} %") if percent else (lambda v: f"{v:g}")
+    return f"≥ {shown(entry.full)}: {points:g}; ≥ {shown(entry.partial)}: {points / 2:g}"
+
+
+def _rule_at_most(entry: AtMost, points: float, unit: str = "") -> str:
+    return f"≤ {entry.full:g}{unit}: {points:g}; ≤ {entry.partial:g}{unit}: {points / 2:g}"
 
 
 def _errors(record: ReamingRecord) -> list[dict]:
@@ -114,10 +110,11 @@ def _corrected(record: ReamingRecord, event: dict) -> str:
     return "" if not later else ", then undone" if later[0] == "undo" else ", then the bone restored"
 
 
-def criteria(record: ReamingRecord) -> list[Criterion]:
-    """The reaming criteria; none for a session that reamed no bone."""
+def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> list[Criterion]:
+    """The reaming criteria, scored against ``thresholds`` (None: the shipped defaults); none for a session that reamed no bone."""
     if not record.assessable:
         return []
+    t = thresholds or default_thresholds()
     errors = _errors(record)
     found = cavity_map(record)["fractions"] if record.cavity else None
     through = bool(found and found["perforated"] > 0)
@@ -137,24 +134,25 @@ def criteria(record: ReamingRecord) -> list[Criterion]:
     if found is not None:
         beyond = found["over-reamed"] + found["perforated"]
         prepared = found["on plan"] + found["over-reamed"]
+        over, ready = t.over_reaming_fraction, t.prepared_fraction
         out += [
             Criterion("over-reaming", f"{100 * beyond:.0f} % of the patch beyond the plan" + (f"; {failed}" if failed else ""),
-                      "≤ 5 %, never through: 1; ≤ 15 %: 0.5", 0.0 if failed else 1.0 if beyond <= 0.05 else 0.5 if beyond <= 0.15 else 0.0, 1.0),
+                      f"never through; ≤ {100 * over.full:g} %: 1; ≤ {100 * over.partial:g} %: 0.5", 0.0 if failed else _tier_at_most(beyond, over), 1.0),
             Criterion("cavity prepared",
                       f"not a prepared cavity: {failed} (the final bone {100 * prepared:.0f} % reamed to the plan)" if failed
                       else f"{100 * prepared:.0f} % of the patch reamed to the plan",
-                      "never through; ≥ 80 %: 1; ≥ 50 %: 0.5", 0.0 if failed else _tier(prepared, 0.8, 0.5), 1.0),
+                      "never through; " + _rule_at_least(ready, 1.0), 0.0 if failed else _tier(prepared, ready), 1.0),
         ]  # fmt: skip
-    in_range = _in_range(record)
-    if in_range is not None and record.trained_force_n is not None:
+    pushed = in_range(record)
+    if pushed is not None and record.trained_force_n is not None:
         low, high = record.trained_force_n
-        share = float(np.mean(in_range))
+        share = float(np.mean(pushed))
         out.append(
             Criterion(
                 "push force",
                 f"{100 * share:.0f} % of reaming time in {low:g}–{high:g} N",
-                "≥ 90 %: 1; ≥ 60 %: 0.5",
-                _tier(share, 0.9, 0.6),
+                _rule_at_least(t.push_in_range_fraction, 1.0),
+                _tier(share, t.push_in_range_fraction),
                 1.0,
             )
         )
@@ -164,8 +162,8 @@ def criteria(record: ReamingRecord) -> list[Criterion]:
         Criterion(
             "no undo or restore",
             f"{undos} undo{'s' * (undos != 1)}, {restores} restore{'s' * (restores != 1)}",
-            "none: 1; one: 0.5",
-            1.0 if undos + restores == 0 else 0.5 if undos + restores == 1 else 0.0,
+            f"{_count(t.corrections.full)}: 1; {_count(t.corrections.partial)}: 0.5",
+            _tier_at_most(undos + restores, t.corrections),
             1.0,
         )
     )
@@ -176,12 +174,97 @@ def criteria(record: ReamingRecord) -> list[Criterion]:
             Criterion(
                 "safe zone while cutting",
                 f"{100 * share:.0f} % of reaming frames",
-                "≥ 90 %: 2; ≥ 70 %: 1",
-                2.0 if share >= 0.9 else 1.0 if share >= 0.7 else 0.0,
+                _rule_at_least(t.safe_zone_fraction, 2.0),
+                2.0 * _tier(share, t.safe_zone_fraction),
                 2.0,
             )
         )
+    return out + _plan_criteria(record, t, failed)
+
+
+def _plan_criteria(record: ReamingRecord, t: Thresholds, failed: str) -> list[Criterion]:
+    """The criteria against the plan and of the reamer sequence (none for a file before the plan). A cavity
+    reamed through (``failed`` says how) is not a cavity to plan: its orientation, centre and diameter score nothing."""
+    if record.plan is None:
+        return []
+    found = metrics(record)
+    plan = Plan(**(record.plan or {}))
+    out = []
+
+    def cavity(name: str, measured: str, rule: str, points: float, max_points: float) -> Criterion:
+        if failed:
+            return Criterion(name, f"not a prepared cavity: {failed} ({measured})", f"never through; {rule}", 0.0, max_points)
+        return Criterion(name, measured, rule, points, max_points)
+
+    if found["inclination_error_deg"] is not None:
+        worst = max(found["inclination_error_deg"], found["anteversion_error_deg"])
+        out.append(
+            cavity(
+                "cavity orientation against the plan",
+                f"inclination {found['inclination_error_deg']:.1f}°, anteversion {found['anteversion_error_deg']:.1f}° off the planned "
+                f"{plan.inclination_deg:g}°/{plan.anteversion_deg:g}°",
+                "both angles " + _rule_at_most(t.orientation_error_deg, 2.0, "°"),
+                2.0 * _tier_at_most(worst, t.orientation_error_deg),
+                2.0,
+            )
+        )
+    if found["within_10deg_fraction"] is not None:
+        share = found["within_10deg_fraction"]
+        out.append(
+            Criterion(
+                "reaming within 10° of the plan",
+                f"{100 * share:.0f} % of reaming frames, both angles",
+                _rule_at_least(t.within_10deg_fraction, 1.0),
+                _tier(share, t.within_10deg_fraction),
+                1.0,
+            )
+        )
+    shift = (found["medialisation_mm"], found["superior_shift_mm"])
+    if shift[0] is not None:
+        worst = max(abs(shift[0] - plan.medialisation_mm), abs(shift[1] - plan.superior_shift_mm))
+        out.append(
+            cavity(
+                "centre of rotation against the plan",
+                f"{shift[0]:.1f} mm medial, {shift[1]:.1f} mm superior for a plan of {plan.medialisation_mm:g} and {plan.superior_shift_mm:g} mm",
+                "each way " + _rule_at_most(t.centre_error_mm, 1.0, " mm"),
+                _tier_at_most(worst, t.centre_error_mm),
+                1.0,
+            )
+        )
+    simulated = found["cavity_diameter_mm"]
+    if simulated is not None and record.reamer_mm is not None and np.allclose(record.reamer_mm, cut_sizes_mm(record)):
+        error = found["cavity_diameter_error_mm"]
+        out.append(
+            cavity(
+                "cavity diameter against the plan",
+                f"{simulated:g} mm for a {plan.cup_diameter_mm:g} mm cup ({error:+.1f} mm)",
+                "either way " + _rule_at_most(t.cavity_diameter_error_mm, 1.0, " mm"),
+                _tier_at_most(abs(error), t.cavity_diameter_error_mm),
+                1.0,
+            )
+        )
+    if "reamer_sequence_mm" in found:
+        out.append(_sequence_criterion(found["reamer_sequence_mm"], plan, t))
     return out
+
+
+def _sequence_criterion(sizes: list[float], plan: Plan, t: Thresholds) -> Criterion:
+    """Steps up of at most the threshold, never down, and a last reamer line-to-line or a little under the cup: each half the point."""
+    steps = np.diff(sizes)
+    under = plan.cup_diameter_mm - sizes[-1]
+    biggest = float(steps.max()) if len(steps) else 0.0
+    stepping = 0.0 if (steps < 0).any() else _tier_at_most(biggest, t.reamer_step_mm)
+    finishing = 0.0 if under < 0 else _tier_at_most(under, t.final_reamer_under_cup_mm)
+    went_down = "; stepped down" if (steps < 0).any() else ""
+    return Criterion(
+        "reamer sequence",
+        " → ".join(f"{size:g}" for size in sizes)
+        + f" mm: largest step {biggest:g} mm{went_down}, the last reamer {under:g} mm under the cup",
+        f"steps up {_rule_at_most(t.reamer_step_mm, 0.5, ' mm')}; the last reamer never over the cup and "
+        f"{_rule_at_most(t.final_reamer_under_cup_mm, 0.5, ' mm')} under it",
+        0.5 * stepping + 0.5 * finishing,
+        1.0,
+    )
 
 
 def _course(record: ReamingRecord) -> Section:
@@ -206,7 +289,7 @@ def _course(record: ReamingRecord) -> Section:
     axes[1].legend(fontsize=8)
     axes[1].set_title("Push force")
     frames = len(record.frame)
-    in_range = _in_range(record)
+    pushed = in_range(record)
     rate = record.removed_volume_mm3[-1] / (frames * record.frame_dt_s)
     body = figure_png(figure) + table(
         ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
@@ -216,7 +299,7 @@ def _course(record: ReamingRecord) -> Section:
                 f"{record.removed_volume_mm3[-1]:.1f} mm³",
                 f"{record.depth_mm[-1]:.2f} mm",
                 f"{rate:.0f} mm³/s",
-                "— (not recorded)" if in_range is None else f"{100 * np.mean(in_range):.0f} %",
+                "— (not recorded)" if pushed is None else f"{100 * np.mean(pushed):.0f} %",
                 record.behind_frames,
             ]
         ],
@@ -273,6 +356,56 @@ def _orientation_while_cutting(record: ReamingRecord) -> Section:
     return Section("Reaming: orientation while cutting", body)
 
 
+def _against_plan(record: ReamingRecord) -> Section:
+    """The plan beside what was reamed, and the reamers used with the time each reamed."""
+    found = metrics(record)
+    plan = Plan(**(record.plan or {}))
+
+    def shown(value: float | None, unit: str) -> str:
+        return "—" if value is None else f"{value:.1f}{unit}"
+
+    axis = cavity_axis_angles(record) or (None, None)
+    medial, superior = found["medialisation_mm"], found["superior_shift_mm"]
+    rows = [
+        [
+            "cup diameter",
+            f"{plan.cup_diameter_mm:g} mm",
+            shown(found["cavity_diameter_mm"], " mm"),
+            shown(found["cavity_diameter_error_mm"], " mm"),
+        ],
+        ["cavity axis inclination", f"{plan.inclination_deg:g}°", shown(axis[0], "°"), shown(found["inclination_error_deg"], "°")],
+        ["cavity axis anteversion", f"{plan.anteversion_deg:g}°", shown(axis[1], "°"), shown(found["anteversion_error_deg"], "°")],
+        [
+            "centre, medial",
+            f"{plan.medialisation_mm:g} mm",
+            shown(medial, " mm"),
+            shown(None if medial is None else medial - plan.medialisation_mm, " mm"),
+        ],
+        [
+            "centre, superior",
+            f"{plan.superior_shift_mm:g} mm",
+            shown(superior, " mm"),
+            shown(None if superior is None else superior - plan.superior_shift_mm, " mm"),
+        ],
+    ]
+    five, ten = found["within_5deg_fraction"], found["within_10deg_fraction"]
+    body = f"<p>Plan set by the {html.escape(record.plan_source)}.</p>" + table(["", "plan", "reamed", "error"], rows)
+    if five is not None:
+        body += f"<p>Reaming time with both angles within 5° of the plan: {100 * five:.0f} %; within 10°: {100 * ten:.0f} %.</p>"
+    if "reamer_sequence_mm" in found:
+        body += table(
+            ["reamer", "reaming time"],
+            [[f"{size:g} mm", f"{time:.1f} s"] for size, time in zip(found["reamer_sequence_mm"], found["time_per_reamer_s"], strict=True)],
+        )
+    cut = cut_sizes_mm(record)
+    if record.reamer_mm is not None and not np.allclose(record.reamer_mm, cut):
+        body += (
+            f"<p>The simulator cut with {', '.join(f'{size:g}' for size in np.unique(cut))} mm whatever reamer was chosen: its model "
+            "was trained on that size only. The cavity diameter is what it cut; the sequence is the trainee's choice.</p>"
+        )
+    return Section("Reaming: against the plan", body)
+
+
 def _errors_and_corrections(record: ReamingRecord) -> Section:
     listed = [e for e in record.events if e["kind"] in _LISTED]
     body = (
@@ -287,13 +420,15 @@ def _sections(record: ReamingRecord) -> list[Section]:
     if not record.assessable:
         return [Section("Reaming", "<p>No bone was reamed in this session.</p>")]
     sections = [_course(record), _orientation_while_cutting(record), _errors_and_corrections(record)]
+    if record.plan is not None:
+        sections.insert(1, _against_plan(record))
     if record.cavity:
         sections.insert(1, _cavity(record))
     return sections
 
 
-def reaming_part(session: SessionFile) -> Part | None:
+def reaming_part(session: SessionFile, thresholds: Thresholds) -> Part | None:
     if "reaming" not in session.groups:
         return None
     record = read_reaming(session.groups["reaming"])
-    return Part(criteria(record), record.events, metrics(record) if record.assessable else {}, lambda: _sections(record))
+    return Part(criteria(record, thresholds), record.events, metrics(record) if record.assessable else {}, lambda: _sections(record))

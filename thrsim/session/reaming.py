@@ -1,17 +1,22 @@
 """The reaming mode's group of a session file: what was reamed, how, and the final cavity.
 
-Group ``/reaming``: attrs ``side``, ``zone`` and ``settings`` (JSON), ``mesh_digest`` (the
+Group ``/reaming``: attrs ``side``, ``zone`` and ``settings`` (JSON), ``plan`` (JSON: the
+:class:`~thrsim.session.plan.Plan` the session is measured against) and ``plan_source``
+(``trainee`` or ``case file``; both absent from files before the plan), ``mesh_digest`` (the
 model's mesh: a report of this session needs that mesh), ``behind_frames`` (frames the
 simulation could not keep up with); ``patch_to_model`` (4×4, the bone patch in the pelvis
 model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), ``frame``,
 ``force_n``, ``axis`` (F×3, reamer axis D in the patch frame), ``position_m`` (F×3, reamer
 centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
 (F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
-the reamer was not measured); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
+the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
+(the size the simulator cut with: its model's, where the model learned one size; both absent
+from files before the reamer sequence); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
 (JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
 ``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
 (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
-``push_out_of_range`` (``force_n``, ``trained_force_n``), the simulator's end reasons
+``push_out_of_range`` (``force_n``, ``trained_force_n``), ``plan_set`` (``plan``),
+``reamer_changed`` (``from_mm``, ``to_mm``), the simulator's end reasons
 (``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
 ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
 needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
@@ -39,6 +44,7 @@ _EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
 BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
+_SEQUENCE = ("reamer_mm", "cut_mm")  # trace columns files before the reamer sequence lack
 
 
 @dataclass
@@ -63,6 +69,10 @@ class ReamingRecord:
     navigation: NavigationRecord
     cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold (empty without a model)
     frame_dt_s: float = 1.0 / FRAME_RATE_HZ  # seconds of reaming per frame: the model's (settings' model; files before it: 1/60 s)
+    reamer_mm: np.ndarray | None = None  # per frame, the size held (None: a file before the reamer sequence)
+    cut_mm: np.ndarray | None = None  # per frame, the size the simulator cut with
+    plan: dict | None = None  # the Plan's fields (None: a file before the plan)
+    plan_source: str = "trainee"
 
     @property
     def assessable(self) -> bool:
@@ -78,10 +88,15 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
         mesh_digest=record.mesh_digest,
         behind_frames=int(record.behind_frames),
     )
+    if record.plan is not None:
+        group.attrs.update(plan=json.dumps(record.plan), plan_source=record.plan_source)
     group.create_dataset("patch_to_model", data=np.asarray(record.patch_to_model, dtype=float))
     trace = group.create_group("trace")
     for name in _TRACE:
         trace.create_dataset(name, data=getattr(record, name))
+    for name in _SEQUENCE:
+        if getattr(record, name) is not None:
+            trace.create_dataset(name, data=np.asarray(getattr(record, name), dtype=float))
     events = group.create_group("events")
     events.create_dataset("time", data=np.array([e["time_s"] for e in record.events], dtype=float))
     events.create_dataset("frame", data=np.array([e["frame"] for e in record.events], dtype=np.int64))
@@ -111,6 +126,9 @@ def read_reaming(group: dict) -> ReamingRecord:
             mesh_digest=str(attrs["mesh_digest"]),
             patch_to_model=np.asarray(group["patch_to_model"], dtype=float).reshape(4, 4),
             **{name: np.asarray(trace[name]) for name in _TRACE},
+            **{name: np.asarray(trace[name], dtype=float) if name in trace else None for name in _SEQUENCE},  # type: ignore[arg-type]
+            plan=json.loads(attrs["plan"]) if "plan" in attrs else None,
+            plan_source=str(attrs.get("plan_source", "trainee")),
             events=[
                 {"time_s": float(t), "kind": _RENAMED.get(str(k), str(k)), "detail": str(d), "frame": int(f), **extra}
                 for t, k, d, f, extra in zip(events["time"], events["kind"], events["detail"], events["frame"], data, strict=True)

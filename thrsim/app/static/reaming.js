@@ -118,6 +118,7 @@ function receive(message) {
       showHello(message, stats);
       if (document.visibilityState !== "visible") sendVisibility(); // a session that starts while the page is hidden holds too
       steer = { ...message.defaults.reamer };
+      planEdited = false; // a new session: its plan
       force = message.defaults.force_n;
       maxForce = message.defaults.max_force_n;
       $("force").max = maxForce;
@@ -157,6 +158,7 @@ function feedback(event) {
     start: "reaming", pause: "paused", restore: "bone restored (the report keeps what went before)",
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
     push_out_of_range: `push ${event.detail}`,
+    plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
@@ -172,9 +174,47 @@ function showState(s) {
   setText("sim-time", `${r.time_s.toFixed(1)} s` + (r.behind_frames ? ` · ${r.behind_frames} frames behind` : "") + (r.paused ? ` · paused (${r.paused})` : ""));
   setText("step-ms", r.step_ms === null ? "—" : `${r.step_ms.toFixed(1)} ms per frame`);
   setText("note", r.note || (s.zone ? s.note : ""));
+  showPlanAndReamer(r);
   running = r.running;
   setText("run", running ? "Pause reaming" : "Start reaming");
   showTools(s.tools);
+}
+
+// The plan's fields follow the session's plan until the trainee edits them; once reaming has
+// started (or an instructor's case file set it) the plan is fixed and its fields locked.
+let planEdited = false;
+const PLAN_FIELDS = { "plan-cup": "cup_diameter_mm", "plan-inc": "inclination_deg", "plan-ant": "anteversion_deg", "plan-med": "medialisation_mm", "plan-sup": "superior_shift_mm" };
+
+function showPlanAndReamer(r) {
+  const p = r.plan;
+  const locked = p.fixed || stats.role === "observer";
+  for (const [id, key] of Object.entries(PLAN_FIELDS)) {
+    if (!planEdited) $(id).value = p[key];
+    $(id).disabled = locked;
+  }
+  $("plan-set").disabled = locked;
+  setText("plan-status", p.source === "case file" ? "Set by the instructor's case file." : p.fixed ? "Fixed: reaming has started." : "Set before reaming: the report measures the cavity against it.");
+  setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior`);
+  const select = $("reamer-size");
+  if (select.options.length !== r.reamer.sizes_mm.length) select.replaceChildren(...r.reamer.sizes_mm.map((size) => new Option(`${size} mm`, size)));
+  if (document.activeElement !== select) select.value = r.reamer.size_mm;
+  setText("reamer", `${r.reamer.size_mm} mm`);
+  setText("reamer-note", r.reamer.note);
+}
+
+function sendPlan() {
+  const plan = { type: "plan" };
+  for (const [id, key] of Object.entries(PLAN_FIELDS)) plan[key] = Number($(id).value);
+  planEdited = false;
+  send(plan);
+}
+
+function swapReamer(step) {
+  const reamer = stats.last?.reaming.reamer;
+  if (!reamer) return;
+  const sizes = reamer.sizes_mm, at = sizes.indexOf(reamer.size_mm);
+  const size = sizes[clamp(at + step, 0, sizes.length - 1)];
+  if (size !== reamer.size_mm) send({ type: "reamer_size", size_mm: size });
 }
 
 function frameView() {
@@ -279,12 +319,15 @@ $("end").addEventListener("click", () => { $("end").disabled = true; send({ type
 const sendVisibility = () => send({ type: "page", visible: document.visibilityState === "visible" });
 document.addEventListener("visibilitychange", sendVisibility);
 $("side").addEventListener("change", (e) => send({ type: "side", value: e.target.value }));
+$("reamer-size").addEventListener("change", (e) => send({ type: "reamer_size", size_mm: Number(e.target.value) }));
+for (const id of Object.keys(PLAN_FIELDS)) $(id).addEventListener("input", () => { planEdited = true; });
+$("plan-set").addEventListener("click", sendPlan);
 $("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
 $("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
 
 const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
 document.addEventListener("keydown", (e) => {
-  if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
+  if (e.target instanceof HTMLInputElement) return; // a slider's arrows or a plan field's typing
   if (e.target instanceof HTMLSelectElement) return;
   if (!steer) return; // before the hello: nothing to steer yet
   const step = e.shiftKey ? 5 : 1;
@@ -300,6 +343,8 @@ document.addEventListener("keydown", (e) => {
     ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
     ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
     ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    "[": () => swapReamer(-1),
+    "]": () => swapReamer(1),
     h: () => $("help").classList.toggle("hidden"),
   }[e.key.length === 1 ? e.key.toLowerCase() : e.key];
   if (handled) { e.preventDefault(); handled(); }

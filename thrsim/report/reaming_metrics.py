@@ -1,0 +1,162 @@
+"""The reaming session's measurements, each defined once here (``metrics`` of ``thrsim report --json``).
+
+Every figure comes from the session's record (:class:`~thrsim.session.reaming.ReamingRecord`): the
+trace of every simulated frame and the events. Two readings of that trace are used:
+
+* **the record**: every frame reamed, including frames later undone or wiped by a restore (time
+  with a reamer, time on plan, push, travel, errors): what the trainee did;
+* **the final bone**: only the frames whose cutting the bone kept at the end (an undo drops the
+  frames it went back over, a restore all frames before it): what the cavity is.
+
+Angles are radiographic (Murray) in the anterior pelvic plane, as the page shows them; the cavity
+centre's shifts are along the pelvis's medial and superior directions from the native socket's
+centre (the bone frame's origin). The plain-words definitions are in the trainer guide
+(docs/trainer.md, "Reaming measurements").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from thrsim.config import SafeZone
+from thrsim.nav.anatomy import angles_from_local
+from thrsim.nav.bone_frame import patch_in_app
+from thrsim.session.plan import Plan
+from thrsim.session.reaming import ReamingRecord
+
+
+def final_rows(record: ReamingRecord) -> np.ndarray:
+    """Trace rows of the frames the final bone kept, in order: a row with frame f replaces every
+    row from frame f on (an undo steps back, a restore starts again at frame 1)."""
+    kept: list[int] = []
+    for row, frame in enumerate(record.frame):
+        while kept and record.frame[kept[-1]] >= frame:
+            kept.pop()
+        kept.append(row)
+    return np.array(kept, dtype=np.int64)
+
+
+def removed_per_row(record: ReamingRecord, rows: np.ndarray) -> np.ndarray:
+    """Volume (mm³) each of the final bone's ``rows`` removed: its volume less its predecessor's."""
+    volumes = record.removed_volume_mm3[rows]
+    return np.diff(volumes, prepend=0.0)
+
+
+def in_range(record: ReamingRecord) -> np.ndarray | None:
+    """Per frame: the push within the range the model learned (None when the session does not say it)."""
+    if record.trained_force_n is None:
+        return None
+    low, high = record.trained_force_n
+    return (record.force_n >= low) & (record.force_n <= high)
+
+
+def cavity_axis_angles(record: ReamingRecord) -> tuple[float, float] | None:
+    """The reamed cavity's axis as cup angles (inclination, anteversion): the reamer's axis over the
+    final bone's frames, each weighted by the bone it removed. None when no bone was kept removed."""
+    rows = final_rows(record)
+    weights = np.clip(removed_per_row(record, rows), 0.0, None)
+    if weights.sum() <= 0.0:
+        return None
+    mean = (record.axis[rows] * weights[:, None]).sum(axis=0)
+    cup_axis_app = -(patch_in_app(SafeZone(**record.zone)) @ (mean / np.linalg.norm(mean)))
+    return None if cup_axis_app[0] < 0.0 else angles_from_local(cup_axis_app)
+
+
+def within_plan_fraction(record: ReamingRecord, plan: Plan, degrees: float) -> float | None:
+    """Share of the reaming frames (the record; the reamer measured) with both angles within ``degrees`` of the plan."""
+    measured = np.isfinite(record.angles[:, 0])
+    if not measured.any():
+        return None
+    angles = record.angles[measured]
+    close = (np.abs(angles[:, 0] - plan.inclination_deg) <= degrees) & (np.abs(angles[:, 1] - plan.anteversion_deg) <= degrees)
+    return float(np.mean(close))
+
+
+def cut_sizes_mm(record: ReamingRecord) -> np.ndarray:
+    """Per frame, the reamer size the simulator cut with (files before the sequence: their model's one size)."""
+    if record.cut_mm is not None:
+        return record.cut_mm
+    return np.full(len(record.frame), 2e3 * record.cavity["teeth_radius_m"]) if record.cavity else np.full(len(record.frame), np.nan)
+
+
+def cavity_diameter_mm(record: ReamingRecord) -> float | None:
+    """The cavity's diameter: the largest reamer size that cut bone the final bone kept removed."""
+    rows = final_rows(record)
+    cutting = rows[removed_per_row(record, rows) > 0.0]
+    sizes = cut_sizes_mm(record)[cutting]
+    return None if len(sizes) == 0 or not np.isfinite(sizes).all() else float(sizes.max())
+
+
+def cavity_centre_shift_mm(record: ReamingRecord) -> tuple[float, float] | None:
+    """(medial, superior) shift in mm of the cavity's centre from the native centre: the reamer's
+    centre at the deepest of the final bone's frames with the largest reamer that cut."""
+    rows = final_rows(record)
+    cutting = rows[removed_per_row(record, rows) > 0.0]
+    if len(cutting) == 0:
+        return None
+    sizes = cut_sizes_mm(record)[cutting]
+    last_size = cutting[sizes == np.nanmax(sizes)] if np.isfinite(sizes).any() else cutting
+    deepest = last_size[np.argmax(record.depth_mm[last_size])]
+    lateral, _, inferior = patch_in_app(SafeZone(**record.zone)) @ record.position_m[deepest]
+    return -lateral * 1e3, -inferior * 1e3
+
+
+def reamer_sequence(record: ReamingRecord) -> tuple[list[float], list[float]] | None:
+    """The reamers that reamed, in order (a size that reamed no frame is not in it; the record: undone
+    frames count) and the reaming time with each (s). None for a file before the reamer sequence."""
+    if record.reamer_mm is None:
+        return None
+    sizes: list[float] = []
+    frames: list[int] = []
+    for size in record.reamer_mm:
+        if sizes and sizes[-1] == size:
+            frames[-1] += 1
+        else:
+            sizes.append(float(size))
+            frames.append(1)
+    return sizes, [n * record.frame_dt_s for n in frames]
+
+
+def path_length_mm(record: ReamingRecord) -> float:
+    """The reamer centre's travel over the frames reamed; an undo's or a restore's jump back is no travel."""
+    steps = np.linalg.norm(np.diff(record.position_m, axis=0), axis=1) * 1e3
+    consecutive = np.diff(record.frame) == 1
+    return float(steps[consecutive].sum())
+
+
+def metrics(record: ReamingRecord) -> dict:
+    """The session's measurements by name (mm, degrees, seconds, fractions); a figure the session
+    cannot give is None, a figure a file before it does not hold is left out."""
+    kinds = [e["kind"] for e in record.events]
+    found: dict = {
+        "perforations": kinds.count("perforated"),
+        "undos": kinds.count("undo"),
+        "restores": kinds.count("restore"),
+        "push_mean_n": float(np.mean(record.force_n)),
+        "reamer_path_length_mm": path_length_mm(record),
+        # the bone patch has no medial wall: measured once a bone with one records it
+        "medial_wall_remaining_mm": None,
+    }
+    pushed = in_range(record)
+    if pushed is not None:
+        found["push_out_of_range_fraction"] = float(1.0 - np.mean(pushed))
+    sequence = reamer_sequence(record)
+    if sequence is not None:
+        found["reamer_sequence_mm"], found["time_per_reamer_s"] = sequence
+    diameter = cavity_diameter_mm(record)
+    found["cavity_diameter_mm"] = diameter
+    shift = cavity_centre_shift_mm(record)
+    found["medialisation_mm"], found["superior_shift_mm"] = (None, None) if shift is None else shift
+    if record.plan is None:
+        return found
+    plan = Plan(**record.plan)
+    axis = cavity_axis_angles(record)
+    found |= {
+        "plan": plan.as_metric(record.plan_source),
+        "inclination_error_deg": None if axis is None else abs(axis[0] - plan.inclination_deg),
+        "anteversion_error_deg": None if axis is None else abs(axis[1] - plan.anteversion_deg),
+        "within_5deg_fraction": within_plan_fraction(record, plan, 5.0),
+        "within_10deg_fraction": within_plan_fraction(record, plan, 10.0),
+        "cavity_diameter_error_mm": None if diameter is None else diameter - plan.cup_diameter_mm,
+    }
+    return found

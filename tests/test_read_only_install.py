@@ -10,10 +10,12 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import site
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+from typing import NamedTuple
 
 import pytest
 from checkout_cli import REPO_ROOT, checkout_env
@@ -21,6 +23,17 @@ from checkout_cli import REPO_ROOT, checkout_env
 pytestmark = pytest.mark.timeout(300)
 
 NOBODY = 65534
+IMPORTS = "import numpy, numba, h5py, typer"
+
+
+class Python(NamedTuple):
+    """An interpreter to run thrsim with, and the package folders to put on its path."""
+
+    executable: str
+    sites: tuple[str, ...] = ()
+
+
+THIS_PYTHON = Python(sys.executable)
 # the kernels' cache folder, and one kernel compiled and cached there
 PROBE = (
     "import json, numba, thrsim, thrsim.physics.reaming, thrsim.portable_math as pm\n"
@@ -59,16 +72,17 @@ def _unmount(*folders: Path) -> None:
             subprocess.run(["umount", "-l", str(folder)], capture_output=True, env=checkout_env())
 
 
-def _run(args: list[str], install: Path, home: Path, tmp: Path, user: list[str]) -> subprocess.CompletedProcess:
-    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONPATH": str(install), "HOME": str(home), "TMPDIR": str(tmp)}
-    return subprocess.run([*user, sys.executable, *args], cwd=home, env=env, capture_output=True, text=True, timeout=280)
+def _run(args: list[str], install: Path, home: Path, tmp: Path, user: list[str], python: Python) -> subprocess.CompletedProcess:
+    path = os.pathsep.join([str(install), *python.sites])
+    env = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONPATH": path, "HOME": str(home), "TMPDIR": str(tmp)}
+    return subprocess.run([*user, python.executable, *args], cwd=home, env=env, capture_output=True, text=True, timeout=280)
 
 
-def _check(install: Path, home: Path, tmp: Path, user: list[str]) -> None:
-    mesh = _run(["-m", "thrsim", "mesh", "--element-size", "2", "--json"], install, home, tmp, user)
+def _check(install: Path, home: Path, tmp: Path, user: list[str], python: Python = THIS_PYTHON) -> None:
+    mesh = _run(["-m", "thrsim", "mesh", "--element-size", "2", "--json"], install, home, tmp, user, python)
     assert mesh.returncode == 0, mesh.stderr[-3000:]
     assert json.loads(mesh.stdout)["elements"] > 0
-    probe = _run(["-c", PROBE], install, home, tmp, user)
+    probe = _run(["-c", PROBE], install, home, tmp, user, python)
     assert probe.returncode == 0, probe.stderr[-3000:]
     found = json.loads(probe.stdout)
     assert Path(found["thrsim"]).is_relative_to(install)  # the read-only copy ran
@@ -91,19 +105,43 @@ def test_unprivileged_user():
     if shutil.which("setpriv") is None:
         pytest.skip("setpriv (util-linux) is not installed")
     user = ["setpriv", f"--reuid={NOBODY}", f"--regid={NOBODY}", "--clear-groups"]
-    usable = subprocess.run(
-        [*user, sys.executable, "-c", "import numpy, numba, h5py, typer"], capture_output=True, text=True, cwd="/", env=checkout_env()
-    )
-    if usable.returncode != 0:
-        pytest.skip(f"this interpreter's packages are not readable by an unprivileged user: {usable.stderr.strip().splitlines()[-1:]}")
     base = Path(tempfile.mkdtemp(prefix="thrsim-ro-"))  # pytest's own tmp_path is root's alone (0700)
+    mounted: list[Path] = []
     try:
         install, home, tmp = _install(base)
         for path in [install, *install.rglob("*")]:  # root-owned and not writable by others: read-only to nobody
             path.chmod(0o755 if path.is_dir() else 0o644)
-        _check(install, home, tmp, user)
+        python = THIS_PYTHON
+        usable = subprocess.run([*user, sys.executable, "-c", IMPORTS], capture_output=True, text=True, cwd="/", env=checkout_env())
+        if usable.returncode != 0:  # the interpreter lives where nobody may look (root's home): show it read-only elsewhere
+            python = _interpreter_view(base / "python", mounted)
+            usable = subprocess.run(
+                [*user, python.executable, "-c", IMPORTS],
+                capture_output=True,
+                text=True,
+                cwd="/",
+                env={"PYTHONPATH": os.pathsep.join(python.sites)},
+            )
+        assert usable.returncode == 0, usable.stderr[-2000:]
+        _check(install, home, tmp, user, python)
     finally:
+        _unmount(*mounted)
         shutil.rmtree(base, ignore_errors=True)
+
+
+def _interpreter_view(view: Path, mounted: list[Path]) -> Python:
+    """This interpreter's installation bind-mounted read-only at ``view``, which everyone may reach."""
+    view.mkdir()
+    view.chmod(0o755)
+    prefix = Path(sys.prefix)
+    for args in (["--bind", prefix, view], ["-o", "remount,bind,ro", view]):
+        done = subprocess.run(["mount", *map(str, args)], capture_output=True, text=True, env=checkout_env())
+        if done.returncode != 0:
+            pytest.skip(f"this interpreter is not readable by an unprivileged user, and cannot be bind-mounted: {done.stderr.strip()}")
+        if view not in mounted:
+            mounted.append(view)
+    sites = [str(view / Path(p).relative_to(prefix)) for p in site.getsitepackages() if Path(p).is_relative_to(prefix)]
+    return Python(str(view / Path(sys.executable).relative_to(prefix)), tuple(sites))
 
 
 def test_cache_dir_falls_back_to_a_private_temporary_folder(tmp_path, monkeypatch):

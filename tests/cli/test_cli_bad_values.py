@@ -50,7 +50,7 @@ def test_dataset_refuses_a_deeply_nested_configuration(thrsim_inprocess, tmp_pat
 HUGE = "9" * 23  # beyond a C long long: PyTorch's thread count overflowed
 FEM = ("fem", "--inclination", "15", "--anteversion", "30", "--out", "c.h5")
 BAD_FLAGS = {
-    "fem_force_nan": ((*FEM, "--force", "nan"), "force_n: Input should be a finite number"),
+    "fem_force_nan": ((*FEM, "--force", "nan"), "force_n (--force): Input should be a finite number"),
     "fem_inclination_nan": (("fem", "--inclination", "nan", "--anteversion", "30", "--out", "c.h5"), "--inclination must lie in"),
     "ream_force_nan": (("ream", "--force", "nan", "--out", "r"), "force must be finite"),
     "ream_force_1e300": (("ream", "--force", "1e300", "--out", "r"), "force must be finite, non-negative and at most 10000 N"),
@@ -58,11 +58,18 @@ BAD_FLAGS = {
     "train_threads_huge": (("train", "--data", "data", "--out", "model", "--threads", HUGE), "--threads must lie in 1..4096"),
     "evaluate_threads_huge": (("evaluate", "--data", "data", "--threads", HUGE), "--threads must lie in 1..4096"),
     "dataset_connect_timeout_nan": (("dataset", "--out", "d", "--dry-run", "--connect-timeout", "nan"), "--connect-timeout"),
-    "mesh_thickness_1e300": (("mesh", "--out", "m.vtu", "--thickness", "1e300"), "gmsh cannot build"),
+    "mesh_thickness_1e300": (("mesh", "--out", "m.vtu", "--thickness", "1e300"), "thickness_mm: Input should be less than or equal to 50"),
     "mesh_half_angle_1e-300": (("mesh", "--out", "m.vtu", "--half-angle", "1e-300"), "gmsh cannot build"),
     "track_duration_nan": (("track", "--igtl-port", "0", "--duration", "nan"), "--duration must be positive"),
     "track_log_interval_nan": (("track", "--igtl-port", "0", "--log-interval", "nan"), "--log-interval"),
     "serve_seed_negative": (("serve", "--port", "0", "--igtl-port", "0", "--seed", "-1"), "--seed must be a non-negative integer"),
+    "serve_side_unknown": (("serve", "--port", "0", "--igtl-port", "0", "--side", "middle"), "--side"),  # made sessions/ first
+    "serve_igtl_allow_bogus": (("serve", "--port", "0", "--igtl-port", "0", "--igtl-allow", "bogus"), "--igtl-allow"),
+    "fem_threads_huge": ((*FEM, "--threads", HUGE), "solver.threads (--threads): Input should be less than or equal to 4096"),  # ran
+    "fem_effective_mass_1e300": ((*FEM, "--effective-mass", "1e300"), "--effective-mass"),
+    "fem_reamer_diameter_inf": ((*FEM, "--reamer-diameter", "inf"), "head_diameter_mm"),  # OverflowError: traceback
+    "ream_frames_huge": (("ream", "--frames", HUGE, "--out", "r"), "--frames: Input should be less than or equal to 100000"),  # ran
+    "dataset_workers_huge": (("dataset", "--out", "d", "--dry-run", "--workers", HUGE), "--workers must lie in 1..4096"),
 }
 
 

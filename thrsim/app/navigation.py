@@ -186,8 +186,7 @@ class NavigationTrainer:
         self.tracker_camera: _ToolPose | None = None
         self._reamer_angles = dict(self.reamer_start)
         self._set_page_reamer(time_s)
-        self._probe_on: str | None = None
-        self._probe_offset = np.zeros(3)
+        self._probe_tip: np.ndarray | None = None  # where the page's hand holds the probe tip (reference frame, m)
         self._restart_registration(time_s)
 
     def _restart_registration(self, time_s: float) -> None:
@@ -239,8 +238,8 @@ class NavigationTrainer:
         pose = self.reamer_pose(self._reamer_angles["inclination_deg"], self._reamer_angles["anteversion_deg"])
         self.tools["Reamer"] = _ToolPose(pose, "page", time_s)
 
-    def _set_page_probe(self, landmark: str, time_s: float) -> None:
-        tip = self.targets[landmark] + self._probe_offset
+    def _set_page_probe(self, tip: np.ndarray, time_s: float) -> None:
+        self._probe_tip = tip
         facing = self.model_to_reference[:3, :3] @ _spherical(self.camera_spherical["azimuth_deg"], self.camera_spherical["elevation_deg"])
         outward = tip - np.mean(list(self.targets.values()), axis=0)
         # PROBE.tip is along the tool's −y: the handle (+y) points away from the pelvis.
@@ -314,17 +313,19 @@ class NavigationTrainer:
 
     def _probe(self, control: c.ProbeControl, time_s: float) -> str:
         if control.action == "lift":
-            self._probe_on = None
+            self._probe_tip = None
             self.tools.pop("Probe", None)
             return "probe lifted"
+        if control.action == "place":
+            tip = transform_points(self.scene_to_reference, np.array(control.tip_mm)[None] * 1e-3)[0]
+            self._set_page_probe(tip, time_s)
+            return "probe placed"
         name = control.landmark or self.registration.current_target
         if name is None:
             raise ThrsimInputError("registration is complete: no landmark left to touch")
         if name not in self.targets:
             raise ThrsimInputError(f"unknown landmark {name!r}")
-        self._probe_on = name
-        self._probe_offset = self._hand_offset()
-        self._set_page_probe(name, time_s)
+        self._set_page_probe(self.targets[name] + self._hand_offset(), time_s)
         return f"probe on {name}"
 
     def _hand_offset(self) -> np.ndarray:
@@ -404,7 +405,7 @@ class NavigationTrainer:
     def step(self, time_s: float, early: Callable[[dict], None] | None = None) -> dict:
         """Advance to ``time_s``: registration, visibility, angles; returns the state for viewers.
         Nothing here is slow, so ``early`` (see :class:`thrsim.app.modes.Trainer`) is never called."""
-        if self._probe_on is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
+        if self._probe_tip is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
             self._set_page_probe_tremor(time_s)
         visibility = self._visibility(time_s)
         if not self.registration.done:
@@ -422,7 +423,7 @@ class NavigationTrainer:
 
     def _set_page_probe_tremor(self, time_s: float) -> None:
         held = self.tools["Probe"]
-        tip = self.targets[self._probe_on] + self._probe_offset + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
+        tip = self._probe_tip + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
         origin = tip - held.pose[:3, :3] @ PROBE.tip
         self.tools["Probe"] = _ToolPose(make_pose(held.pose[:3, :3], origin), "page", held.time_s)
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import html
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from thrsim.report.parts import Criterion, Part, Section
@@ -25,6 +25,7 @@ class Assessment:
     criteria: list[Criterion]
     events: list[dict]
     metrics: dict
+    competency: dict[str, tuple[float, str]] = field(default_factory=dict)  # see Part.competency
 
     @property
     def score(self) -> float | None:
@@ -101,13 +102,17 @@ def _parts(session: SessionFile) -> list[Part]:
 
 def _assessment(parts: list[Part]) -> Assessment:
     return Assessment(
-        [c for p in parts for c in p.criteria], [e for p in parts for e in p.events], {k: v for p in parts for k, v in p.metrics.items()}
+        [c for p in parts for c in p.criteria],
+        [e for p in parts for e in p.events],
+        {k: v for p in parts for k, v in p.metrics.items()},
+        {k: v for p in parts for k, v in p.competency.items()},
     )
 
 
-def build_assessment(path: str | Path) -> Assessment:
-    """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be read)."""
-    return _assessment(_parts(read_session(path)))
+def build_assessment(path: str | Path, session: SessionFile | None = None) -> Assessment:
+    """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be
+    read); ``session``: that file already read."""
+    return _assessment(_parts(session or read_session(path)))
 
 
 def build_report(path: str | Path) -> str:

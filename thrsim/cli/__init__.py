@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from thrsim import __version__
 from thrsim.cli import bench_cmd, fem_cmd, mesh_cmd
-from thrsim.cli import nav_cmd, track_cmd
+from thrsim.cli import nav_cmd, sessions_cmd, track_cmd
 from thrsim.cli import dataset_cmd
 from thrsim.cli import verify_cmd
 from thrsim.cli import evaluate_cmd, ream_cmd, replay_cmd, report_cmd, review_cmd, serve_cmd, train_cmd
@@ -52,6 +52,7 @@ app.command("evaluate")(evaluate_cmd.evaluate)
 app.command("ream")(ream_cmd.ream)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
+app.add_typer(sessions_cmd.app, name="sessions")
 
 
 def main() -> None:

@@ -163,3 +163,91 @@ def test_the_questionnaire_is_stored_with_the_session_and_exported(folder, tmp_p
     assert row["q_bone_realism"] == "4" and row["q_training_usefulness"] == "5" and row["q_force_realism"] == ""
     assert set(ITEMS) <= {k[2:] for k in row if k.startswith("q_")}
     assert build_assessment(copy).score == build_assessment(path).score  # the answers change no score
+
+
+class _Client:
+    """GET and POST over a real socket to a uvicorn server on 127.0.0.1 (urllib; no test transport)."""
+
+    def __init__(self, url: str, folder: Path):
+        self.url, self.folder = url, folder
+
+    def request(self, path: str, body: bytes | None = None, headers: dict | None = None) -> tuple[int, str]:
+        import urllib.error
+        import urllib.request
+
+        request = urllib.request.Request(self.url + path, data=body, headers=headers or {}, method="POST" if body is not None else "GET")
+        try:
+            with urllib.request.urlopen(request, timeout=30) as response:
+                return response.status, response.read().decode()
+        except urllib.error.HTTPError as error:
+            return error.code, error.read().decode()
+
+    def get(self, path: str) -> tuple[int, str]:
+        return self.request(path)
+
+    def post_json(self, path: str, payload: object, **headers: str) -> tuple[int, dict]:
+        status, text = self.request(path, json.dumps(payload).encode(), {"content-type": "application/json", **headers})
+        return status, json.loads(text)
+
+
+@pytest.fixture
+def client(folder, tmp_path):
+    import socket
+    import threading
+    import time
+
+    import uvicorn
+    from fastapi import FastAPI
+
+    from thrsim.app.sessions_pages import record_routes
+
+    copies = tmp_path / "sessions"
+    copies.mkdir()
+    for path in folder.glob("*.h5"):
+        (copies / path.name).write_bytes(path.read_bytes())
+    app = FastAPI()
+    for route, handler, methods in record_routes(copies):
+        app.add_api_route(route, handler, methods=methods)
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not server.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert server.started
+    yield _Client(f"http://127.0.0.1:{port}", copies)
+    server.should_exit = True
+    thread.join(10)
+
+
+def test_the_session_list_the_trainee_page_and_the_exports_over_http(client):
+    _, listing = client.get("/sessions")
+    assert listing.count("<tr data-session=") == 3 and listing.count("/report") == 3 and 'href="/trainee/trainee%207"' in listing
+    status, page = client.get("/trainee/Trainee%207")
+    assert status == 200 and "<h1>Trainee trainee 7</h1>" in page and "2 sessions" in page  # named as in the latest session
+    assert page.count('<figure data-metric="acquisition_error_mean_mm">') == 1
+    chart = page.split('<figure data-metric="acquisition_error_mean_mm">')[1].split("</figure>")[0]
+    assert chart.count('class="point"') == 2 and 'class="competency"' in chart and "competent: ≤ 1.5" in chart
+    assert client.get("/trainee/nobody")[0] == 404 and client.get("/trainee/%3Cscript%3E")[0] == 404
+    table = list(csv.DictReader(io.StringIO(client.get("/api/sessions.csv")[1])))
+    assert len(table) == 3 and table[0]["acquisition_error_mean_mm"]
+    assert len(json.loads(client.get("/api/sessions.json")[1])["sessions"]) == 3
+
+
+def test_questionnaire_answers_over_http_are_stored_and_bad_ones_refused(client):
+    session = sorted(client.folder.glob("*.h5"))[0].stem
+    url = f"/api/sessions/{session}/questionnaire"
+    assert set(json.loads(client.get("/api/questionnaire")[1])["items"]) == set(ITEMS)
+    form = client.request(url, b"answers=x", {"content-type": "application/x-www-form-urlencoded"})  # what another site's form sends
+    assert form[0] == 415
+    assert client.post_json(url, {"answers": {"bone_realism": 3}}, origin="http://evil.example")[0] == 403
+    status, refused = client.post_json(url, {"answers": {"bone_realism": 9}})
+    assert status == 422 and "from 1 to 5" in refused["error"]
+    assert client.post_json("/api/sessions/20260101T000000Z-abcdef/questionnaire", {"answers": {"bone_realism": 3}})[0] == 404
+    status, saved = client.post_json(url, {"answers": {"bone_realism": 3, "force_realism": 2}, "comment": "ok"})
+    assert status == 200 and saved["answers"] == {"bone_realism": 3, "force_realism": 2}
+    row = next(r for r in csv.DictReader(io.StringIO(client.get("/api/sessions.csv")[1])) if r["session"] == session)
+    assert row["q_bone_realism"] == "3" and row["q_force_realism"] == "2" and row["q_comment"] == "ok"

@@ -123,11 +123,25 @@ def to_csv(rows: list[dict]) -> str:
     return out.getvalue()
 
 
+def _finite(value):
+    """``value`` with every non-finite float made None (JSON has no NaN)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(v) for v in value]
+    return value
+
+
 def to_json(rows: list[dict]) -> dict:
-    """``{"sessions": [...], "competency": {...}, "questionnaire_items": {...}}``: each session's summary as data."""
+    """``{"sessions": [...], "competency": {...}, "questionnaire_items": {...}}``: each session's summary
+    as data (None where a value was not measured)."""
     rows = [r for r in rows if "error" not in r]
-    return {
-        "sessions": [{k: v for k, v in r.items() if k != "competency"} for r in rows],
-        "competency": competency(rows),
-        "questionnaire_items": ITEMS,
-    }
+    return _finite(
+        {
+            "sessions": [{k: v for k, v in r.items() if k != "competency"} for r in rows],
+            "competency": competency(rows),
+            "questionnaire_items": ITEMS,
+        }
+    )

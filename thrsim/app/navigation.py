@@ -545,7 +545,7 @@ class NavigationTrainer:
                 else "reamer points medially"
             )
         else:
-            note = "" if self.result is not None else "angles in the planned APP: register the landmarks to measure them"
+            note = "" if self.result is not None else "angles on the model pelvis: register the landmarks to measure them on this patient"
         events, self._pending_events = self._pending_events, []
         return {
             "type": "state",

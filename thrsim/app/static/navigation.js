@@ -12,7 +12,7 @@ orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
 const stats = { frames: 0, states: 0, errors: [], acks: [], events: [], last: null, hello: null, saved: null, connected: false };
-window.trainer = { stats, view, send: (message) => send(message), screenOf: (name) => screenOf(view.sceneInfo.landmarks[name]), millimetrePixels: () => millimetrePixels() };
+window.trainer = { stats, view, send: (message) => send(message), screenOf: (name) => screenOf(view.sceneInfo.landmarks[name]), millimetrePixels: () => millimetrePixels(), probeTip: () => probeTip };
 
 let state = null;
 let steer = null; // the reamer's aim: the server's starting aim (the hello's defaults), then the trainee's

@@ -4,7 +4,8 @@ A trainee sees the IR camera's tracking volume, keeps the markers visible, acqui
 landmarks with a tracked probe, gets the anterior pelvic plane (APP) from them, and aims the
 reamer with a ray coloured by the Lewinnek safe zone; a guided step calibrates the display
 against the tracker. Tools are driven by a real tracker (OpenIGTLink poses) or, without one,
-by the page's controls, which move simulated tools on a synthetic pelvis.
+by the page's controls, which move simulated tools on a synthetic pelvis: the trainee puts the
+probe's tip where they moved it (``place``), so a landmark is acquired as close as they put it.
 
 Frames: the *reference frame* is the pelvic reference array's (as trackers report poses); the
 synthetic pelvis model sits in it at ``model_to_reference`` (the array clamped on the iliac

@@ -1,8 +1,9 @@
 """The optional post-session questionnaire: Likert items answered after a session ends, stored in its file.
 
-The items follow the thesis's face-validation study [3.4]: trainees rate statements about the
-realism of the bone and of the forces and the trainer's usefulness for training, each from 1
-(strongly disagree) to 5 (strongly agree). Every item is optional; a comment may go with them.
+In the manner of the thesis's face-validation study [3.4], trainees rate statements (thrsim's
+wording) about the realism of the bone, the forces and the instruments and the trainer's
+usefulness for training, each from 1 (strongly disagree) to 5 (strongly agree). Every item is
+optional; a comment may go with them.
 
 Group ``/questionnaire`` of the session file: attrs ``answers`` (JSON object, item → 1–5),
 ``comment`` and ``answered_utc``. The file is rewritten whole, to a temporary name that is then

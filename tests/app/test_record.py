@@ -251,3 +251,20 @@ def test_questionnaire_answers_over_http_are_stored_and_bad_ones_refused(client)
     assert status == 200 and saved["answers"] == {"bone_realism": 3, "force_realism": 2}
     row = next(r for r in csv.DictReader(io.StringIO(client.get("/api/sessions.csv")[1])) if r["session"] == session)
     assert row["q_bone_realism"] == "3" and row["q_force_realism"] == "2" and row["q_comment"] == "ok"
+
+
+def test_a_session_a_crash_left_open_keeps_its_trainee(tmp_path):
+    from thrsim.app.live import close_interrupted
+
+    clock = FakeClock()
+    session = LiveSession(MODES["navigation"], {"side": "right", "seed": 3}, clock, tmp_path)
+    session.control({"type": "trainee", "id": "Night shift"})
+    session.control({"type": "probe", "action": "touch"})
+    for _ in range(60):
+        clock.now += 1 / 60
+        session.tick()
+    session.journal.close()  # the server died: the journal stays, unlocked
+    [closed] = close_interrupted(tmp_path)
+    attrs = read_session(closed).attrs
+    assert attrs["interrupted"] and attrs["trainee"] == "Night shift"
+    assert summaries([closed])[0]["trainee"] == "Night shift"

@@ -156,11 +156,12 @@ def test_the_questionnaire_is_stored_with_the_session_and_exported(folder, tmp_p
         with pytest.raises(ThrsimInputError, match=said):
             write_questionnaire(copy, answers, comment)
     assert copy.read_bytes() == before  # nothing written
-    write_questionnaire(copy, {"bone_realism": 4, "training_usefulness": 5}, "more\nbone  please")
+    write_questionnaire(copy, {"bone_realism": 4, "training_usefulness": 5}, "=more\nbone  please")
     stored = read_questionnaire(read_session(copy))
-    assert stored["answers"] == {"bone_realism": 4, "training_usefulness": 5} and stored["comment"] == "more bone please"
+    assert stored["answers"] == {"bone_realism": 4, "training_usefulness": 5} and stored["comment"] == "=more bone please"
     row = list(csv.DictReader(io.StringIO(to_csv(summaries([copy])))))[0]
     assert row["q_bone_realism"] == "4" and row["q_training_usefulness"] == "5" and row["q_force_realism"] == ""
+    assert row["q_comment"] == "'=more bone please"  # text, not a formula, in a spreadsheet
     assert set(ITEMS) <= {k[2:] for k in row if k.startswith("q_")}
     assert build_assessment(copy).score == build_assessment(path).score  # the answers change no score
 

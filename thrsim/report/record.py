@@ -111,6 +111,16 @@ def _flat(row: dict, metrics: list[str]) -> dict:
     return flat
 
 
+def _cell(value: object) -> object:
+    """A CSV cell: empty where absent; text that a spreadsheet would run as a formula (``= + - @``)
+    is kept as text by a leading apostrophe (a trainee's comment is free text)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return ""
+    if isinstance(value, str) and value[:1] in ("=", "+", "-", "@"):
+        return "'" + value
+    return value
+
+
 def to_csv(rows: list[dict]) -> str:
     """One row per session: the :data:`COLUMNS`, every metric, then each questionnaire item (``q_``); empty where absent."""
     rows = [r for r in rows if "error" not in r]
@@ -119,7 +129,7 @@ def to_csv(rows: list[dict]) -> str:
     writer = csv.DictWriter(out, fieldnames=[*COLUMNS, *metrics, *(f"q_{item}" for item in ITEMS), "q_comment"], lineterminator="\n")
     writer.writeheader()
     for row in rows:
-        writer.writerow({k: "" if v is None or (isinstance(v, float) and math.isnan(v)) else v for k, v in _flat(row, metrics).items()})
+        writer.writerow({k: _cell(v) for k, v in _flat(row, metrics).items()})
     return out.getvalue()
 
 

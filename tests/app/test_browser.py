@@ -231,11 +231,17 @@ def test_the_other_hip_keeps_the_pages_aim(page):
 def test_registration_through_the_page_then_end_session_and_report(page, served):
     page.get_by_role("button", name="Restart").click()
     wait_state(page, "s.registration.acquired.length === 0")
+    page.mouse.move(550, 360)
+    page.mouse.wheel(0, 500)  # zoom out: every landmark between the side panels
+    page.wait_for_timeout(300)
+    places = page.evaluate("Object.keys(trainer.view.sceneInfo.landmarks).map((name) => trainer.screenOf(name))")
+    assert all(300 < x < 1100 - 270 and 50 < y < 720 for x, y in places), places
     for _ in range(40):
         count = page.evaluate("trainer.stats.last.registration.acquired.length")
         if count == 27:
             break
-        keys(page, "Space")
+        landmark = page.evaluate("trainer.stats.last.registration.current")
+        page.mouse.click(*page.evaluate(f"trainer.screenOf('{landmark}')"))  # the probe's tip on the glowing point
         wait_state(page, f"s.registration.acquired.length > {count}")
     wait_state(page, "s.registration.done && s.app_source === 'registered'")
     assert "done" in page.locator("#reg-target").inner_text()

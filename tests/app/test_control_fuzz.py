@@ -57,6 +57,10 @@ def _values_of(annotation) -> st.SearchStrategy:
         return st.lists(st.floats(-10, 10), min_size=16, max_size=16) | st.lists(st.floats(), min_size=15, max_size=17)
     if annotation == str | None:
         return st.none() | st.text(max_size=70)
+    if annotation == list[float] | None:  # a placed probe tip (mm)
+        return st.none() | st.lists(st.floats(-1500, 1500), min_size=3, max_size=3) | st.lists(st.floats(), min_size=2, max_size=4)
+    if annotation is str:  # a trainee's name
+        return st.text(max_size=50) | st.from_regex(r"[A-Za-z0-9][A-Za-z0-9 ._-]{0,45}", fullmatch=True)
     raise AssertionError(f"no strategy for a control field of type {annotation}: add one")
 
 

@@ -67,7 +67,8 @@ def test_the_bone_is_drawn_and_reaming_removes_it_on_screen(page):
     assert changed_fraction(before, after) > 0.002  # the removed bone is gone from the picture
     figures = page.evaluate("[document.getElementById('removed-volume').textContent, document.getElementById('depth').textContent]")
     assert not figures[0].startswith("0.0 ") and figures[1] != "0.00 mm"
-    keys(page, "r")  # restore the bone
+    keys(page, "r")  # restore the bone: the page asks first
+    page.click("#restore-yes")
     page.wait_for_function("trainer.stats.removed === 0 && trainer.stats.last.reaming.removed === 0", timeout=10_000)
     assert page.problems == [] and page.evaluate("trainer.stats.errors") == []  # every bone frame decoded
 

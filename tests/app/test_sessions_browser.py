@@ -76,6 +76,7 @@ def test_a_perforation_undone_and_the_bone_restored_still_counts_and_scores(open
     page.wait_for_function("trainer.stats.events.includes('perforated')", timeout=120_000)
     keys(page, "u")
     keys(page, "r")
+    page.click("#restore-yes")  # restoring asks first
     page.wait_for_function("trainer.stats.events.includes('undo') && trainer.stats.events.includes('restore')", timeout=10_000)
     page.wait_for_function("trainer.stats.last.reaming.removed === 0", timeout=10_000)  # the bone is whole again
     page.click("#end")
@@ -126,7 +127,8 @@ def test_a_hidden_page_pauses_reaming_and_showing_it_goes_on(open_page):
 
 def test_a_double_click_on_end_saves_one_session_and_no_tracking_lost_follows(open_page, served):
     page = open_page("/")
-    keys(page, "Space")  # the probe on the first landmark
+    landmark = page.evaluate("trainer.stats.last.registration.current")
+    page.mouse.click(*page.evaluate(f"trainer.screenOf('{landmark}')"))  # the probe's tip on the first landmark
     page.wait_for_function("trainer.stats.last.registration.acquired.length > 0", timeout=30_000)
     before = set(served.sessions.glob("*.h5"))
     first = page.evaluate("trainer.stats.hello.session")

@@ -12,13 +12,17 @@ import json
 import reprlib
 from typing import Annotated, Literal, Union, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
 from thrsim.config import Side
 from thrsim.errors import ThrsimInputError
 from thrsim.session.plan import REAMER_SIZES_MM
 
 MAX_MESSAGE_BYTES = 16 * 1024
+#: a placed probe tip is within this of the pelvis model's origin (millimetres)
+MAX_TIP_MM = 1000.0
+#: a trainee's name or ID: it is shown on pages and names the trainee's page (/trainee/<id>)
+TRAINEE_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9 ._-]*$"
 
 
 class _Control(BaseModel):
@@ -44,11 +48,22 @@ class ReamerControl(_Control):
 
 
 class ProbeControl(_Control):
-    """Put the probe tip on a landmark (the current target when none is named), or lift it."""
+    """The probe without a tracker: ``place`` its tip where the trainee moved it (``tip_mm``, the
+    page's scene frame, millimetres), ``lift`` it, or ``touch`` a landmark (the current target when
+    none is named; a scripted hand that lands within the acquisition tolerance, for tests and demos)."""
 
     type: Literal["probe"]
-    action: Literal["touch", "lift"]
+    action: Literal["touch", "lift", "place"]
     landmark: str | None = Field(None, max_length=64)
+    tip_mm: list[float] | None = Field(None, min_length=3, max_length=3)
+
+    @model_validator(mode="after")
+    def _tip_with_place(self) -> ProbeControl:
+        if (self.action == "place") != (self.tip_mm is not None):
+            raise ValueError("tip_mm is given with action place, and only then")
+        if self.tip_mm is not None and max(map(abs, self.tip_mm)) > MAX_TIP_MM:
+            raise ValueError(f"tip_mm beyond {MAX_TIP_MM:g} mm of the pelvis")
+        return self
 
 
 class RegistrationControl(_Control):
@@ -93,6 +108,18 @@ class ConfirmControl(_Control):
 
 class EndSessionControl(_Control):
     type: Literal["end_session"]
+
+
+class TraineeControl(_Control):
+    """Who trains in this session (a name or an ID), recorded in its file; 1–40 letters, digits,
+    spaces and ``. _ -``, starting with a letter or digit (it names the trainee's page)."""
+
+    type: Literal["trainee"]
+    id: str = Field(..., min_length=1, max_length=40, pattern=TRAINEE_PATTERN)
+
+
+#: the controls the live session acts on itself, never its trainer (a replay skips them)
+SESSION_CONTROLS: tuple[str, ...] = ("end_session", "trainee")
 
 
 #: the largest push the reaming mode takes (the model card says which push it learned)
@@ -150,6 +177,7 @@ _NAVIGATION = (
     CalibrationControl,
     ConfirmControl,
     EndSessionControl,
+    TraineeControl,
 )
 # the reaming mode keeps the navigation trainer's controls (it composes that trainer) and adds its own
 _REAMING = (*_NAVIGATION, RunControl, ForceControl, PageControl, PlanControl, ReamerSizeControl)

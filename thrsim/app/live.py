@@ -98,6 +98,9 @@ class LiveSession:
             self.journal.control(now, control.model_dump())
             if control.type == "end_session":  # the app's to act on: it saves this session
                 return control, "session ending"
+            if control.type == "trainee":  # the record's, not the trainer's: the file's header says who trained
+                self.attrs["trainee"] = control.id.strip()
+                return control, f"trainee {self.attrs['trainee']}"
             return control, self.trainer.apply_control(control, now)
 
     def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:
@@ -200,8 +203,10 @@ def _close_from_journal(journal: Journal, target: Path) -> Path:
     relive(trainer, mode, journal.inputs())
     duration = max((time_s for _, time_s, _ in journal.inputs()), default=0.0)
     started = dt.datetime.fromisoformat(journal.attrs["started_utc"])
+    trainees = [p["id"].strip() for kind, _, p in journal.inputs() if kind == "control" and p.get("type") == "trainee"]
     attrs = {
         **journal.attrs,
+        **({"trainee": trainees[-1]} if trainees else {}),
         "ended_utc": (started + dt.timedelta(seconds=duration)).isoformat(),
         "duration_s": duration,
         "interrupted": True,

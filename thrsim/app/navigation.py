@@ -4,7 +4,8 @@ A trainee sees the IR camera's tracking volume, keeps the markers visible, acqui
 landmarks with a tracked probe, gets the anterior pelvic plane (APP) from them, and aims the
 reamer with a ray coloured by the Lewinnek safe zone; a guided step calibrates the display
 against the tracker. Tools are driven by a real tracker (OpenIGTLink poses) or, without one,
-by the page's controls, which move simulated tools on a synthetic pelvis.
+by the page's controls, which move simulated tools on a synthetic pelvis: the trainee puts the
+probe's tip where they moved it (``place``), so a landmark is acquired as close as they put it.
 
 Frames: the *reference frame* is the pelvic reference array's (as trackers report poses); the
 synthetic pelvis model sits in it at ``model_to_reference`` (the array clamped on the iliac
@@ -187,8 +188,7 @@ class NavigationTrainer:
         self.tracker_camera: _ToolPose | None = None
         self._reamer_angles = dict(self.reamer_start)
         self._set_page_reamer(time_s)
-        self._probe_on: str | None = None
-        self._probe_offset = np.zeros(3)
+        self._probe_tip: np.ndarray | None = None  # where the page's hand holds the probe tip (reference frame, m)
         self._restart_registration(time_s)
 
     def _restart_registration(self, time_s: float) -> None:
@@ -240,8 +240,8 @@ class NavigationTrainer:
         pose = self.reamer_pose(self._reamer_angles["inclination_deg"], self._reamer_angles["anteversion_deg"])
         self.tools["Reamer"] = _ToolPose(pose, "page", time_s)
 
-    def _set_page_probe(self, landmark: str, time_s: float) -> None:
-        tip = self.targets[landmark] + self._probe_offset
+    def _set_page_probe(self, tip: np.ndarray, time_s: float) -> None:
+        self._probe_tip = tip
         facing = self.model_to_reference[:3, :3] @ _spherical(self.camera_spherical["azimuth_deg"], self.camera_spherical["elevation_deg"])
         outward = tip - np.mean(list(self.targets.values()), axis=0)
         # PROBE.tip is along the tool's −y: the handle (+y) points away from the pelvis.
@@ -315,17 +315,19 @@ class NavigationTrainer:
 
     def _probe(self, control: c.ProbeControl, time_s: float) -> str:
         if control.action == "lift":
-            self._probe_on = None
+            self._probe_tip = None
             self.tools.pop("Probe", None)
             return "probe lifted"
+        if control.action == "place":
+            tip = transform_points(self.scene_to_reference, np.array(control.tip_mm)[None] * 1e-3)[0]
+            self._set_page_probe(tip, time_s)
+            return "probe placed"
         name = control.landmark or self.registration.current_target
         if name is None:
             raise ThrsimInputError("registration is complete: no landmark left to touch")
         if name not in self.targets:
             raise ThrsimInputError(f"unknown landmark {name!r}")
-        self._probe_on = name
-        self._probe_offset = self._hand_offset()
-        self._set_page_probe(name, time_s)
+        self._set_page_probe(self.targets[name] + self._hand_offset(), time_s)
         return f"probe on {name}"
 
     def _hand_offset(self) -> np.ndarray:
@@ -407,8 +409,8 @@ class NavigationTrainer:
     def step(self, time_s: float, early: Callable[[dict], None] | None = None) -> dict:
         """Advance to ``time_s``: registration, visibility, angles; returns the state for viewers.
         Nothing here is slow, so ``early`` (see :class:`thrsim.app.modes.Trainer`) is never called."""
-        if self._probe_on is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
-            self._set_page_probe_tremor(self._probe_on, time_s)
+        if self._probe_tip is not None and self.tools.get("Probe") is not None and self.tools["Probe"].source == "page":
+            self._set_page_probe_tremor(time_s)
         visibility = self._visibility(time_s)
         if not self.registration.done:
             self._step_registration(time_s, visibility)
@@ -425,9 +427,10 @@ class NavigationTrainer:
         self.log.trace_tools.extend(TOOL_STATES.index(visibility[t][0]) for t in TOOLS)
         return self._state(time_s, visibility, angles, zone)
 
-    def _set_page_probe_tremor(self, landmark: str, time_s: float) -> None:
-        held = self.tools["Probe"]
-        tip = self.targets[landmark] + self._probe_offset + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
+    def _set_page_probe_tremor(self, time_s: float) -> None:
+        held, placed = self.tools["Probe"], self._probe_tip
+        assert placed is not None  # the step calls this only while the page has placed the tip
+        tip = placed + self.rng.normal(0.0, _HAND_TREMOR_SD_M, 3)
         origin = tip - held.pose[:3, :3] @ PROBE.tip
         self.tools["Probe"] = _ToolPose(make_pose(held.pose[:3, :3], origin), "page", held.time_s)
 
@@ -549,7 +552,7 @@ class NavigationTrainer:
                 else "reamer points medially"
             )
         else:
-            note = "" if self.result is not None else "angles in the planned APP: register the landmarks to measure them"
+            note = "" if self.result is not None else "angles on the model pelvis: register the landmarks to measure them on this patient"
         events, self._pending_events = self._pending_events, []
         return {
             "type": "state",

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from thrsim.app.controls import SESSION_CONTROLS
 from thrsim.app.modes import MODES, Mode
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.model_dir import SHIPPED_MODEL
@@ -92,7 +93,8 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
 
 def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, Any]], on_state=None) -> int:
     """Feed recorded ``(kind, time_s, payload)`` inputs, in order, to ``trainer`` as the live session fed
-    them (a tick is a step; ``end_session`` is the app's, not the trainer's); the number it refused."""
+    them (a tick is a step; the :data:`~thrsim.app.controls.SESSION_CONTROLS` are the live session's,
+    not the trainer's); the number it refused."""
     refused = 0
     for kind, time_s, payload in inputs:
         if kind == "tick":
@@ -110,7 +112,7 @@ def relive(trainer, mode: Mode, inputs: Iterable[tuple[str, float, Any]], on_sta
                 trainer.apply_force(payload, time_s)
             except ThrsimInputError:
                 refused += 1
-        elif payload.get("type") != "end_session":
+        elif payload.get("type") not in SESSION_CONTROLS:
             try:
                 trainer.apply_control(mode.parse_control(payload), time_s)
             except ThrsimInputError:

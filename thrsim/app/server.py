@@ -65,6 +65,7 @@ from starlette.concurrency import run_in_threadpool
 
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
+from thrsim.app.sessions_pages import record_routes
 from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.bone_frame import check_side
@@ -630,6 +631,9 @@ def create_app(settings: ServeSettings) -> FastAPI:
                 if _SESSION_ID.match(f.stem)
             ]
         }
+
+    for path, handler, methods in record_routes(settings.sessions_dir):  # /sessions, /trainee/<id>, the exports
+        app.add_api_route(path, handler, methods=methods, include_in_schema=False)
 
     def _session_file(session_id: str) -> Path:
         path = settings.sessions_dir / f"{session_id}.h5"

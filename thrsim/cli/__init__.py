@@ -26,6 +26,7 @@ from thrsim.cli import (
     report_cmd,
     review_cmd,
     serve_cmd,
+    sessions_cmd,
     track_cmd,
     train_cmd,
     verify_cmd,
@@ -64,6 +65,7 @@ app.command("evaluate")(evaluate_cmd.evaluate)
 app.command("ream")(ream_cmd.ream)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
+app.add_typer(sessions_cmd.app, name="sessions")
 
 
 def main() -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import html
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from thrsim.report.parts import Criterion, Part, Section
@@ -26,6 +26,7 @@ class Assessment:
     criteria: list[Criterion]
     events: list[dict]
     metrics: dict
+    competency: dict[str, tuple[float, str]] = field(default_factory=dict)  # see Part.competency
 
     @property
     def score(self) -> float | None:
@@ -104,14 +105,17 @@ def _parts(session: SessionFile, thresholds: Thresholds | None) -> list[Part]:
 
 def _assessment(parts: list[Part]) -> Assessment:
     return Assessment(
-        [c for p in parts for c in p.criteria], [e for p in parts for e in p.events], {k: v for p in parts for k, v in p.metrics.items()}
+        [c for p in parts for c in p.criteria],
+        [e for p in parts for e in p.events],
+        {k: v for p in parts for k, v in p.metrics.items()},
+        {k: v for p in parts for k, v in p.competency.items()},
     )
 
 
-def build_assessment(path: str | Path, thresholds: Thresholds | None = None) -> Assessment:
+def build_assessment(path: str | Path, thresholds: Thresholds | None = None, session: SessionFile | None = None) -> Assessment:
     """The assessment of the session file at ``path`` as data (ThrsimInputError when it cannot be read),
-    scored against ``thresholds`` (None: the shipped defaults)."""
-    return _assessment(_parts(read_session(path), thresholds))
+    scored against ``thresholds`` (None: the shipped defaults); ``session``: that file already read."""
+    return _assessment(_parts(session or read_session(path), thresholds))
 
 
 def build_report(path: str | Path, thresholds: Thresholds | None = None) -> str:

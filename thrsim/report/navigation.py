@@ -4,6 +4,7 @@ and pace, tracking dropouts by cause, and their scoring criteria."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -29,15 +30,122 @@ def _tiered(value: float, tiers: list[tuple[float, float]], higher_is_better: bo
     return 0.0
 
 
-def _orientation(record: NavigationRecord, dt: np.ndarray) -> Section:
+#: the competency level of each navigation metric: the full-points tier of its criterion (thrsim's
+#: defaults; the thesis gives no rubric). ``(threshold, "max")``: at most; ``"min"``: at least.
+COMPETENCY: dict[str, tuple[float, str]] = {
+    "acquisition_error_mean_mm": (1.5, "max"),
+    "registration_rms_mm": (2.0, "max"),
+    "median_time_per_landmark_s": (5.0, "max"),
+    "retakes": (2, "max"),
+    "time_in_zone_fraction": (0.7, "min"),
+    "markers_visible_fraction": (0.9, "min"),
+}
+
+
+def _number(value: float) -> float | None:
+    """A metric as data: None where it was not measured (NaN)."""
+    return None if math.isnan(value) else float(value)
+
+
+@dataclass(frozen=True)
+class _Figures:
+    """What the navigation criteria, metrics and tables measure, computed once (no plots)."""
+
+    count: int
+    total: int
+    error_mm: np.ndarray  # acquired point to its landmark, NaN where not acquired
+    median_time_s: float
+    registration_time_s: float
+    retakes: int
+    aiming_s: float
+    measured_s: float
+    inside_s: float
+    visible_share: float
+
+    @property
+    def mean_error_mm(self) -> float:
+        return float(np.nanmean(self.error_mm)) if self.count else math.nan
+
+    @property
+    def zone_share(self) -> float:
+        return self.inside_s / self.measured_s if self.measured_s > 0 else math.nan
+
+
+def _figures(record: NavigationRecord, dt: np.ndarray) -> _Figures:
+    acquired = np.isfinite(record.acquired[:, 0])
+    times = record.landmark_time_s[np.isfinite(record.landmark_time_s)]
+    aiming = record.phase == 1
+    measured = aiming & np.isfinite(record.angles[:, 0])
+    inside = measured & (record.angles[:, 2] == 0.0)
+    tracked, missing = record.tool_states.index("tracked"), record.tool_states.index("missing")
+    in_use = record.tool_codes != missing
+    used = in_use.any(axis=1)
+    all_tracked = np.all((record.tool_codes == tracked) | ~in_use, axis=1)
+    return _Figures(
+        count=int(acquired.sum()),
+        total=len(record.names),
+        error_mm=np.where(acquired, np.linalg.norm(np.nan_to_num(record.acquired) - record.targets, axis=1) * 1e3, math.nan),
+        median_time_s=float(np.median(times)) if times.size else math.nan,
+        registration_time_s=float(times.sum()) if record.completed else math.nan,
+        retakes=int(record.retakes.sum()),
+        aiming_s=float(dt[aiming].sum()),
+        measured_s=float(dt[measured].sum()),
+        inside_s=float(dt[inside].sum()),
+        visible_share=float(dt[used & all_tracked].sum() / dt[used].sum()) if dt[used].sum() > 0 else math.nan,
+    )
+
+
+def metrics(record: NavigationRecord, figures: _Figures) -> dict:
+    """The navigation metrics as data (None where not measured): what the trainee's record plots."""
+    last = record.confirmations[-1] if record.confirmations else None
+    return {
+        "landmarks_acquired": figures.count,
+        "acquisition_error_mean_mm": _number(figures.mean_error_mm),
+        "acquisition_error_max_mm": _number(float(np.nanmax(figures.error_mm)) if figures.count else math.nan),
+        "registration_rms_mm": _number(record.rms_m * 1e3),
+        "median_time_per_landmark_s": _number(figures.median_time_s),
+        "registration_time_s": _number(figures.registration_time_s),
+        "retakes": figures.retakes,
+        "time_in_zone_fraction": _number(figures.zone_share),
+        "confirmed_cup_distance_deg": None if last is None else float(last["distance_deg"]),
+        "markers_visible_fraction": _number(figures.visible_share),
+    }
+
+
+def _orientation_criteria(record: NavigationRecord, figures: _Figures) -> list[Criterion]:
+    share = figures.zone_share
+    criteria = [
+        Criterion(
+            "time in the safe zone while aiming",
+            "no aiming phase" if math.isnan(share) else f"{100 * share:.0f} %",
+            "≥ 70 %: 15, ≥ 40 %: 8",
+            0.0 if math.isnan(share) else _tiered(share, [(0.7, 15), (0.4, 8)], higher_is_better=True),
+            15,
+        )
+    ]
+    last = record.confirmations[-1] if record.confirmations else None
+    margin = float(record.zone.get("warning_margin_deg", 5.0))
+    criteria.append(
+        Criterion(
+            "confirmed cup orientation",
+            "not confirmed"
+            if last is None
+            else f"{last['inclination_deg']:.1f}° / {last['anteversion_deg']:.1f}° ({last['distance_deg']:.1f}° from the zone)",
+            f"inside the zone: 20, within {margin:g}°: 10",
+            0.0 if last is None else 20.0 if last["inside"] else 10.0 if last["distance_deg"] <= margin else 0.0,
+            20,
+        )
+    )
+    return criteria
+
+
+def _orientation(record: NavigationRecord, dt: np.ndarray, figures: _Figures, criteria: list[Criterion]) -> Section:
     import matplotlib.pyplot as plt
 
     zone = record.zone
     aiming = record.phase == 1
     measured = aiming & np.isfinite(record.angles[:, 0])
-    inside = measured & (record.angles[:, 2] == 0.0)
-    aiming_s, measured_s, inside_s = float(dt[aiming].sum()), float(dt[measured].sum()), float(dt[inside].sum())
-    share = inside_s / measured_s if measured_s > 0 else math.nan
+    share = figures.zone_share
 
     figure, axes = plt.subplots(1, 2, figsize=(11, 3.6), gridspec_kw={"width_ratios": [2.2, 1]})
     t = record.time
@@ -75,49 +183,64 @@ def _orientation(record: NavigationRecord, dt: np.ndarray) -> Section:
     body = figure_png(figure)
 
     rows = [
-        ["aiming time (after registration)", f"{aiming_s:.1f} s"],
-        ["reamer measured while aiming", f"{measured_s:.1f} s"],
-        ["inside the safe zone", f"{inside_s:.1f} s" + ("" if math.isnan(share) else f" ({100 * share:.0f} % of measured)")],
+        ["aiming time (after registration)", f"{figures.aiming_s:.1f} s"],
+        ["reamer measured while aiming", f"{figures.measured_s:.1f} s"],
+        ["inside the safe zone", f"{figures.inside_s:.1f} s" + ("" if math.isnan(share) else f" ({100 * share:.0f} % of measured)")],
     ]
     for k, cup in enumerate(record.confirmations, 1):
         where = "inside" if cup["inside"] else f"{cup['distance_deg']:.1f}° outside"
         rows.append([f"confirmed cup #{k}", f"{cup['inclination_deg']:.1f}° / {cup['anteversion_deg']:.1f}° — {where}"])
     body += table(["orientation", "value"], rows)
-
-    criteria = [
-        Criterion(
-            "time in the safe zone while aiming",
-            "no aiming phase" if math.isnan(share) else f"{100 * share:.0f} %",
-            "≥ 70 %: 15, ≥ 40 %: 8",
-            0.0 if math.isnan(share) else _tiered(share, [(0.7, 15), (0.4, 8)], higher_is_better=True),
-            15,
-        )
-    ]
-    last = record.confirmations[-1] if record.confirmations else None
-    margin = float(record.zone.get("warning_margin_deg", 5.0))
-    criteria.append(
-        Criterion(
-            "confirmed cup orientation",
-            "not confirmed"
-            if last is None
-            else f"{last['inclination_deg']:.1f}° / {last['anteversion_deg']:.1f}° ({last['distance_deg']:.1f}° from the zone)",
-            f"inside the zone: 20, within {margin:g}°: 10",
-            0.0 if last is None else 20.0 if last["inside"] else 10.0 if last["distance_deg"] <= margin else 0.0,
-            20,
-        )
-    )
     return Section("Cup orientation against the safe zone", body, criteria)
 
 
-def _registration(record: NavigationRecord) -> Section:
+def _registration_criteria(record: NavigationRecord, figures: _Figures) -> list[Criterion]:
+    """Completion, how close each acquired point is to its landmark (the probe's placement), the
+    fit, the pace and the retakes; the thresholds are thrsim's (see :data:`COMPETENCY`)."""
+    mean_error, median_time = figures.mean_error_mm, figures.median_time_s
+    return [
+        Criterion(
+            "registration completed",
+            f"{figures.count} of {figures.total} landmarks",
+            "all acquired: 15",
+            15.0 if record.completed else 0.0,
+            15,
+        ),
+        Criterion(
+            "acquisition accuracy",
+            "none acquired" if math.isnan(mean_error) else f"mean {mean_error:.2f} mm from the landmarks",
+            "≤ 1.5 mm: 10, ≤ 3 mm: 5",
+            0.0 if math.isnan(mean_error) else _tiered(mean_error, [(1.5, 10), (3.0, 5)]),
+            10,
+        ),
+        Criterion(
+            "registration accuracy",
+            "no fit" if math.isnan(record.rms_m) else f"RMS {record.rms_m * 1e3:.2f} mm",
+            "≤ 2 mm: 10, ≤ 4 mm: 5",
+            0.0 if math.isnan(record.rms_m) else _tiered(record.rms_m * 1e3, [(2.0, 10), (4.0, 5)]),
+            10,
+        ),
+        Criterion(
+            "pace",
+            "—" if math.isnan(median_time) else f"median {median_time:.1f} s per landmark",
+            "≤ 5 s: 10, ≤ 10 s: 5",
+            0.0 if math.isnan(median_time) else _tiered(median_time, [(5.0, 10), (10.0, 5)]),
+            10,
+        ),
+        Criterion(
+            "retakes", str(figures.retakes), "≤ 2: 10, ≤ 5: 5", _tiered(figures.retakes, [(2, 10), (5, 5)]) if figures.count else 0.0, 10
+        ),
+    ]
+
+
+def _registration(record: NavigationRecord, figures: _Figures, criteria: list[Criterion]) -> Section:
     import matplotlib.pyplot as plt
 
     acquired = np.isfinite(record.acquired[:, 0])
-    error_mm = np.linalg.norm(record.acquired - record.targets, axis=1) * 1e3
     residual_mm = record.residual_m * 1e3
     figure, axes = plt.subplots(2, 1, figsize=(11, 5.2), sharex=True)
     x = np.arange(len(record.names))
-    axes[0].bar(x - 0.2, np.where(acquired, error_mm, 0.0), 0.4, label="acquired point to target", color="tab:gray")
+    axes[0].bar(x - 0.2, np.where(acquired, figures.error_mm, 0.0), 0.4, label="acquired point to landmark", color="tab:gray")
     axes[0].bar(x + 0.2, np.nan_to_num(residual_mm), 0.4, label="fit residual", color="tab:blue")
     axes[0].set_ylabel("mm")
     axes[0].legend(fontsize=8)
@@ -130,41 +253,34 @@ def _registration(record: NavigationRecord) -> Section:
     axes[1].set_xticks(x, record.names, rotation=70, fontsize=7)
     body = figure_png(figure)
 
-    count, total = int(acquired.sum()), len(record.names)
-    times = record.landmark_time_s[np.isfinite(record.landmark_time_s)]
-    median_time = float(np.median(times)) if times.size else math.nan
-    retakes = int(record.retakes.sum())
+    mean_error, median_time = figures.mean_error_mm, figures.median_time_s
     body += table(
         ["registration", "value"],
         [
-            ["landmarks acquired", f"{count} of {total}"],
+            ["landmarks acquired", f"{figures.count} of {figures.total}"],
+            ["mean distance of the acquired points to their landmarks", "—" if math.isnan(mean_error) else f"{mean_error:.2f} mm"],
             ["fit RMS residual", "—" if math.isnan(record.rms_m) else f"{record.rms_m * 1e3:.2f} mm"],
             ["median time per landmark", "—" if math.isnan(median_time) else f"{median_time:.1f} s"],
-            ["retakes", str(retakes)],
+            ["retakes", str(figures.retakes)],
         ],
     )
-    criteria = [
-        Criterion("registration completed", f"{count} of {total} landmarks", "all acquired: 20", 20.0 if record.completed else 0.0, 20),
-        Criterion(
-            "registration accuracy",
-            "no fit" if math.isnan(record.rms_m) else f"RMS {record.rms_m * 1e3:.2f} mm",
-            "≤ 2 mm: 15, ≤ 4 mm: 8",
-            0.0 if math.isnan(record.rms_m) else _tiered(record.rms_m * 1e3, [(2.0, 15), (4.0, 8)]),
-            15,
-        ),
-        Criterion(
-            "pace",
-            "—" if math.isnan(median_time) else f"median {median_time:.1f} s per landmark",
-            "≤ 5 s: 10, ≤ 10 s: 5",
-            0.0 if math.isnan(median_time) else _tiered(median_time, [(5.0, 10), (10.0, 5)]),
-            10,
-        ),
-        Criterion("retakes", str(retakes), "≤ 2: 10, ≤ 5: 5", _tiered(retakes, [(2, 10), (5, 5)]) if count else 0.0, 10),
-    ]
     return Section("Landmark registration", body, criteria)
 
 
-def _dropouts(record: NavigationRecord, dt: np.ndarray) -> Section:
+def _dropouts_criteria(figures: _Figures) -> list[Criterion]:
+    share = figures.visible_share
+    return [
+        Criterion(
+            "markers kept visible",
+            "—" if math.isnan(share) else f"every tool in use tracked {100 * share:.0f} % of the time",
+            "≥ 90 %: 10, ≥ 75 %: 5",
+            0.0 if math.isnan(share) else _tiered(share, [(0.9, 10), (0.75, 5)], higher_is_better=True),
+            10,
+        )
+    ]
+
+
+def _dropouts(record: NavigationRecord, dt: np.ndarray, criteria: list[Criterion]) -> Section:
     import matplotlib.pyplot as plt
 
     states = record.tool_states
@@ -172,7 +288,6 @@ def _dropouts(record: NavigationRecord, dt: np.ndarray) -> Section:
     missing = states.index("missing")
     figure, axes = plt.subplots(1, 2, figsize=(11, 2.8), gridspec_kw={"width_ratios": [2.2, 1]})
     rows = []
-    in_use = record.tool_codes != missing
     for k, tool in enumerate(record.tools):
         codes = record.tool_codes[:, k]
         lost = (codes != tracked) & (codes != missing)
@@ -207,19 +322,6 @@ def _dropouts(record: NavigationRecord, dt: np.ndarray) -> Section:
     axes[1].set_title("Time lost by cause")
     body = figure_png(figure)
     body += table(["tool", "tracked", "dropouts", "outside volume", "beyond 45°", "occluded", "no data"], rows)
-
-    used = in_use.any(axis=1)
-    all_tracked = np.all((record.tool_codes == tracked) | ~in_use, axis=1)
-    share = float(dt[used & all_tracked].sum() / dt[used].sum()) if dt[used].sum() > 0 else math.nan
-    criteria = [
-        Criterion(
-            "markers kept visible",
-            "—" if math.isnan(share) else f"every tool in use tracked {100 * share:.0f} % of the time",
-            "≥ 90 %: 10, ≥ 75 %: 5",
-            0.0 if math.isnan(share) else _tiered(share, [(0.9, 10), (0.75, 5)], higher_is_better=True),
-            10,
-        )
-    ]
     return Section("Tracking dropouts", body, criteria)
 
 
@@ -254,7 +356,7 @@ def _calibration(record: NavigationRecord) -> Section | None:
 
 
 def navigation_part(session: SessionFile) -> Part | None:
-    """The navigation mode's assessment; its criteria come with its plots (built here, for the data too)."""
+    """The navigation mode's assessment: criteria and metrics as data; its plots only when the page is built."""
     if "navigation" not in session.groups:
         return None
     record = read_navigation(session.groups["navigation"])
@@ -263,7 +365,20 @@ def navigation_part(session: SessionFile) -> Part | None:
             [], record.events, {}, lambda: [Section("Navigation", "<p>No landmark was acquired and no cup confirmed in this session.</p>")]
         )
     dt = _durations(record.time)
-    sections = [_registration(record), _orientation(record, dt), _dropouts(record, dt)]
-    calibration = _calibration(record)
-    sections += [calibration] if calibration else []
-    return Part([c for s in sections for c in s.criteria], record.events, {}, lambda: sections)
+    figures = _figures(record, dt)
+    registration, orientation, dropouts = (
+        _registration_criteria(record, figures),
+        _orientation_criteria(record, figures),
+        _dropouts_criteria(figures),
+    )
+
+    def sections() -> list[Section]:
+        built = [
+            _registration(record, figures, registration),
+            _orientation(record, dt, figures, orientation),
+            _dropouts(record, dt, dropouts),
+        ]
+        calibration = _calibration(record)
+        return built + ([calibration] if calibration else [])
+
+    return Part(registration + orientation + dropouts, record.events, metrics(record, figures), sections, COMPETENCY)

@@ -35,12 +35,15 @@ class Section:
 @dataclass
 class Part:
     """One mode's share of a session's assessment: its criteria, events and metrics as data, and
-    ``sections``, which builds its part of the page (plots take time: only the page asks)."""
+    ``sections``, which builds its part of the page (plots take time: only the page asks);
+    ``competency``: metric name → (threshold, "max" or "min"), the level a competent trainee reaches,
+    for the metrics that have one (a trainee's learning curve draws it)."""
 
     criteria: list[Criterion]
     events: list[dict]
     metrics: dict
     sections: Callable[[], list[Section]]
+    competency: dict[str, tuple[float, str]] = field(default_factory=dict)
 
 
 def figure_png(figure) -> str:

@@ -6,13 +6,16 @@ Layout (HDF5, one file per session; times in seconds from the session's start, p
   ``ended_utc``, ``duration_s``, ``settings`` (JSON), ``versions`` (JSON: thrsim, Python,
   numerical and web libraries, three.js), ``interrupted`` (true when the session never ended: the
   server stopped without saving it, and the next start closed it from its journal; files written
-  before journals lack it and ended normally);
+  before journals lack it and ended normally), ``trainee`` (the name or ID the page gave, absent
+  when none was);
 * ``/inputs/controls``: ``seq``, ``time``, ``message`` (JSON text of each page control);
 * ``/inputs/poses``: ``seq``, ``time``, ``device`` (name), ``matrix`` (N×4×4) from the tracker;
 * ``/inputs/forces``: ``seq``, ``time``, ``newton``;
 * ``/inputs/ticks``: ``seq``, ``time`` of each trainer step;
 * one group per mode that ran (``/navigation``; reaming adds ``/reaming``), written and read by
-  that mode's record class.
+  that mode's record class;
+* ``/questionnaire``, once the trainee answered the post-session questionnaire
+  (:mod:`thrsim.session.questionnaire`).
 
 ``seq`` is one counter over all inputs, so a replay applies them in the order they were lived.
 While the session lives its inputs go to its journal (:mod:`thrsim.session.journal`), not to

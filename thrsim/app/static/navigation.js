@@ -1,7 +1,8 @@
 // The navigation trainer page: connects to /ws/navigation, draws each state, sends controls.
 // The server owns the session (and records it); this page only shows and asks.
+import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
-import { $, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
+import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
 const canvas = $("view");
@@ -11,7 +12,7 @@ orbit.enableDamping = false;
 
 // Figures the end-to-end tests and the benchmark read.
 const stats = { frames: 0, states: 0, errors: [], acks: [], events: [], last: null, hello: null, saved: null, connected: false };
-window.trainer = { stats, view, send: (message) => send(message) };
+window.trainer = { stats, view, send: (message) => send(message), screenOf: (name) => screenOf(view.sceneInfo.landmarks[name]), millimetrePixels: () => millimetrePixels(), probeTip: () => probeTip };
 
 let state = null;
 let steer = null; // the reamer's aim: the server's starting aim (the hello's defaults), then the trainee's
@@ -53,6 +54,8 @@ function receive(message) {
     for (const e of message.events) feedback(e);
   } else if (message.type === "hello") {
     showHello(message, stats);
+    if (message.role === "trainee") askTrainee(send);
+    probeTip = null; // a new session: the probe is not in the hand yet
     view.build(message.scene);
     $("side").value = message.scene.side;
     steer = { ...message.defaults.reamer }; // a new session starts from the server's aim: so does the page
@@ -70,11 +73,11 @@ function feedback(event) {
   stats.events.push(event.kind);
   if (event.kind === "acquired") {
     beep(880);
-    toast(`acquired ${event.landmark} (${(event.value * 1000).toFixed(1)} mm from target)`, "good");
+    toast(`acquired ${plainName(event.landmark)}: ${(event.value * 1000).toFixed(1)} mm from the landmark`, "good");
   } else if (event.kind === "completed") {
     beep(660, 0.1); setTimeout(() => beep(990, 0.2), 120);
   } else if (event.kind === "app_built") {
-    toast(`anterior pelvic plane built · fit ${event.detail}`, "good");
+    toast(`pelvis registered: angles are now measured on this patient (fit error ${event.detail})`, "good");
   } else if (event.kind === "tracking_lost") {
     beep(220, 0.2);
     toast(`tracking lost: ${event.detail}`, "error");
@@ -95,7 +98,7 @@ function showState(s) {
   setText("reg-count", `${reg.acquired.length} / ${reg.total}`);
   const bar = `${(100 * reg.acquired.length) / reg.total}%`;
   if ($("reg-bar").style.width !== bar) $("reg-bar").style.width = bar;
-  setText("reg-target", reg.done ? `done · fit ${reg.rms_mm.toFixed(2)} mm` : reg.current ?? "—");
+  setText("reg-target", reg.done ? `done · fit error ${reg.rms_mm.toFixed(2)} mm` : reg.current ? plainName(reg.current) : "—");
   const cal = s.calibration;
   setText("calibration-status",
     cal.state === "sampling" ? `sampling ${cal.samples} / ${cal.needed} — hold still` :
@@ -143,9 +146,94 @@ function sendSteer() {
 $("steer-inc").addEventListener("input", (e) => { steer.inclination_deg = Number(e.target.value); sendSteer(); });
 $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number(e.target.value); sendSteer(); });
 
-const touch = (landmark = null) => send({ type: "probe", action: "touch", landmark });
-$("touch").addEventListener("click", () => touch());
-$("lift").addEventListener("click", () => send({ type: "probe", action: "lift" }));
+// ---- the probe without a tracker: the trainee puts its tip on each landmark ----------------------
+// Drag (or click) from near the glowing landmark or the probe's tip: the tip follows the pointer over
+// the bone at the landmark's depth (the plane through it facing the view). Arrow keys nudge it 1 mm
+// (Shift: 5 mm) across the view; Space brings the probe to the bone near the next landmark. Held
+// still for ½ s within 5 mm of it, the landmark is acquired: the report scores how close.
+let probeTip = null; // where this page put the tip (scene frame, metres)
+let lastPlaced = 0;
+const plainName = (name) => name.replaceAll("_", " ");
+const registering = () => state && !state.registration.done && state.tools.Probe?.source !== "tracker";
+const currentTarget = () => (state?.registration.current ? view.sceneInfo.landmarks[state.registration.current] : null);
+
+function screenOf(point) {
+  const p = new THREE.Vector3(...point).project(view.camera);
+  return [((p.x + 1) / 2) * window.innerWidth, ((1 - p.y) / 2) * window.innerHeight];
+}
+
+// The pointer's point on the plane through `anchor` facing the view.
+function pointerOnPlane(clientX, clientY, anchor) {
+  const caster = new THREE.Raycaster();
+  caster.setFromCamera(new THREE.Vector2((clientX / window.innerWidth) * 2 - 1, -(clientY / window.innerHeight) * 2 + 1), view.camera);
+  const normal = view.camera.getWorldDirection(new THREE.Vector3());
+  const hit = caster.ray.intersectPlane(new THREE.Plane().setFromNormalAndCoplanarPoint(normal, new THREE.Vector3(...anchor)), new THREE.Vector3());
+  return hit ? hit.toArray() : null;
+}
+
+// Pixels one millimetre spans at the current landmark (how fine a drag can be).
+function millimetrePixels() {
+  const target = currentTarget();
+  if (!target) return null;
+  const right = new THREE.Vector3().setFromMatrixColumn(view.camera.matrixWorld, 0).multiplyScalar(0.001);
+  const [x0, y0] = screenOf(target), [x1, y1] = screenOf([target[0] + right.x, target[1] + right.y, target[2] + right.z]);
+  return Math.hypot(x1 - x0, y1 - y0);
+}
+
+function placeProbe(tip, force = false) {
+  probeTip = tip;
+  const now = performance.now();
+  if (!force && now - lastPlaced < 30) return; // a drag sends at most ~30 positions a second
+  lastPlaced = now;
+  send({ type: "probe", action: "place", tip_mm: tip.map((x) => x * 1000) });
+}
+
+// Across the view by (right, up) millimetres.
+function nudgeProbe(right, up) {
+  const r = new THREE.Vector3().setFromMatrixColumn(view.camera.matrixWorld, 0);
+  const u = new THREE.Vector3().setFromMatrixColumn(view.camera.matrixWorld, 1);
+  const tip = new THREE.Vector3(...probeTip).addScaledVector(r, right * 0.001).addScaledVector(u, up * 0.001);
+  placeProbe(tip.toArray(), true);
+}
+
+// Space: the probe on the bone 6–10 mm from the next landmark, in a direction of chance across the view.
+function approach() {
+  const target = currentTarget();
+  if (!target) return;
+  probeTip = target;
+  const angle = Math.random() * 2 * Math.PI, distance = 6 + 4 * Math.random();
+  nudgeProbe(distance * Math.cos(angle), distance * Math.sin(angle));
+}
+
+let dragging = false;
+canvas.addEventListener("pointerdown", (e) => {
+  if (e.button !== 0 || !registering() || stats.role !== "trainee") return;
+  const near = (point) => point && Math.hypot(...screenOf(point).map((v, k) => v - [e.clientX, e.clientY][k])) < 40;
+  if (!near(currentTarget()) && !near(probeTip)) return; // elsewhere, a drag turns the view
+  dragging = true;
+  orbit.enabled = false;
+  canvas.setPointerCapture(e.pointerId);
+  const tip = pointerOnPlane(e.clientX, e.clientY, currentTarget() ?? probeTip);
+  if (tip) placeProbe(tip, true);
+});
+canvas.addEventListener("pointermove", (e) => {
+  if (!dragging) return;
+  const tip = pointerOnPlane(e.clientX, e.clientY, currentTarget() ?? probeTip);
+  if (tip) placeProbe(tip);
+});
+const endDrag = (e) => {
+  if (!dragging) return;
+  dragging = false;
+  orbit.enabled = true;
+  const tip = pointerOnPlane(e.clientX, e.clientY, currentTarget() ?? probeTip);
+  if (tip) placeProbe(tip, true); // where the hand stopped
+};
+canvas.addEventListener("pointerup", endDrag);
+canvas.addEventListener("pointercancel", endDrag);
+
+$("touch").addEventListener("click", () => approach());
+const lift = () => { probeTip = null; send({ type: "probe", action: "lift" }); };
+$("lift").addEventListener("click", lift);
 $("retake").addEventListener("click", () => send({ type: "registration", action: "retake" }));
 $("restart").addEventListener("click", () => send({ type: "registration", action: "restart" }));
 $("confirm").addEventListener("click", () => send({ type: "confirm_cup" }));
@@ -158,15 +246,6 @@ $("occluder").addEventListener("change", (e) => send({ type: "occluder", present
 $("help-toggle").addEventListener("click", () => $("help").classList.toggle("hidden"));
 $("help-close").addEventListener("click", () => $("help").classList.add("hidden"));
 
-// Clicking a landmark point touches it with the probe (a click, not the end of an orbit drag).
-let down = null;
-canvas.addEventListener("pointerdown", (e) => { down = [e.clientX, e.clientY]; });
-canvas.addEventListener("pointerup", (e) => {
-  if (!down || Math.hypot(e.clientX - down[0], e.clientY - down[1]) > 4) return;
-  const name = view.pick((e.clientX / window.innerWidth) * 2 - 1, -(e.clientY / window.innerHeight) * 2 + 1);
-  if (name) touch(name);
-});
-
 let lastViewerSent = 0;
 function sendViewer() { send({ type: "viewer", pose: view.viewerPose() }); lastViewerSent = performance.now(); }
 orbit.addEventListener("change", () => { if (performance.now() - lastViewerSent > 100) sendViewer(); });
@@ -175,17 +254,19 @@ const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
 document.addEventListener("keydown", (e) => {
   if (e.target instanceof HTMLInputElement && e.target.type === "range") return;
   if (e.target instanceof HTMLSelectElement) return;
+  if (document.querySelector("dialog[open]")) return; // a question on screen: keys answer it, not the trainer
   const step = e.shiftKey ? 5 : 1;
   if (!steer) return; // before the hello: nothing to steer yet
+  const probing = registering() && probeTip !== null; // while registering, the arrows move the probe's tip
   const handled = {
-    " ": () => touch(),
+    " ": () => approach(),
     Backspace: () => send({ type: "registration", action: "retake" }),
-    l: () => send({ type: "probe", action: "lift" }),
+    l: lift,
     Enter: () => send({ type: "confirm_cup" }),
-    ArrowUp: () => { steer.inclination_deg = clamp(steer.inclination_deg + step, 0, 90); sendSteer(); },
-    ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
-    ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
-    ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    ArrowUp: () => { if (probing) return nudgeProbe(0, step); steer.inclination_deg = clamp(steer.inclination_deg + step, 0, 90); sendSteer(); },
+    ArrowDown: () => { if (probing) return nudgeProbe(0, -step); steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
+    ArrowRight: () => { if (probing) return nudgeProbe(step, 0); steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
+    ArrowLeft: () => { if (probing) return nudgeProbe(-step, 0); steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
     "[": () => { camera.azimuth_deg = ((camera.azimuth_deg - 5 + 540) % 360) - 180; sendCamera(); },
     "]": () => { camera.azimuth_deg = ((camera.azimuth_deg + 5 + 540) % 360) - 180; sendCamera(); },
     v: () => { $("show-volume").checked = !$("show-volume").checked; view.setVolumeVisible($("show-volume").checked); dirty = true; },

@@ -22,6 +22,9 @@ export function setText(id, text) {
   if (element.textContent !== text) element.textContent = text;
 }
 
+// Plain names of the tracked tools.
+export const TOOL_NAMES = { Reference: "Pelvis marker array", Probe: "Probe", Reamer: "Reamer" };
+
 export const REASONS = { tracked: "tracked", outside_volume: "outside the volume", angle: "turned beyond 45°", occluded: "line of sight blocked", stale: "no recent pose", missing: "not in use" };
 
 // The tracking list, rebuilt only when a tool's state changed.
@@ -36,7 +39,7 @@ export function showTools(states) {
     const li = document.createElement("li");
     const dot = document.createElement("span");
     dot.className = `dot ${t.reason === "missing" ? "none" : t.tracked ? "on" : "off"}`;
-    li.append(dot, `${name}: ${REASONS[t.reason] ?? t.reason}`);
+    li.append(dot, `${TOOL_NAMES[name] ?? name}: ${REASONS[t.reason] ?? t.reason}`);
     if (t.angle_deg !== null && t.angle_deg !== undefined) li.append(` (${t.angle_deg.toFixed(0)}°)`);
     li.dataset.tool = name;
     li.dataset.reason = t.reason;
@@ -63,8 +66,95 @@ export function showSaved(message) {
   link.target = "_blank";
   link.id = "report-link";
   link.textContent = "Open the assessment report";
-  box.append("Session saved: ", link);
+  const rate = document.createElement("button");
+  rate.id = "rate-session";
+  rate.textContent = "Rate this session";
+  rate.title = "An optional questionnaire: how realistic and useful the trainer felt";
+  rate.addEventListener("click", () => openQuestionnaire(message.session));
+  box.append("Session saved: ", link, " · ", rate);
   toast("session saved", "good");
+}
+
+// ---- the trainee's name and the post-session questionnaire ---------------------------------------
+
+const TRAINEE_KEY = "thrsim-trainee";
+// As the server checks it (thrsim.app.controls.TRAINEE_PATTERN): it names the trainee's record page.
+const TRAINEE_PATTERN = /^[A-Za-z0-9][A-Za-z0-9 ._-]{0,39}$/;
+
+// Who trains: asked in the first panel until given, remembered by this browser, and sent again to
+// every new session of the page (after each end), so each session file names its trainee.
+export function askTrainee(send) {
+  let box = $("trainee");
+  if (!box) {
+    box = document.createElement("section");
+    box.id = "trainee";
+    box.innerHTML = '<h2>Who is training?</h2><form id="trainee-form"><label>Your name or trainee ID <input id="trainee-id" maxlength="40" autocomplete="off"></label>' +
+      '<button id="trainee-save" class="primary" type="submit">Start as this trainee</button></form><div id="trainee-shown" class="muted"></div>';
+    $("steps").prepend(box);
+    $("trainee-id").addEventListener("keydown", (e) => e.stopPropagation()); // typing is not a shortcut
+    $("trainee-form").addEventListener("submit", (e) => {
+      e.preventDefault();
+      const id = $("trainee-id").value.trim();
+      if (!TRAINEE_PATTERN.test(id)) {
+        toast("a name or ID of 1–40 letters, digits, spaces, dots, dashes or underscores, starting with a letter or digit", "error");
+        return;
+      }
+      localStorage.setItem(TRAINEE_KEY, id);
+      $("trainee-id").blur();
+      sendTrainee(send);
+    });
+  }
+  sendTrainee(send);
+}
+
+function sendTrainee(send) {
+  const id = localStorage.getItem(TRAINEE_KEY);
+  const known = id !== null && TRAINEE_PATTERN.test(id);
+  $("trainee").classList.toggle("asking", !known);
+  $("trainee-form").classList.toggle("hidden", known);
+  $("trainee-shown").innerHTML = "";
+  if (!known) return;
+  const link = document.createElement("a");
+  link.href = `/trainee/${encodeURIComponent(id.toLowerCase())}`;
+  link.target = "_blank";
+  link.textContent = "your record";
+  const change = document.createElement("button");
+  change.textContent = "Change";
+  change.addEventListener("click", () => { localStorage.removeItem(TRAINEE_KEY); $("trainee-id").value = id; sendTrainee(send); $("trainee-id").focus(); });
+  $("trainee-shown").append(`Training as ${id} · `, link, " ", change);
+  send({ type: "trainee", id });
+}
+
+// The optional questionnaire after a session (Likert 1–5, the thesis's face-validation items):
+// stored in the saved session's file, exported with its metrics.
+async function openQuestionnaire(session) {
+  const response = await fetch("/api/questionnaire");
+  const { items, scale } = await response.json();
+  let dialog = $("questionnaire");
+  if (dialog) dialog.remove();
+  dialog = document.createElement("dialog");
+  dialog.id = "questionnaire";
+  const rows = Object.entries(items).map(([item, statement]) => {
+    const choices = Object.entries(scale).map(([value, words]) =>
+      `<label title="${words}"><input type="radio" name="${item}" value="${value}"> ${value}</label>`).join("");
+    return `<tr><td>${statement}</td><td class="likert">${choices}</td></tr>`;
+  }).join("");
+  dialog.innerHTML = `<form method="dialog"><h2>How was this session?</h2><p class="hint">1 strongly disagree · 3 neutral · 5 strongly agree. Every item is optional.</p>` +
+    `<table>${rows}</table><label>Comment <textarea id="q-comment" maxlength="1000" rows="2"></textarea></label>` +
+    `<div class="row"><button id="q-send" class="primary" value="send">Send answers</button><button value="cancel">Not now</button></div></form>`;
+  document.body.append(dialog);
+  dialog.addEventListener("keydown", (e) => e.stopPropagation());
+  dialog.addEventListener("close", async () => {
+    if (dialog.returnValue !== "send") return;
+    const answers = {};
+    for (const input of dialog.querySelectorAll("input[type=radio]:checked")) answers[input.name] = Number(input.value);
+    const reply = await fetch(`/api/sessions/${session}/questionnaire`, {
+      method: "POST", headers: { "content-type": "application/json" }, body: JSON.stringify({ answers, comment: $("q-comment").value }),
+    });
+    const body = await reply.json();
+    toast(reply.ok ? "thank you: your answers are saved with the session" : `answers not saved: ${body.error}`, reply.ok ? "good" : "error");
+  });
+  dialog.showModal();
 }
 
 // Opens /ws/<mode> (this page's own session, or the one it observes), retrying every second after a

@@ -4,7 +4,7 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
-import { $, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
+import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene } from "./scene.js";
 
 const canvas = $("view");
@@ -116,6 +116,7 @@ function receive(message) {
   } else if (message.type === "hello" || message.type === "scene") {
     if (message.type === "hello") {
       showHello(message, stats);
+      if (message.role === "trainee") askTrainee(send);
       if (document.visibilityState !== "visible") sendVisibility(); // a session that starts while the page is hidden holds too
       steer = { ...message.defaults.reamer };
       planEdited = false; // a new session: its plan
@@ -312,7 +313,9 @@ $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number
 $("force").addEventListener("input", (e) => { force = Number(e.target.value); sendForce(); });
 $("run").addEventListener("click", () => send({ type: "run", action: running ? "pause" : "start" }));
 $("undo").addEventListener("click", () => send({ type: "run", action: "undo" }));
-$("reset").addEventListener("click", () => send({ type: "run", action: "reset" }));
+// Restoring the bone loses the cavity: the page asks first.
+$("reset").addEventListener("click", () => $("confirm-restore").showModal());
+$("confirm-restore").addEventListener("close", () => { if ($("confirm-restore").returnValue === "restore") send({ type: "run", action: "reset" }); });
 $("end").addEventListener("click", () => { $("end").disabled = true; send({ type: "end_session" }); }); // again once the server answers
 // Hiding or leaving the page pauses reaming: the server holds this session's simulator while the
 // page is hidden, and a running reamer goes on when it shows again.
@@ -329,6 +332,7 @@ const clamp = (x, lo, hi) => Math.min(hi, Math.max(lo, x));
 document.addEventListener("keydown", (e) => {
   if (e.target instanceof HTMLInputElement) return; // a slider's arrows or a plan field's typing
   if (e.target instanceof HTMLSelectElement) return;
+  if (document.querySelector("dialog[open]")) return; // a question on screen: keys answer it, not the trainer
   if (!steer) return; // before the hello: nothing to steer yet
   const step = e.shiftKey ? 5 : 1;
   const handled = {

@@ -211,7 +211,6 @@ export class NavigationScene {
     const grid = new THREE.GridHelper(4, 20, 0x3a434d, 0x2b323a); // the operating table's plane, 20 cm squares
     grid.position.y = -0.2;
     this.scene.add(grid);
-    this.pickable = [];
     this.content = null;
   }
 
@@ -251,15 +250,6 @@ export class NavigationScene {
     this.nextLandmark = new THREE.Mesh(ball, new THREE.MeshLambertMaterial({ color: YELLOW, emissive: 0x806000 }));
     this.nextLandmark.visible = false;
     this.content.add(this.nextLandmark);
-    this.pickable = [];
-    for (const [name, p] of Object.entries(scene.landmarks)) {
-      // A larger invisible sphere makes the small point easy to click.
-      const hit = new THREE.Mesh(new THREE.SphereGeometry(0.012, 8, 6), new THREE.MeshBasicMaterial({ visible: false }));
-      hit.position.copy(v(p));
-      hit.userData.landmark = name;
-      this.content.add(hit);
-      this.pickable.push(hit);
-    }
     const target = new THREE.Mesh(new THREE.PlaneGeometry(0.08, 0.08), new THREE.MeshLambertMaterial({ color: 0xf0f0f0, side: THREE.DoubleSide }));
     target.position.copy(v(scene.calibration_target));
     this.content.add(target);
@@ -346,13 +336,6 @@ export class NavigationScene {
     this.root.updateMatrixWorld();
     const inModel = this.root.matrixWorld.clone().invert().multiply(this.camera.matrixWorld);
     return inModel.clone().transpose().toArray();
-  }
-
-  pick(ndcX, ndcY) {
-    const caster = new THREE.Raycaster();
-    caster.setFromCamera(new THREE.Vector2(ndcX, ndcY), this.camera);
-    const hit = caster.intersectObjects(this.pickable, false)[0];
-    return hit ? hit.object.userData.landmark : null;
   }
 
   render() { this.renderer.render(this.scene, this.camera); }

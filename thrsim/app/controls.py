@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import reprlib
-from typing import Annotated, Literal, Union, get_args
+from typing import Annotated, Any, Literal, Union, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 
@@ -187,7 +187,9 @@ class _Parser:
     """Validates one mode's control messages: one JSON object whose ``type`` picks the model."""
 
     def __init__(self, models: tuple[type[_Control], ...]):
-        self.adapter: TypeAdapter = TypeAdapter(Annotated[Union[models], Field(discriminator="type")])  # noqa: UP007 (a tuple of models)
+        # a union built at run time is a typing form that pydantic's stubs type differently across versions: held as Any
+        union: Any = Annotated[Union[models], Field(discriminator="type")]  # noqa: UP007 (a tuple of models)
+        self.adapter: TypeAdapter = TypeAdapter(union)
         self.types: tuple[str, ...] = tuple(sorted(get_args(m.model_fields["type"].annotation)[0] for m in models))
 
     def __call__(self, text: str | bytes | dict) -> _Control:

@@ -92,7 +92,7 @@ def format_list(values: tuple[float, ...]) -> str:
         return "none"
     if len(values) >= 5:
         step = values[1] - values[0]
-        if step > 0 and all(math.isclose(b - a, step, abs_tol=1e-9) for a, b in zip(values, values[1:])):
+        if step > 0 and all(math.isclose(b - a, step, abs_tol=1e-9) for a, b in zip(values, values[1:], strict=False)):
             return f"{values[0]:g}:{values[-1]:g}:{step:g}"
     return ",".join(f"{v:g}" for v in values)
 

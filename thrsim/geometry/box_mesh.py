@@ -47,7 +47,7 @@ def box_mesh(
         raise ValueError(f"cells must be positive, got {cells}")
     if scheme not in ("six", "five"):
         raise ValueError(f"scheme must be 'six' or 'five', got {scheme!r}")
-    xs = [np.linspace(o, o + s, n + 1) for o, s, n in zip(origin, size, (nx, ny, nz))]
+    xs = [np.linspace(o, o + s, n + 1) for o, s, n in zip(origin, size, (nx, ny, nz), strict=True)]
     gz, gy, gx = np.meshgrid(xs[2], xs[1], xs[0], indexing="ij")
     nodes = np.column_stack([gx.ravel(), gy.ravel(), gz.ravel()])
 
@@ -74,7 +74,7 @@ def box_mesh(
 
     if jitter > 0.0:
         rng = np.random.default_rng(seed)
-        h = np.array([s / n for s, n in zip(size, (nx, ny, nz))])
+        h = np.array([s / n for s, n in zip(size, (nx, ny, nz), strict=True)])
         inner = sets["interior"]
         nodes[inner] += rng.uniform(-jitter, jitter, size=(len(inner), 3)) * h
 

@@ -120,7 +120,7 @@ class TetMesh:
                 raise ThrsimInputError(
                     f"{source}: material tag {int(self.material.max())} has no name (names: {', '.join(self.material_names)})"
                 )
-        self.adjacency  # raises on non-manifold faces
+        _ = self.adjacency  # built here: raises on non-manifold faces
         return report
 
     def mirrored(self, axis: int = 0) -> TetMesh:

@@ -123,7 +123,7 @@ def _gmsh_physical_node_sets(raw) -> dict[str, np.ndarray]:
     if not names or physical is None:
         return {}
     sets: dict[str, list[np.ndarray]] = {}
-    for block, tags in zip(raw.cells, physical):
+    for block, tags in zip(raw.cells, physical, strict=True):
         if block.type in ("tetra", "tetra10"):
             continue
         for tag in np.unique(tags):

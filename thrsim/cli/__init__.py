@@ -94,5 +94,4 @@ def main() -> None:
     except KeyboardInterrupt:
         typer.echo("thrsim: interrupted", err=True)
         sys.exit(130)
-    if isinstance(code, int) and code:  # typer.Exit's code: a stopped sweep, a failed check
-        sys.exit(code)
+    sys.exit(code if isinstance(code, int) else 0)  # typer.Exit's code (a stopped sweep, a failed check), else success

@@ -523,7 +523,7 @@ def _check_history(g: h5py.Group, path: Path, n_frames: int, n_el: int, prepared
     status_ds, peeq_ds, vm_ds = g["status"], g["peeq"], g["von_mises"]
     damage_ds = {name: g[name] for name in OPTIONAL_PER_ELEMENT if name in g}
     prev_damage: dict[str, np.ndarray] = {}
-    prev_status = prev_peeq = None
+    prev_status = prev_peeq = np.zeros(0)  # frame 0 sets them before any later frame reads them
     removed_per_frame: list[int] = []
     peeq_max = 0.0
     vm_min, vm_max = np.inf, -np.inf

@@ -70,6 +70,8 @@ class Executor(Protocol):
 
     def stop(self) -> None: ...
 
+    def restart(self) -> None: ...
+
 
 def is_worker_lost(error: BaseException) -> bool:
     """True when the error means the process running the task died (not that the task failed)."""
@@ -187,7 +189,7 @@ class DaskExecutor:
         self.description = f"Dask scheduler {address}, {self.workers} worker(s)"
 
     def submit(self, fn: Callable, *args: Any, key: str | None = None) -> Any:
-        kwargs = {"pure": False}
+        kwargs: dict[str, Any] = {"pure": False}
         if key is not None:
             import uuid
 

@@ -160,6 +160,8 @@ def _pack_attrs(manifest: dict, labels: LabelConfig) -> dict[str, Any]:
 def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels: LabelConfig) -> None:
     """Reduce one case file into ``group``."""
     status = reader.series("status")
+    if status is None:
+        raise ThrsimInputError(f"{reader.path}: no /frames/status to pack")
     alpha = alpha_label(reader.series("peeq"), reader.series("von_mises"), status, labels)
     group.create_dataset("alpha", data=quantise_alpha(alpha), chunks=(min(4096, alpha.shape[1]), alpha.shape[0]), **_ALPHA_COMPRESSION)
     group.create_dataset("removed_frame", data=removal_frames(status, str(reader.path)), compression="gzip", compression_opts=9)
@@ -313,6 +315,8 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
                     write_mesh_group(group.create_group("mesh"), reader.mesh)  # a window of the socket: its own mesh
                 _write_case_group(group, reader, entry, labels)
                 added.append(entry["case_id"])
+        if mesh is None:
+            raise ThrsimInputError(f"{out}: no case to pack")
         write_mesh_group(f.create_group("mesh"), mesh)
         own_meshes = any("mesh" in cases[case_id] for case_id in cases)
         f.attrs.update(
@@ -351,6 +355,8 @@ def read_pack(
             if case.case_id in out:
                 raise ThrsimInputError(f"{path}: case {case.case_id} is in two pack files")
             out[case.case_id] = case
+    if mesh is None:
+        raise ThrsimInputError(f"{path}: a learning pack without a pack file")
     return mesh, [out[case_id] for case_id in sorted(out)]
 
 

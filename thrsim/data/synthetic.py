@@ -36,20 +36,20 @@ def block_mesh(n: int = 4, size_m: float = 4e-3, depth_m: float = 2e-3, z0_m: fl
     def nid(i, j, k):
         return (i * (n + 1) + j) * (nz + 1) + k
 
-    tets = []
+    tets: list[list[int]] = []
     for i in range(n):
         for j in range(n):
             for k in range(nz):
                 corners = [nid(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) for c in range(8)]
                 tets.extend([[corners[c] for c in tet] for tet in _KUHN])
-    tets = np.array(tets, dtype=np.int64)
-    a, b, c, d = (nodes[tets[:, m]] for m in range(4))
+    tet_array = np.array(tets, dtype=np.int64)
+    a, b, c, d = (nodes[tet_array[:, m]] for m in range(4))
     vol = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)
     flip = vol < 0
-    tets[flip] = tets[flip][:, [0, 2, 1, 3]]
+    tet_array[flip] = tet_array[flip][:, [0, 2, 1, 3]]
     fixed = np.flatnonzero(np.isclose(nodes[:, 2], zs[0]))
     inner = np.flatnonzero(np.isclose(nodes[:, 2], zs[-1]))
-    return TetMesh(nodes=nodes, tets=tets, node_sets={"outer": fixed, "inner": inner}, fixed_nodes=fixed)
+    return TetMesh(nodes=nodes, tets=tet_array, node_sets={"outer": fixed, "inner": inner}, fixed_nodes=fixed)
 
 
 def synthetic_run_case(

@@ -79,4 +79,5 @@ def exposed_faces(adjacency: FaceAdjacency, active: np.ndarray) -> tuple[np.ndar
     active = np.asarray(active, dtype=bool)
     neighbour_active = np.where(adjacency.neighbours >= 0, active[np.maximum(adjacency.neighbours, 0)], False)
     visible = active[:, None] & ~neighbour_active
-    return np.nonzero(visible)
+    elements, faces = np.nonzero(visible)
+    return elements, faces

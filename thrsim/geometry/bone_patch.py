@@ -39,7 +39,7 @@ def generate_bone_patch(config: BonePatchConfig | None = None) -> TetMesh:
         patch, _ = occ.intersect(shell, [(3, cone)])
         occ.synchronize()
 
-        faces = {OUTER: [], INNER: [], SIDE: []}
+        faces: dict[str, list[int]] = {OUTER: [], INNER: [], SIDE: []}
         for dim, tag in gmsh.model.getBoundary(patch, oriented=False):
             kind = gmsh.model.getType(dim, tag)
             if kind == "Sphere":

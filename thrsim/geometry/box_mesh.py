@@ -54,8 +54,7 @@ def box_mesh(
     def node_id(i, j, k):
         return i + (nx + 1) * (j + (ny + 1) * k)
 
-    ci, cj, ck = np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij")
-    ci, cj, ck = ci.ravel(), cj.ravel(), ck.ravel()
+    ci, cj, ck = (index.ravel() for index in np.meshgrid(np.arange(nx), np.arange(ny), np.arange(nz), indexing="ij"))
     corners = np.stack([node_id(ci + (c & 1), cj + ((c >> 1) & 1), ck + ((c >> 2) & 1)) for c in range(8)], axis=1)
     if scheme == "six":
         tets = corners[:, _KUHN].reshape(-1, 4)

@@ -12,6 +12,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -26,7 +27,7 @@ NODE_GRID_PER_MM = 1e6
 
 
 @contextlib.contextmanager
-def gmsh_session(name: str) -> Iterator[object]:
+def gmsh_session(name: str) -> Iterator[Any]:
     """A quiet, single-threaded gmsh model named ``name``; yields the gmsh module, removes the model after."""
     import gmsh
 
@@ -93,8 +94,8 @@ def read_back(gmsh, faces: dict[str, list[int]]) -> GmshTets:
     tets = index_of[tet_tags]
     node_sets = {}
     for name, tags in faces.items():
-        ids = [np.asarray(gmsh.model.mesh.getNodes(2, t, includeBoundary=True)[0], dtype=np.int64) for t in tags]
-        ids = np.concatenate(ids) if ids else np.zeros(0, dtype=np.int64)
+        per_face = [np.asarray(gmsh.model.mesh.getNodes(2, t, includeBoundary=True)[0], dtype=np.int64) for t in tags]
+        ids = np.concatenate(per_face) if per_face else np.zeros(0, dtype=np.int64)
         node_sets[name] = index_of[ids[index_of[ids] >= 0]]
     inverted = signed_volumes(nodes_m, tets) < 0
     tets = np.where(inverted[:, None], tets[:, [0, 2, 1, 3]], tets)

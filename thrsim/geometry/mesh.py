@@ -22,6 +22,8 @@ ARTICULAR, MEDIAL_WALL, SUPPORTED, RIM = "articular", "medial_wall", "supported"
 WINDOW_SIDE = "window_side"
 #: bone materials by name; a mesh without material tags is all cortical (the thesis's patch)
 CORTICAL, CANCELLOUS = "cortical", "cancellous"
+#: the material names of a mesh without material tags: all cortical
+DEFAULT_MATERIAL_NAMES: tuple[str, ...] = (CORTICAL,)
 #: the materials a mesh file's element sets or cell data may name
 MATERIAL_NAMES = (CORTICAL, CANCELLOUS)
 
@@ -41,7 +43,7 @@ class TetMesh:
     node_sets: dict[str, np.ndarray] = field(default_factory=dict)
     fixed_nodes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int32))
     material: np.ndarray | None = None
-    material_names: tuple[str, ...] = (CORTICAL,)
+    material_names: tuple[str, ...] = DEFAULT_MATERIAL_NAMES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "nodes", np.ascontiguousarray(self.nodes, dtype=np.float64))

@@ -19,7 +19,7 @@ import numpy as np
 
 from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import MATERIAL_NAMES, TetMesh
+from thrsim.geometry.mesh import DEFAULT_MATERIAL_NAMES, MATERIAL_NAMES, TetMesh
 from thrsim.hdf5_checks import read_dataset
 from thrsim.provenance import package_versions
 
@@ -101,7 +101,7 @@ def _materials(raw, tet_blocks) -> tuple[np.ndarray | None, tuple[str, ...]]:
         if name in MATERIAL_NAMES and int(dim) == 3 and physical is not None:
             members[name] = np.concatenate([np.asarray(physical[i]).ravel() == int(tag) for i in tet_index])
     if not members:
-        return None, TetMesh.__dataclass_fields__["material_names"].default
+        return None, DEFAULT_MATERIAL_NAMES
     names = tuple(name for name in MATERIAL_NAMES if name in members)
     material = np.full(sum(len(block.data) for block in tet_blocks), 255, dtype=np.uint8)
     for index, name in enumerate(names):
@@ -169,7 +169,7 @@ def read_mesh_group(group: h5py.Group) -> TetMesh:
     fixed = read_dataset(group, "fixed_nodes", source, "iu", (None,)) if "fixed_nodes" in group else np.zeros(0, dtype=np.int32)
     nodes = read_dataset(group, "nodes", source, "f", (None, 3))
     tets = read_dataset(group, "tets", source, "iu", (None, 4))
-    material, names = None, TetMesh.__dataclass_fields__["material_names"].default
+    material, names = None, DEFAULT_MATERIAL_NAMES
     if "material" in group:
         material = read_dataset(group, "material", source, "u", (len(tets),))
         try:

@@ -16,6 +16,7 @@ from thrsim.cli import app
 NO_JSON = {
     (): "the root only lists the commands (and --version prints the version)",
     ("nav",): "nav only lists its commands",
+    ("sessions",): "sessions only lists its commands",
 }
 
 

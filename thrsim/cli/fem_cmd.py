@@ -18,6 +18,7 @@ from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_s
 from thrsim.data.checkpoint import CHECKPOINT_EVERY_S, checkpoint_path
 from thrsim.errors import ThrsimInputError
 
+MAX_CHECKPOINT_EVERY_S = 7 * 24 * 3600.0
 # the help shows the configuration's defaults, not copies of them that can fall behind
 _CONTACT = ContactConfig()
 
@@ -108,8 +109,10 @@ def fem(
     them) or with the clinical --cup-inclination/--cup-anteversion (radiographic, anterior pelvic
     plane, as the trainer shows them; see `thrsim ream --help`), one pair.
     """
-    if not 0.0 <= checkpoint_every < math.inf:
-        raise ThrsimInputError(f"--checkpoint-every must be a number of seconds, 0 or more, got {checkpoint_every:g}")
+    if not 0.0 <= checkpoint_every <= MAX_CHECKPOINT_EVERY_S:
+        raise ThrsimInputError(
+            f"--checkpoint-every must be a number of seconds from 0 to {MAX_CHECKPOINT_EVERY_S:g} (a week), got {checkpoint_every:g}"
+        )
     if force is not None and feed is not None:
         raise ThrsimInputError("give --force (force control) or --feed (feed control), not both")
     if start_from is not None and not start_from.is_file():

@@ -20,12 +20,13 @@ from pathlib import Path
 
 import numpy as np
 
+from thrsim.config import SweepConfig
 from thrsim.data.case_file import CaseReader
 from thrsim.data.generate import read_manifest
 from thrsim.errors import ThrsimInputError
 
-#: the pushes the seated feed is reported at (N): the thesis's range about its mean 230 N
-PUSHES_N = (150.0, 230.0, 310.0)
+#: the pushes the seated feed is reported at (N): the sweep's, the thesis's range about its mean
+PUSHES_N = tuple(sorted({*SweepConfig().forces_n, *SweepConfig().extra_forces_n}))
 
 
 def _window_area_mm2(radius_mm: float, half_angle_deg: float) -> float:

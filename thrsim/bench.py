@@ -17,6 +17,7 @@ from thrsim.config import BonePatchConfig, ReamingCaseConfig, SocketConfig, head
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.physics.reaming import CONTACT_STEPS, ReamingSimulation
 from thrsim.provenance import package_versions
+from thrsim.verification.reaming_checks import socket_window_case
 
 #: the whole socket's element size in the benchmark: coarse enough for a frame in minutes on two cores
 WHOLE_SOCKET_ELEMENT_MM = 1.5
@@ -63,10 +64,7 @@ def bench_socket(frames: int) -> dict:
     and the whole socket at a coarse size, each against the patch's cost per active element."""
     base = ReamingCaseConfig(inclination_deg=0.0, anteversion_deg=0.0)
     reamer = base.reamer.model_copy(update={"head_diameter_mm": head_diameter_for_size(48.0)})
-    window = base.model_copy(
-        update={"bone_kind": "socket", "feed_mm_s": 1.0, "frames": frames + 1, "reamer": reamer,
-                "socket": SocketConfig(window_polar_deg=30.0, window_azimuth_deg=90.0)}
-    )  # fmt: skip
+    window = socket_window_case(frames + 1)  # the verified window case, the 0.5 dataset's kind
     whole = base.model_copy(
         update={
             "bone_kind": "socket",

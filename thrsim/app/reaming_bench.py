@@ -154,7 +154,7 @@ def time_reaming_page(
                 sent_at = page.evaluate("performance.now()")
                 streaming["pose"] = poses[target]
                 page.wait_for_function(
-                    f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=10_000
+                    f"trainer.stats.probe.drawn > 0 && Math.abs(trainer.stats.probe.inclination - {target}) < 0.5", timeout=60_000
                 )
                 timing = page.evaluate("trainer.stats.probe")
                 arrived.append(timing["arrived"] - sent_at)

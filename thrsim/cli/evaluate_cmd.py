@@ -45,7 +45,7 @@ def evaluate(
 
     torch.set_num_threads(threads)
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
-    mesh, cases = load_cases(data, splits=splits)
+    mesh, cases = load_cases(data, splits=splits, one_mesh=False)
     loaded = load_model(model, expect_mesh=mesh)
     report = run_evaluation(
         loaded,
@@ -63,16 +63,17 @@ def evaluate(
 
 
 def print_comparison(report: dict) -> None:
-    """Rows γ × model; columns P / R / F1 per horizon, beside the thesis's Table 10."""
-    table = Table(title="removed elements on held-out orientations, % (P / R / F1; n = windows)")
-    table.add_column("γ")
+    """Rows γ (a socket model: reamer size) × model; columns P / R / F1 per horizon, beside the thesis's Table 10."""
+    by_size = report.get("rows") == "reamer_diameter_mm"
+    table = Table(title=f"removed elements on held-out {'cases' if by_size else 'orientations'}, % (P / R / F1; n = windows)")
+    table.add_column("reamer mm" if by_size else "γ")
     table.add_column("model")
     horizons = ("1", "30", "60", "end")
     for h in horizons:
         table.add_column(f"t+{h}" if h != "end" else "to end")
     table.add_column("surface mean mm")
     gammas = sorted({g for g in report if g.replace(".", "", 1).isdigit()}, key=float)
-    thesis = report["thesis_table_10_percent"]
+    thesis = {} if by_size else report["thesis_table_10_percent"]
     for g in gammas:
         for name, source in (
             ("GN autonomous", report),

@@ -22,9 +22,10 @@ from collections import defaultdict
 
 import numpy as np
 
-from thrsim.learn.cases import CaseArrays, require_damage
+from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
+from thrsim.learn.graph import StaticGraph
 from thrsim.learn.metrics import Counts, surface_distance_mm
-from thrsim.learn.model_dir import LoadedModel
+from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
 from thrsim.learn.rollout import GeometricStep, LearnedStep, rollout
 
 HORIZONS = (1, 30, 60)
@@ -62,15 +63,24 @@ def windows(
     return out
 
 
-def _steppers(model: LoadedModel) -> dict:
-    learned = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
+def _steppers(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict:
+    """Each mode's step and feed on ``case``'s bone and reamer. A socket model has no autonomous
+    feed yet, so its modes are tool-forced (the MLP's too)."""
+    features, energy = model.settings.features, case.element_cutting_energy_j_m3
+    learned = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
+    mlp = LearnedStep(model.mlp, graph, features, case.teeth_radius_m, energy)
+    geometric = GeometricStep(graph, case.teeth_radius_m)
+    if reads_any_mesh(model.settings):
+        return {"tool_forced": (learned, None), "mlp": (mlp, None), "geometric": (geometric, None)}
     feed = model.reamer_feed()
-    return {
-        "autonomous": (learned, feed),
-        "tool_forced": (learned, None),
-        "mlp": (LearnedStep(model.mlp, model.graph, model.settings.features, model.teeth_radius_m), feed),
-        "geometric": (GeometricStep(model.graph, model.teeth_radius_m), None),
-    }
+    return {"autonomous": (learned, feed), "tool_forced": (learned, None), "mlp": (mlp, feed), "geometric": (geometric, None)}
+
+
+def group_key(model: LoadedModel, case: CaseArrays) -> str:
+    """The row a case's windows count in: its γ (patch) or its reamer size in mm (socket)."""
+    if reads_any_mesh(model.settings):
+        return f"{2e3 * case.teeth_radius_m:g}"
+    return gamma_key(case.inclination_deg)
 
 
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:
@@ -81,10 +91,11 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
-    steppers = _steppers(model)
-    volumes = model.graph.volumes
+    graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
-        g = gamma_key(case.inclination_deg)
+        graph = graphs[case.case_id]
+        steppers, volumes = _steppers(model, case, graph), graph.volumes
+        g = group_key(model, case)
         truth_removed = case.alpha < threshold
         for start, keys, length in windows(case.frames, start_stride, one_step_stride):
             initial = truth_removed[start]
@@ -104,12 +115,13 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                         by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
                 if mode == "autonomous":
                     by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
-                mean_mm, max_mm = surface_distance_mm(model.graph.reamed_surface(~final_pred), model.graph.reamed_surface(~final_true))
+                mean_mm, max_mm = surface_distance_mm(graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true))
                 errors[mode][g]["surface_mean_mm"].append(mean_mm)
                 errors[mode][g]["surface_max_mm"].append(max_mm)
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
+    report["rows"] = "reamer_diameter_mm" if reads_any_mesh(model.settings) else "inclination_deg"
     # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
     report["by_force"] = {
         f: {
@@ -153,6 +165,7 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
             "inclination_deg": c.inclination_deg,
             "anteversion_deg": c.anteversion_deg,
             "force_n": c.force_n,
+            "reamer_diameter_mm": round(2e3 * c.teeth_radius_m, 3),
             "frames": c.frames,
             "end_reason": c.end_reason,
             "split": c.split,

@@ -306,6 +306,11 @@ def read_advance(file: Path) -> ArrayRegressor:
         raise ThrsimInputError(f"{file}: {error}") from None
 
 
+def reads_any_mesh(settings: ModelSettings) -> bool:
+    """A socket model's inputs hold nothing of the bone frame: it runs on any mesh (windows, the whole socket)."""
+    return settings.features.feature_set == "socket"
+
+
 def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | None = None) -> LoadedModel:
     """Read and check a model directory (the shipped model when ``path`` is None)."""
     if path is None:
@@ -323,16 +328,16 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
     mesh = read_mesh(path)
     tensors = _read_safetensors(path / NETWORK, load_tensors)
     advance = read_advance(path / ADVANCE)
-    digest = mesh_digest(mesh)
-    if expect_mesh is not None and mesh_digest(expect_mesh) != digest:
-        raise ThrsimInputError(
-            f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "
-            f"({expect_mesh.n_tets} tets, digest {mesh_digest(expect_mesh)[:12]})"
-        )
     try:
         settings = ModelSettings.model_validate(card["settings"])
     except ValidationError as error:
         raise ThrsimInputError(f"{path}: the card's settings are not valid for this thrsim ({str(error).splitlines()[0]})") from None
+    digest = mesh_digest(mesh)
+    if expect_mesh is not None and not reads_any_mesh(settings) and mesh_digest(expect_mesh) != digest:
+        raise ThrsimInputError(
+            f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "
+            f"({expect_mesh.n_tets} tets, digest {mesh_digest(expect_mesh)[:12]})"
+        )
     threshold = float(card["labels"]["removed_threshold"])
     gn, mlp = LearnedSimulator(settings, "gn", threshold), LearnedSimulator(settings, "mlp", threshold)
     check_network_tensors(path / NETWORK, tensors, network_tensors(gn, mlp))

@@ -50,11 +50,20 @@ class StepInfo:
 class LearnedStep:
     """α(t) → α(t+1) with a trained :class:`LearnedSimulator` (Graph Network or node-wise MLP)."""
 
-    def __init__(self, model: LearnedSimulator, graph: StaticGraph, features: FeatureSettings, teeth_radius_m: float):
+    def __init__(
+        self,
+        model: LearnedSimulator,
+        graph: StaticGraph,
+        features: FeatureSettings,
+        teeth_radius_m: float,
+        cutting_energy_j_m3: np.ndarray | None = None,
+    ):
+        """``cutting_energy_j_m3``: every element's u_c, which the socket feature set reads."""
         self.model = model.eval()
         self.graph = graph
         self.features = features
         self.teeth_radius_m = teeth_radius_m
+        self.cutting_energy_j_m3 = cutting_energy_j_m3
         self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
 
@@ -81,7 +90,16 @@ class LearnedStep:
         alpha_sub = state.alpha[sub.nodes]
         damage_sub = state.damage[sub.nodes] if self.features.damage else None
         arrays = frame_arrays(
-            graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub, self.features.corners
+            graph,
+            sub,
+            alpha_sub,
+            reamer,
+            self.features.feature_set,
+            self.model.threshold,
+            active,
+            damage_sub,
+            self.features.corners,
+            self.cutting_energy_j_m3,
         )
         return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
 

@@ -37,7 +37,7 @@ from safetensors.torch import save as tensor_bytes
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import case_samples, fit_advance
-from thrsim.learn.cases import CaseArrays, require_damage
+from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
@@ -69,15 +69,14 @@ class Trainer:
         train: list[CaseArrays],
         validation: list[CaseArrays],
         settings: ModelSettings,
-        teeth_radius_m: float,
         threshold: float,
         init: LoadedModel | None = None,
     ):
         if not train:
             raise ThrsimInputError("no training cases")
         self.graph, self.train_cases, self.validation = graph, train, validation
-        self.settings, self.teeth_radius_m, self.threshold = settings, teeth_radius_m, threshold
-        self.reach_m = teeth_radius_m + settings.features.reach_margin_mm * 1e-3
+        self.settings, self.threshold = settings, threshold
+        self.graphs = case_graphs(graph, [*train, *validation], any_mesh=settings.features.feature_set == "socket")
         if settings.features.damage:
             require_damage([*train, *validation], 'regenerate the data or train with the settings {"features": {"damage": false}}')
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
@@ -112,6 +111,10 @@ class Trainer:
             digest.update(tensor.detach().contiguous().numpy().tobytes())
         self.init_digest = digest.hexdigest()
 
+    def _step(self, model: LearnedSimulator, case: CaseArrays) -> LearnedStep:
+        """The learned step on ``case``'s bone, with its reamer."""
+        return LearnedStep(model, self.graphs[case.case_id], self.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+
     def _pushed_steps(self, t: int, rng: np.random.Generator | None) -> int:
         """How many of the network's own steps lead to the input at t (0: the ground truth)."""
         train = self.settings.train
@@ -124,7 +127,7 @@ class Trainer:
     def _pushed_state(self, case: CaseArrays, t: int, steps: int) -> BoneState:
         """The bone at t from the Graph Network's tool-forced rollout of ``steps`` frames from the ground truth."""
         was_training = self.gn.training
-        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
+        step = self._step(self.gn, case)
         state = BoneState.start(case.alpha[t - steps], None if case.damage is None else case.damage[t - steps])
         for frame in range(t - steps + 1, t + 1):
             moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
@@ -155,19 +158,20 @@ class Trainer:
         centre = case.positions[t + 1].copy()
         if rng is not None and self.settings.train.position_noise_mm > 0:
             centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
-        graph = self.graph
+        graph = self.graphs[case.case_id]
         active_t = alpha_t >= self.threshold
         if self.settings.features.whole_graph:
             sub = graph.whole()
         else:
-            region = graph.region(active_t, centre, self.reach_m, self.settings.features.front_hops)
+            reach_m = case.teeth_radius_m + self.settings.features.reach_margin_mm * 1e-3
+            region = graph.region(active_t, centre, reach_m, self.settings.features.front_hops)
             sub = graph.subgraph(region, self.settings.features.halo_hops)
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         active = alpha_in >= self.threshold
         alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
         damage_in = None if not with_damage or damage_t is None else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
-        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
+        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
         arrays = frame_arrays(
             graph,
             sub,
@@ -178,6 +182,7 @@ class Trainer:
             active_t,
             damage_in,
             self.settings.features.corners,
+            case.element_cutting_energy_j_m3,
         )
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
         return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
@@ -237,9 +242,9 @@ class Trainer:
         """Micro F1 of newly removed elements after tool-forced rollouts from frame 0 of each validation case."""
         if not self.validation:
             return None
-        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
         counts = Counts()
         for case in self.validation:
+            step = self._step(self.gn, case)
             horizon = min(self.settings.train.validation_horizon, case.frames - 1)
             masks, _ = rollout(step, case, 0, horizon, self.threshold, None)
             start = case.alpha[0] < self.threshold
@@ -252,7 +257,7 @@ class Trainer:
         identity = {
             "settings": self.settings.model_dump(mode="json"),
             "cases": [c.case_id for c in self.train_cases],
-            "mesh": self.graph.digest,
+            "mesh": sorted({graph.digest for graph in self.graphs.values()}),
         }
         if self.init_digest is not None:
             identity["init"] = self.init_digest

@@ -72,7 +72,8 @@ def print_comparison(report: dict) -> None:
     for h in horizons:
         table.add_column(f"t+{h}" if h != "end" else "to end")
     table.add_column("surface mean mm")
-    gammas = sorted({g for g in report if g.replace(".", "", 1).isdigit()}, key=float)
+    sources = (report, report["tool_forced"], report["mlp"], report["geometric"])
+    gammas = sorted({g for source in sources for g in source if g.replace(".", "", 1).isdigit()}, key=float)
     thesis = {} if by_size else report["thesis_table_10_percent"]
     for g in gammas:
         for name, source in (

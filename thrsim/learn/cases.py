@@ -16,7 +16,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig, ReamingCaseConfig
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig, ReamerHoldConfig, ReamingCaseConfig
 from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.data.pack import is_pack, read_pack
@@ -46,6 +46,16 @@ class CaseArrays:
     damage: np.ndarray | None = None  # (T, E) float32 D, where the case records it (solver 0.4.0 on)
     mesh: TetMesh | None = None  # the case's bone
     element_cutting_energy_j_m3: np.ndarray | None = None  # (E,) the cutting law's u_c of each element
+    reaction_n: np.ndarray | None = None  # (T,) the bone's axial reaction on the reamer over each frame
+    motor_torque_n_m: np.ndarray | None = None  # (T,) the torque spinning the reamer took over each frame
+    push_n: np.ndarray | None = None  # (T,) the push along D over each frame: the set push, or what a set feed took
+    hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
+
+    def recorded_push_n(self) -> float:
+        """The push the case was reamed with: the set push, or the median of what its set feed took."""
+        if self.push_n is None or len(self.push_n) < 2:
+            return self.force_n
+        return float(np.median(self.push_n[1:]))
 
     @property
     def frames(self) -> int:
@@ -68,7 +78,7 @@ def require_damage(cases: list[CaseArrays], remedy: str) -> None:
 def _element_cutting_energy(config: dict, mesh: TetMesh) -> np.ndarray:
     """u_c (J/m³) of each element from the case's settings (the solver's defaults where a setting is absent)."""
     case = ReamingCaseConfig.model_validate({"inclination_deg": 0.0, "anteversion_deg": 0.0, **config})
-    return cutting_energies(case, mesh)[mesh.material]
+    return cutting_energies(case, mesh)[mesh.element_material]
 
 
 def _case_arrays(
@@ -82,6 +92,9 @@ def _case_arrays(
     axis,
     damage: np.ndarray | None,
     mesh: TetMesh,
+    reaction_n: np.ndarray | None = None,
+    motor_torque_n_m: np.ndarray | None = None,
+    push_n: np.ndarray | None = None,
 ) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
     config = attrs.get("config")
@@ -108,6 +121,10 @@ def _case_arrays(
         damage=None if damage is None else np.asarray(damage, dtype=np.float32),
         mesh=mesh,
         element_cutting_energy_j_m3=_element_cutting_energy(config, mesh),
+        reaction_n=None if reaction_n is None else np.asarray(reaction_n, dtype=np.float64),
+        motor_torque_n_m=None if motor_torque_n_m is None else np.asarray(motor_torque_n_m, dtype=np.float64),
+        push_n=None if push_n is None else np.asarray(push_n, dtype=np.float64),
+        hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
     )
 
 
@@ -116,16 +133,26 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
     frames = case.frames
     alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
     return case.mesh, _case_arrays(
-        case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis, frames.damage, case.mesh
+        case_id,
+        path,
+        split,
+        digest or data_digest(path),
+        case.attrs,
+        alpha,
+        frames.reamer_position,
+        case.reamer_axis,
+        frames.damage,
+        case.mesh,
+        frames.contact_force_axial,
+        frames.motor_torque,
+        frames.push_force,
     )
 
 
 def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
     mesh, packed = read_pack(path, splits, labels)
     return mesh, [
-        _case_arrays(
-            p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage, p.mesh or mesh
-        )
+        _case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage, p.mesh or mesh)
         for p in packed
     ]
 
@@ -185,7 +212,9 @@ def case_graphs(graph: StaticGraph, cases: list[CaseArrays], any_mesh: bool) -> 
         digest = graph.digest if case.mesh is None else mesh_digest(case.mesh)
         if digest not in by_digest:
             if not any_mesh or case.mesh is None:
-                raise ThrsimInputError(f"{case.path}: case {case.case_id} has another mesh than the model's (a patch model learns one mesh)")
+                raise ThrsimInputError(
+                    f"{case.path}: case {case.case_id} has another mesh than the model's (a patch model learns one mesh)"
+                )
             by_digest[digest] = StaticGraph(case.mesh)
         graphs[case.case_id] = by_digest[digest]
     return graphs

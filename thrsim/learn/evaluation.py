@@ -26,7 +26,9 @@ from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.metrics import Counts, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
-from thrsim.learn.rollout import GeometricStep, LearnedStep, rollout
+from thrsim.learn.reaction_feed import ReactionFeed
+from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
+from thrsim.learn.training import next_reaction
 
 HORIZONS = (1, 30, 60)
 MODES = ("autonomous", "tool_forced", "mlp", "geometric")
@@ -64,14 +66,20 @@ def windows(
 
 
 def _steppers(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict:
-    """Each mode's step and feed on ``case``'s bone and reamer. A socket model has no autonomous
-    feed yet, so its modes are tool-forced (the MLP's too)."""
+    """Each mode's step and feed on ``case``'s bone and reamer. A socket model's autonomous feed is
+    the push the case was reamed with against the reaction law (a model without the reaction
+    head has none: its modes are tool-forced)."""
     features, energy = model.settings.features, case.element_cutting_energy_j_m3
     learned = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
     mlp = LearnedStep(model.mlp, graph, features, case.teeth_radius_m, energy)
     geometric = GeometricStep(graph, case.teeth_radius_m)
     if reads_any_mesh(model.settings):
-        return {"tool_forced": (learned, None), "mlp": (mlp, None), "geometric": (geometric, None)}
+        modes: dict[str, tuple[object, object]] = {"tool_forced": (learned, None), "mlp": (mlp, None), "geometric": (geometric, None)}
+        if model.settings.arch.reaction_head:
+            pushed = ReactionFeed(graph.mesh, case.teeth_radius_m, model.threshold, case.frame_dt_s, model.hold)
+            autonomous = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
+            modes = {"autonomous": (autonomous, pushed), **modes, "mlp": (mlp, pushed)}
+        return modes
     feed = model.reamer_feed()
     return {"autonomous": (learned, feed), "tool_forced": (learned, None), "mlp": (mlp, feed), "geometric": (geometric, None)}
 
@@ -83,6 +91,23 @@ def group_key(model: LoadedModel, case: CaseArrays) -> str:
     return gamma_key(case.inclination_deg)
 
 
+def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> tuple[float, float, float, float] | None:
+    """Σ|R̂ − R|, Σ|R|, Σ|T̂ − T|, Σ|T| over a tool-forced pass through ``case``: each frame's law
+    at the next recorded feed against the recorded reaction R and torque T (None: nothing to compare)."""
+    if not model.settings.arch.reaction_head or case.reaction_n is None or case.motor_torque_n_m is None:
+        return None
+    step = LearnedStep(model.gn, graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+    state = BoneState.start(case.alpha[0], None if case.damage is None else case.damage[0])
+    sums = np.zeros(4)
+    for frame in range(1, case.frames - 1):
+        moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
+        state = step(state, case.positions[frame], case.axis, case.recorded_push_n(), moved, case.omega_rad_s)
+        reaction, torque, feed = next_reaction(case, frame)
+        law = step.reaction_law if step.reaction_law is not None else np.zeros(4)
+        sums += [abs(law[0] + law[1] * feed - reaction), abs(reaction), abs(law[2] + law[3] * feed - torque), abs(torque)]
+    return tuple(float(v) for v in sums)  # type: ignore[return-value]
+
+
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:
     """Scores per mode, γ and horizon, plus volume and surface errors at each full window's longest horizon."""
     if model.settings.features.damage:
@@ -91,11 +116,15 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
+    reaction_sums: dict = defaultdict(lambda: np.zeros(4))
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
         graph = graphs[case.case_id]
         steppers, volumes = _steppers(model, case, graph), graph.volumes
         g = group_key(model, case)
+        compared = reaction_errors(model, case, graph)
+        if compared is not None:
+            reaction_sums[g] += np.array(compared)
         truth_removed = case.alpha < threshold
         for start, keys, length in windows(case.frames, start_stride, one_step_stride):
             initial = truth_removed[start]
@@ -122,6 +151,11 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
     report["rows"] = "reamer_diameter_mm" if reads_any_mesh(model.settings) else "inclination_deg"
+    # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
+    report["reaction"] = {
+        g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}
+        for g, v in sorted(reaction_sums.items(), key=lambda item: float(item[0]))
+    }
     # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
     report["by_force"] = {
         f: {

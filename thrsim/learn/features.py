@@ -57,6 +57,8 @@ class GraphBatch:
     alpha: torch.Tensor
     update: torch.Tensor
     damage: torch.Tensor | None = None
+    #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s); NaN where unknown
+    reaction: torch.Tensor | None = None
 
     def network_args(self) -> tuple:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
@@ -325,10 +327,13 @@ def _full_edge_features(ids, senders, receivers, centroids, active_sub, out):
 
 
 def batch(
-    parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]], damage: list[np.ndarray] | None = None
+    parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]],
+    damage: list[np.ndarray] | None = None,
+    reaction: list[tuple[float, float, float]] | None = None,
 ) -> GraphBatch:
     """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
-    ``damage``, for models with damage, D on each part's nodes."""
+    ``damage``, for models with damage, D on each part's nodes; ``reaction``, for training a
+    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s)."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
     for index, (sub, alpha_sub, (n, e, g)) in enumerate(parts):
@@ -359,4 +364,5 @@ def batch(
         alpha=cat(alpha, np.float32),
         update=cat(update, np.bool_),
         damage=None if damage is None else cat(damage, np.float32),
+        reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(-1, 3),
     )

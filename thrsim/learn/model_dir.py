@@ -33,7 +33,7 @@ from safetensors.torch import load_file as load_tensors
 from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
-from thrsim.config import FRAME_RATE_HZ, LabelConfig
+from thrsim.config import FRAME_RATE_HZ, LabelConfig, ReamerHoldConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import ArrayRegressor, Kind
@@ -60,6 +60,7 @@ class _CardSection(BaseModel):
 class ReamerCard(_CardSection):
     teeth_radius_m: float = Field(gt=0, le=0.1, description="radius of the teeth's sphere the model was trained with")
     omega_rad_s: float = Field(ge=-1e4, le=1e4, description="the reamer's spin in the training cases")
+    hold: ReamerHoldConfig = Field(default_factory=ReamerHoldConfig, description="the hand-held reamer's hold in the training cases")
 
 
 class MeshCard(_CardSection):
@@ -138,6 +139,11 @@ class LoadedModel:
         """Seconds of reaming one step of the model stands for: the training cases' frame time (cards
         written before cards recorded it: the thesis's frame rate, which every case then had)."""
         return float(self.card.get("data", {}).get("frame_dt_s", 1.0 / FRAME_RATE_HZ))
+
+    @property
+    def hold(self) -> ReamerHoldConfig:
+        """The hand-held reamer's hold the training cases were solved with (the card's, else the default)."""
+        return ReamerHoldConfig.model_validate(self.card["reamer"].get("hold", {}))
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""

@@ -70,6 +70,8 @@ def train_model(
     if not train:
         raise ThrsimInputError(f"{data}: no complete training cases (a dataset directory from `thrsim dataset` is needed)")
     radii = {round(c.teeth_radius_m, 9) for c in cases}
+    if len({c.hold for c in train}) != 1:
+        raise ThrsimInputError(f"{data}: training cases hold the reamer differently (effective mass, damping); one model learns one hold")
     if len(radii) != 1 and not socket:
         raise ThrsimInputError(f"{data}: cases use different reamers ({sorted(radii)} m teeth radius); one model learns one reamer")
     teeth_radius_m = float(np.median([c.teeth_radius_m for c in train]))
@@ -106,6 +108,7 @@ def train_model(
             "teeth_radius_m": teeth_radius_m,
             "omega_rad_s": float(np.median([c.omega_rad_s for c in cases])),
             "sizes_mm": sorted({round(2e3 * c.teeth_radius_m, 3) for c in train}),
+            "hold": train[0].hold.model_dump(mode="json"),
         },
         "data": {
             "source": str(data),  # as given: a shipped card names no machine's folders

@@ -26,6 +26,9 @@ class ArchSettings(_Frozen):
     an untrained network already predicts "nothing changes". ``removal_head``: a second output,
     the probability that an active element is removed by the next frame, whose hazard
     −log(1 − p) the rollout accumulates per element (see :mod:`thrsim.learn.learned_simulator`).
+    ``reaction_head``: four more outputs, each node's non-negative share of the bone's axial reaction
+    and of the motor torque over the next frame, as a part that holds at any feed and a part per
+    unit of feed; their sums make the reaction law the push is balanced against (the feed).
     """
 
     node_encoder: tuple[int, ...] = (32, 32)
@@ -42,6 +45,7 @@ class ArchSettings(_Frozen):
     layer_norm: bool = True
     residual_logit: bool = True
     removal_head: bool = False
+    reaction_head: bool = False
     mlp_baseline: tuple[int, ...] = (32, 32)
 
 
@@ -155,7 +159,10 @@ def preset(name: str) -> ModelSettings:
     if name == "production":
         return ModelSettings(arch=ArchSettings(removal_head=True), features=FeatureSettings(damage=True, corners=True))
     if name == "socket":
-        return ModelSettings(arch=ArchSettings(removal_head=True), features=FeatureSettings(feature_set="socket", damage=True, corners=True))
+        return ModelSettings(
+            arch=ArchSettings(removal_head=True, reaction_head=True),
+            features=FeatureSettings(feature_set="socket", damage=True, corners=True),
+        )
     if name == "thesis":
         return ModelSettings(arch=thesis_arch(), features=FeatureSettings(feature_set="thesis"))
     from thrsim.errors import ThrsimInputError

@@ -77,6 +77,12 @@ class Trainer:
         self.graph, self.train_cases, self.validation = graph, train, validation
         self.settings, self.threshold = settings, threshold
         self.graphs = case_graphs(graph, [*train, *validation], any_mesh=settings.features.feature_set == "socket")
+        if settings.arch.reaction_head:
+            unrecorded = [case.case_id for case in train if case.reaction_n is None or case.motor_torque_n_m is None]
+            if unrecorded:
+                raise ThrsimInputError(
+                    f"{len(unrecorded)} case(s) record no reaction or torque (e.g. {unrecorded[0]}), which the reaction head learns"
+                )
         if settings.features.damage:
             require_damage([*train, *validation], 'regenerate the data or train with the settings {"features": {"damage": false}}')
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
@@ -144,7 +150,8 @@ class Trainer:
         return np.where(active, noisy, values).astype(np.float32)
 
     def _sample(self, index: int, rng: np.random.Generator | None):
-        """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes."""
+        """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes, and
+        the next frame's (reaction, torque, feed) (see :func:`next_reaction`)."""
         case_index, t = self.samples[index]
         case = self.train_cases[case_index]
         pushed = self._pushed_steps(int(t), rng)
@@ -185,12 +192,13 @@ class Trainer:
             case.element_cutting_energy_j_m3,
         )
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
-        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
+        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next, next_reaction(case, int(t) + 1)
 
     def _batch(self, drawn: list) -> tuple:
         """Network inputs, α(t+1) and D(t+1) (None without damage) of drawn samples."""
         with_damage = self.settings.features.damage
-        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None)
+        reaction = [d[4] for d in drawn] if self.settings.arch.reaction_head else None
+        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None, reaction)
         alpha_next = torch.from_numpy(np.concatenate([d[2] for d in drawn]).astype(np.float32))
         damage_next = torch.from_numpy(np.concatenate([d[3] for d in drawn]).astype(np.float32)) if with_damage else None
         return inputs, alpha_next, damage_next
@@ -325,6 +333,15 @@ class Trainer:
             if budget is not None and time.perf_counter() - started > budget * 60:
                 break
         return time.perf_counter() - started
+
+
+def next_reaction(case: CaseArrays, frame: int) -> tuple[float, float, float]:
+    """The reaction (N), torque (N·m) and feed (m/s) of the frame after ``frame``, the law the network
+    sees at ``frame`` predicts; NaN past the case's end or where the case records none."""
+    if case.reaction_n is None or case.motor_torque_n_m is None or frame + 1 >= case.frames:
+        return (math.nan, math.nan, math.nan)
+    feed = float((case.positions[frame + 1] - case.positions[frame]) @ case.axis) / case.frame_dt_s
+    return (float(case.reaction_n[frame + 1]), float(case.motor_torque_n_m[frame + 1]), feed)
 
 
 def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100):

@@ -13,6 +13,7 @@ import pytest
 from learn_helpers import tiny_socket_settings
 
 from thrsim.config import ReamerHoldConfig
+from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
 from thrsim.learn.model_dir import load_model
 from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s
@@ -113,3 +114,24 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
         assert source[size]["1"]["windows"] > 0
     errors = report["reaction"][size]
     assert 0.0 <= errors["force_error"] < 10.0 and 0.0 <= errors["torque_error"] < 10.0
+
+
+def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(socket_model, case):
+    from thrsim.data.synthetic import block_mesh
+    from thrsim.learn.simulator import ReamingSimulator
+
+    bone = block_mesh(n=5)  # not the mesh the model was trained on
+    simulator = ReamingSimulator(model=socket_model, mesh=bone)
+    assert simulator.n_elements == bone.n_tets
+    trained = socket_model.trained_reamer_mm[0]
+    still = [simulator.step(case.axis, 0.0, reamer_mm=trained) for _ in range(3)]
+    assert all(result.advance_m == 0.0 and not result.removed.any() for result in still)
+    pushed = [simulator.step(case.axis, 230.0, reamer_mm=trained) for _ in range(8)]
+    assert all(result.advance_m >= 0.0 for result in pushed) and sum(result.advance_m for result in pushed) > 0
+    assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
+    assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
+    assert pushed[-1].out_of_range == ("push",) or pushed[-1].out_of_range == ()
+    bigger = simulator.step(case.axis, 230.0, reamer_mm=trained + 4.0)
+    assert bigger.reamer_mm == trained + 4.0 and "reamer size" in bigger.out_of_range
+    with pytest.raises(ThrsimInputError):
+        ReamingSimulator(model=socket_model, mesh=bone, cancellous="chalk")

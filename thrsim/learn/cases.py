@@ -48,14 +48,16 @@ class CaseArrays:
     element_cutting_energy_j_m3: np.ndarray | None = None  # (E,) the cutting law's u_c of each element
     reaction_n: np.ndarray | None = None  # (T,) the bone's axial reaction on the reamer over each frame
     motor_torque_n_m: np.ndarray | None = None  # (T,) the torque spinning the reamer took over each frame
-    push_n: np.ndarray | None = None  # (T,) the push along D over each frame: the set push, or what a set feed took
     hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
 
     def recorded_push_n(self) -> float:
-        """The push the case was reamed with: the set push, or the median of what its set feed took."""
-        if self.push_n is None or len(self.push_n) < 2:
+        """The push the bone and the hold took, median over the frames: the recorded reaction plus the
+        hold's damping times the feed (the reamer's weight, which the solver adds to a set push and
+        takes from a set feed's, left out); the set push where no reaction is recorded."""
+        if self.reaction_n is None or self.frames < 2:
             return self.force_n
-        return float(np.median(self.push_n[1:]))
+        feed = self.advances() / self.frame_dt_s
+        return float(np.median(self.reaction_n[1:] + self.hold.axial_damping_n_s_m * feed))
 
     @property
     def frames(self) -> int:
@@ -75,7 +77,7 @@ def require_damage(cases: list[CaseArrays], remedy: str) -> None:
         )
 
 
-def _element_cutting_energy(config: dict, mesh: TetMesh) -> np.ndarray:
+def element_cutting_energy(config: dict, mesh: TetMesh) -> np.ndarray:
     """u_c (J/m³) of each element from the case's settings (the solver's defaults where a setting is absent)."""
     case = ReamingCaseConfig.model_validate({"inclination_deg": 0.0, "anteversion_deg": 0.0, **config})
     return cutting_energies(case, mesh)[mesh.element_material]
@@ -94,7 +96,6 @@ def _case_arrays(
     mesh: TetMesh,
     reaction_n: np.ndarray | None = None,
     motor_torque_n_m: np.ndarray | None = None,
-    push_n: np.ndarray | None = None,
 ) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
     config = attrs.get("config")
@@ -120,10 +121,9 @@ def _case_arrays(
         frame_dt_s=1.0 / float(config.get("frame_rate_hz", FRAME_RATE_HZ)),
         damage=None if damage is None else np.asarray(damage, dtype=np.float32),
         mesh=mesh,
-        element_cutting_energy_j_m3=_element_cutting_energy(config, mesh),
+        element_cutting_energy_j_m3=element_cutting_energy(config, mesh),
         reaction_n=None if reaction_n is None else np.asarray(reaction_n, dtype=np.float64),
         motor_torque_n_m=None if motor_torque_n_m is None else np.asarray(motor_torque_n_m, dtype=np.float64),
-        push_n=None if push_n is None else np.asarray(push_n, dtype=np.float64),
         hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
     )
 
@@ -145,7 +145,6 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
         case.mesh,
         frames.contact_force_axial,
         frames.motor_torque,
-        frames.push_force,
     )
 
 

@@ -116,7 +116,7 @@ def train_model(
             "digest": data_identity(cases),
             "solver_versions": sorted({c.solver_version for c in cases}),
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
-            "force_range_n": [min(c.force_n for c in train), max(c.force_n for c in train)],
+            "force_range_n": [min(c.recorded_push_n() for c in train), max(c.recorded_push_n() for c in train)],
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),

@@ -65,13 +65,17 @@ class LearnedStep:
         self.model = model.eval()
         self.graph = graph
         self.features = features
-        self.teeth_radius_m = teeth_radius_m
+        self.set_teeth_radius(teeth_radius_m)
         self.cutting_energy_j_m3 = cutting_energy_j_m3
         self.cuts_only_advancing = features.feature_set == "socket"
         #: the reaction law of the frame after the last step (reaction head), None before the first or without one
         self.reaction_law: np.ndarray | None = None
-        self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
         self.last = StepInfo(0, 0)
+
+    def set_teeth_radius(self, teeth_radius_m: float) -> None:
+        """Cut with another reamer size from the next step (a socket model reads the size)."""
+        self.teeth_radius_m = teeth_radius_m
+        self.reach_m = teeth_radius_m + self.features.reach_margin_mm * 1e-3
 
     def inputs(
         self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float

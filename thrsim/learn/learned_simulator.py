@@ -24,8 +24,8 @@ per unit of feed b, and likewise of the motor torque. Summed over the updated no
 reaction law R(v) = A + B·v of the next frame, which the feed balances the push against
 (:mod:`thrsim.learn.reaction_feed`). Non-negative shares make R grow with the contact and with
 the feed, so more push never advances the reamer less; without contact R is 0. The loss adds
-the Huber error of R and T at the recorded feed, in units of their mean training magnitudes (the
-recorded reaction comes in bursts: a median frame's is under 1 N, one in a hundred is over 100 N).
+the squared error of R and T at the recorded feed, each averaged over the next few frames
+(``thrsim.learn.training.REACTION_FRAMES``), in units of their root mean square in training.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ class Prediction(NamedTuple):
 #: reaction law columns: axial reaction at no feed (N) and per m/s; motor torque likewise (N·m)
 REACTION_LAW = ("reaction_n", "reaction_n_s_m", "torque_n_m", "torque_n_m_s_m")
 #: the feed one node's "per unit of feed" share is counted in (m/s), and the node count one
-#: share is scaled by: an untrained head's law is then of the order of the training magnitudes
+#: share is scaled by: an untrained head's law is then of the order of the training values
 _FEED_UNIT_M_S, _NODES_UNIT = 1e-3, 1000.0
 
 
@@ -112,7 +112,7 @@ class LearnedSimulator(nn.Module):
         self.reaction_column = 1 + int(self.removal_head) + int(self.damage)
         outputs = self.reaction_column + 4 * int(self.reaction_head)
         if self.reaction_head:
-            # the reaction's and torque's mean magnitudes in training: the units the loss and the shares are in
+            # the reaction's and torque's root mean square in training: the units the loss and the shares are in
             self.register_buffer("reaction_scale", torch.ones(2))
         self.node_norm = Normaliser(node_in)
         self.edge_norm = Normaliser(edge_in)
@@ -135,8 +135,8 @@ class LearnedSimulator(nn.Module):
                 raise ValueError("a reaction head needs the cases' recorded reaction and torque")
             for column in range(2):
                 values = batch.reaction[:, column]
-                values = values[torch.isfinite(values) & (values.abs() > 0)].abs()
-                self.reaction_scale[column] = float(values.mean()) if len(values) else 1.0
+                values = values[torch.isfinite(values)]
+                self.reaction_scale[column] = float(values.square().mean().sqrt()) if len(values) and values.abs().max() > 0 else 1.0
 
     def normalised_inputs(self, batch: GraphBatch) -> tuple:
         """The network's arguments: normalised features and the graph's index tensors."""
@@ -189,7 +189,7 @@ class LearnedSimulator(nn.Module):
         return loss
 
     def _reaction_loss(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
-        """Huber error of the reaction and the torque at the recorded feed, in units of their mean magnitudes."""
+        """Squared error of the reaction and the torque at the recorded feed, in units of their root mean square."""
         if batch.reaction is None:
             raise ValueError("a model with a reaction head needs the next frame's reaction, torque and feed")
         law = self.reaction_law(batch, shares)
@@ -200,8 +200,7 @@ class LearnedSimulator(nn.Module):
         feed = target[:, 2]
         force = (law[:, 0] + law[:, 1] * feed - target[:, 0]) / self.reaction_scale[0]
         torque = (law[:, 2] + law[:, 3] * feed - target[:, 1]) / self.reaction_scale[1]
-        zero = torch.zeros_like(force)
-        return (nn.functional.smooth_l1_loss(force, zero) + nn.functional.smooth_l1_loss(torque, zero)) * 0.5
+        return (force.square().mean() + torque.square().mean()) * 0.5
 
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
         """Nodes the loss sees and the model updates: in the region and active at t."""

@@ -335,13 +335,21 @@ class Trainer:
         return time.perf_counter() - started
 
 
+#: frames the reaction targets are averaged over: the solver's reaction comes in element-sized bursts
+#: (a median frame's under 1 N, one in a hundred over 100 N), its mean over a tenth of a second does not
+REACTION_FRAMES = 6
+
+
 def next_reaction(case: CaseArrays, frame: int) -> tuple[float, float, float]:
-    """The reaction (N), torque (N·m) and feed (m/s) of the frame after ``frame``, the law the network
-    sees at ``frame`` predicts; NaN past the case's end or where the case records none."""
+    """The mean reaction (N), torque (N·m) and feed (m/s) over the :data:`REACTION_FRAMES` frames after
+    ``frame`` (fewer at the case's end), which the law the network sees at ``frame`` predicts; NaN
+    past the case's end or where the case records none."""
     if case.reaction_n is None or case.motor_torque_n_m is None or frame + 1 >= case.frames:
         return (math.nan, math.nan, math.nan)
-    feed = float((case.positions[frame + 1] - case.positions[frame]) @ case.axis) / case.frame_dt_s
-    return (float(case.reaction_n[frame + 1]), float(case.motor_torque_n_m[frame + 1]), feed)
+    last = min(case.frames - 1, frame + REACTION_FRAMES)
+    feed = float((case.positions[last] - case.positions[frame]) @ case.axis) / ((last - frame) * case.frame_dt_s)
+    window = slice(frame + 1, last + 1)
+    return (float(case.reaction_n[window].mean()), float(case.motor_torque_n_m[window].mean()), feed)
 
 
 def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100):

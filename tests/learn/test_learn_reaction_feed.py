@@ -130,8 +130,10 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
     assert all(result.advance_m >= 0.0 for result in pushed) and sum(result.advance_m for result in pushed) > 0
     assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
     assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
-    assert pushed[-1].out_of_range == ("push",) or pushed[-1].out_of_range == ()
+    assert set(pushed[-1].out_of_range) <= {"push", "tilt"}
     bigger = simulator.step(case.axis, 230.0, reamer_mm=trained + 4.0)
     assert bigger.reamer_mm == trained + 4.0 and "reamer size" in bigger.out_of_range
+    tilted = simulator.step((0.0, np.sin(np.radians(80.0)), -np.cos(np.radians(80.0))), 230.0, reamer_mm=trained)
+    assert "tilt" in tilted.out_of_range  # the synthetic cases tilt 0-30°
     with pytest.raises(ThrsimInputError):
         ReamingSimulator(model=socket_model, mesh=bone, cancellous="chalk")

@@ -272,12 +272,16 @@ class ReamingSimulator:
             return float(reamer_mm)
         return min(sizes, key=lambda size: abs(size - reamer_mm))
 
-    def out_of_range(self, force_n: float, reamer_mm: float) -> tuple[str, ...]:
-        """What of a step's inputs lies outside what the model learned (its card's ranges)."""
+    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray) -> tuple[str, ...]:
+        """What of a step's inputs lies outside what the model learned (its card's ranges): the push,
+        the reamer size, the tilt γ of the axis from the socket's (right-side frame)."""
         flags = []
         pushes = self.model.trained_force_n
         if pushes is not None and not pushes[0] <= force_n <= pushes[1]:
             flags.append("push")
+        tilts = self.model.trained_inclination_deg
+        if tilts is not None and not tilts[0] - 1e-6 <= angles_of(axis)[0] <= tilts[1] + 1e-6:
+            flags.append("tilt")
         sizes = self.model.trained_reamer_mm
         if not min(sizes) - 1e-6 <= reamer_mm <= max(sizes) + 1e-6:
             flags.append("reamer size")
@@ -339,7 +343,7 @@ class ReamingSimulator:
             reamer_mm=size_mm,
             reaction_n=reaction,
             motor_torque_n_m=torque,
-            out_of_range=self.out_of_range(force, size_mm) if self.socket else (),
+            out_of_range=self.out_of_range(force, size_mm, axis) if self.socket else (),
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:

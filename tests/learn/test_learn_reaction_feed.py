@@ -112,6 +112,10 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     assert report["rows"] == "reamer_diameter_mm"
     for source in (report, report["tool_forced"], report["mlp"], report["geometric"]):
         assert source[size]["1"]["windows"] > 0
+    checks = report["physics_checks"]
+    assert checks["checked"] and checks["held"] == dict.fromkeys(
+        ("no_push_no_cut", "no_push_no_advance", "more_push_never_less"), len(cases)
+    )
     errors = report["reaction"][size]
     assert 0.0 <= errors["force_error"] < 10.0 and 0.0 <= errors["torque_error"] < 10.0
 

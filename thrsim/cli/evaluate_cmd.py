@@ -94,3 +94,13 @@ def print_comparison(report: dict) -> None:
             table.add_row(g, "thesis Table 10", *cells, "")
     # wide enough for P / R / F1 cells of four horizons, also when piped to a file
     Console(width=max(console.width, 170)).print(table)
+    checks = report.get("physics_checks", {})
+    if checks.get("checked"):
+        held = ", ".join(f"{name.replace('_', ' ')} {count}/{checks['cases']}" for name, count in checks["held"].items())
+        volumes = ", ".join(f"{share}× {volume:.1f}" for share, volume in checks["removed_volume_mm3_mean_by_push_share"].items())
+        console.print(f"physics checks over {checks['frames']} frames (cases that hold): {held}; mean removed mm³ by push share: {volumes}")
+    elif checks:
+        console.print(f"physics checks: not run ({checks['why']})")
+    for size, errors in report.get("reaction", {}).items():
+        force, torque = errors["force_error"], errors["torque_error"]
+        console.print(f"reamer {size} mm: reaction error {_pct(force)} %, motor torque error {_pct(torque)} % (Σ|error| / Σ|solver's|)")

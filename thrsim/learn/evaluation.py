@@ -108,6 +108,43 @@ def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) ->
     return tuple(float(v) for v in sums)  # type: ignore[return-value]
 
 
+#: the share of each case's push the physics checks ream at: none, less, as recorded, more
+CHECK_PUSH_SHARES = (0.0, 0.5, 1.0, 2.0)
+
+
+def physics_checks(model: LoadedModel, cases: list[CaseArrays], frames: int = 30) -> dict:
+    """What the physics demands of any model's autonomous rollouts, from each case's first frame over
+    ``frames`` frames: no push removes nothing and does not advance; more push never removes or
+    advances less. Counts of the cases that hold, and the removed volume at each push share."""
+    graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
+    held = {"no_push_no_cut": 0, "no_push_no_advance": 0, "more_push_never_less": 0}
+    volumes: dict[str, list[float]] = {f"{share:g}": [] for share in CHECK_PUSH_SHARES}
+    for case in cases:
+        graph = graphs[case.case_id]
+        step, feed = _steppers(model, case, graph).get("autonomous", (None, None))
+        if step is None:
+            return {"checked": False, "why": "the model has no autonomous feed (a socket model without the reaction head)"}
+        horizon = min(frames, case.frames - 1)
+        start_removed = case.alpha[0] < model.threshold
+        removed, advanced = [], []
+        for share in CHECK_PUSH_SHARES:
+            masks, centres = rollout(step, case, 0, horizon, model.threshold, feed, push_n=share * case.recorded_push_n())
+            cut = masks[-1] & ~start_removed
+            removed.append(float(cut @ graph.volumes) * 1e9)
+            advanced.append(float((centres[-1] - case.positions[0]) @ case.axis))
+            volumes[f"{share:g}"].append(removed[-1])
+        held["no_push_no_cut"] += removed[0] == 0.0
+        held["no_push_no_advance"] += advanced[0] == 0.0
+        held["more_push_never_less"] += removed == sorted(removed) and advanced == sorted(advanced)
+    return {
+        "checked": True,
+        "cases": len(cases),
+        "frames": frames,
+        "held": held,
+        "removed_volume_mm3_mean_by_push_share": {share: float(np.mean(v)) for share, v in volumes.items()},
+    }
+
+
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:
     """Scores per mode, γ and horizon, plus volume and surface errors at each full window's longest horizon."""
     if model.settings.features.damage:
@@ -151,6 +188,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
     report["rows"] = "reamer_diameter_mm" if reads_any_mesh(model.settings) else "inclination_deg"
+    report["physics_checks"] = physics_checks(model, cases)
     # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
     report["reaction"] = {
         g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}

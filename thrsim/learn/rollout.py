@@ -162,8 +162,8 @@ def rollout(
 
     With ``feed`` the reamer moves by itself (autonomous): by the regressor, resting on the bone
     (a patch model), or by the push ``push_n`` (default: the case's) against the reaction law the
-    step predicts (a socket model, whose first law comes from a standing step at the start;
-    default push: the one the case was reamed with);
+    step predicts (a socket model, whose first law comes from a standing step at the start);
+    ``push_n`` replaces the case's push (default: the one the case was reamed with);
     without, it follows the recorded positions (tool-forced).
     """
     if isinstance(feed, ReactionFeed):
@@ -171,20 +171,21 @@ def rollout(
     state = BoneState.start(case.alpha[start], None if case.damage is None else case.damage[start])
     centre = case.positions[start].copy()
     masks, centres = [], []
+    push = case.force_n if push_n is None else push_n
     for k in range(1, frames + 1):
         if feed is None:
             new_centre = case.positions[start + k]
         else:
-            impulse = case.force_n * case.frame_dt_s * (start + k - 1)
+            impulse = push * case.frame_dt_s * (start + k - 1)
             new_centre = (
                 centre
                 + feed.advance_m(
-                    state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse
+                    state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, push, impulse
                 )
                 * case.axis
             )
         moved = float((new_centre - centre) @ case.axis)
-        state = step(state, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
+        state = step(state, new_centre, case.axis, push, moved, case.omega_rad_s)
         removed = state.alpha < threshold
         centre = new_centre
         masks.append(removed)

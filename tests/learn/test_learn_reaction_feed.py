@@ -141,3 +141,24 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
     assert "tilt" in tilted.out_of_range  # the synthetic cases tilt 0-30°
     with pytest.raises(ThrsimInputError):
         ReamingSimulator(model=socket_model, mesh=bone, cancellous="chalk")
+
+
+def test_a_socket_reamed_into_the_medial_wall_ends_as_the_solver_ends_it():
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.mesh import MEDIAL_WALL
+    from thrsim.geometry.socket import generate_socket
+    from thrsim.learn.bench import untrained_model
+    from thrsim.learn.settings import preset
+    from thrsim.learn.simulator import MEDIAL_WALL_BREACHED, ReamingSimulator
+    from thrsim.physics.reaming import breach_faces
+
+    mesh = generate_socket(SocketConfig(element_size_mm=2.5))
+    model = untrained_model(mesh, preset("socket"), teeth_radius_m=24e-3)
+    model.card["reamer"]["sizes_mm"] = [48.0]
+    simulator = ReamingSimulator(model=model, mesh=mesh)
+    axis = np.array([0.0, 0.0, -1.0])
+    assert simulator.step(axis, 230.0, reamer_mm=48.0).end_reason is None
+    on_wall = breach_faces(mesh)[MEDIAL_WALL]
+    assert len(on_wall) > 0
+    simulator.bone.alpha[on_wall[:1]] = 0.0  # one element of the medial wall's pelvic face gone
+    assert simulator.step(axis, 230.0, reamer_mm=48.0).end_reason == MEDIAL_WALL_BREACHED

@@ -23,7 +23,7 @@ from pydantic import TypeAdapter, ValidationError
 from thrsim.atomic import atomic_folder
 from thrsim.config import FrameCount, Orientation
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
+from thrsim.learn.simulator import MEDIAL_WALL_BREACHED, PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
 from thrsim.learn.vtk_series import write_frame, write_pvd
 from thrsim.nav.bone_frame import check_side, cup_angles_from_bone, on_side
 from thrsim.provenance import json_default, package_versions
@@ -34,6 +34,7 @@ SERIES = "ream.pvd"
 END_REASON_TEXT = {
     PERFORATED: "perforated, the reamer's teeth passed the bone's outer face",
     PASSED_THROUGH: "passed through, no bone was left in the reamer's path",
+    MEDIAL_WALL_BREACHED: "breached the medial wall, the reamer went through into the pelvis",
     "completed": "completed, every frame asked for was run, with bone still in the reamer's path",
 }
 #: --png draws the last frame with at least this share of the elements left: the last frames of a

@@ -38,10 +38,16 @@ from thrsim.learn.reaction_feed import ReactionFeed
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.nav.bone_frame import angles_of, check_side, on_side
-from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
+from thrsim.physics.reaming import (  # start and end as the solver's cases do
+    INITIAL_GAP_M,
+    bone_in_path,
+    breach_faces,
+    breach_reason,
+    tip_exit_depth,
+)
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
-PERFORATED, PASSED_THROUGH = "perforated", "passed_through"
+PERFORATED, PASSED_THROUGH, MEDIAL_WALL_BREACHED = "perforated", "passed_through", "medial_wall_breached"
 
 
 @dataclass(frozen=True)
@@ -57,7 +63,9 @@ class StepResult:
     advance_m: float
     seconds: float
     #: None while there is bone to ream; PERFORATED when the teeth's tip has passed the outer face
-    #: where bone is under it, PASSED_THROUGH when no bone is left in the reamer's path
+    #: where bone is under it (a socket: an element of its supported boundary has gone),
+    #: MEDIAL_WALL_BREACHED when one on the socket's medial wall has, PASSED_THROUGH when no bone
+    #: is left in the reamer's path
     end_reason: str | None = None
     #: the reamer size (mm) this frame cut with (:meth:`ReamingSimulator.cutting_size_mm`)
     reamer_mm: float | None = None
@@ -164,6 +172,7 @@ class ReamingSimulator:
                 raise ThrsimInputError("a patch model reams the mesh it was trained on only; a socket model takes any bone")
             model = dataclasses.replace(model, mesh=mesh, graph=StaticGraph(mesh))
         self.model = model
+        self._breach_faces = breach_faces(model.mesh) if self.socket else {}
         energy = None
         if self.socket:
             if cancellous not in CANCELLOUS_PRESETS:
@@ -348,11 +357,17 @@ class ReamingSimulator:
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:
         """The solver's end conditions, checked on the learned state (right-side frame)."""
+        teeth = self._step.teeth_radius_m
+        if self.socket:
+            reason = breach_reason(self._breach_faces, ~removed)
+            if reason is not None:
+                return reason
+            attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)
+            return None if bone_in_path(self.model.mesh.nodes[attached], centre, axis, teeth) else PASSED_THROUGH
         key = tuple(axis.tolist())
         if self._tip_exit is None or self._tip_exit[0] != key:
             self._tip_exit = (key, tip_exit_depth(self.model.mesh, axis))
         exit_depth = self._tip_exit[1]
-        teeth = self._step.teeth_radius_m
         if exit_depth is not None and float(centre @ axis) + teeth > exit_depth:
             return PERFORATED
         attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)

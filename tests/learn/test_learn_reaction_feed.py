@@ -162,3 +162,32 @@ def test_a_socket_reamed_into_the_medial_wall_ends_as_the_solver_ends_it():
     assert len(on_wall) > 0
     simulator.bone.alpha[on_wall[:1]] = 0.0  # one element of the medial wall's pelvic face gone
     assert simulator.step(axis, 230.0, reamer_mm=48.0).end_reason == MEDIAL_WALL_BREACHED
+
+
+def test_thrsim_ream_reams_the_whole_socket_with_a_sequence_of_reamers(socket_model, tmp_path):
+    import json
+
+    from learn_helpers import run_thrsim
+
+    size = socket_model.trained_reamer_mm[0]
+    reamers = f"{size:g},{size + 2:g}"
+    done = run_thrsim(
+        "ream", "--bone", "socket", "--model", str(socket_model.path), "--reamers", reamers, "--element-size", "2.5",
+        "--frames", "6", "--out", str(tmp_path / "socket"), "--json", timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert [step["reamer_mm"] for step in summary["reamers"]] == [size, size + 2]
+    assert all(step["frames"] >= 1 and step["ended"] in ("seated", "frames", "passed_through") for step in summary["reamers"])
+    assert "reamer size" in summary["reamers"][1]["out_of_range"]  # the synthetic cases had one size
+    assert (tmp_path / "socket" / "ream.pvd").is_file()
+    for bad, says in (
+        (("--reamers", f"{size + 2:g},{size:g}"), "growing"),
+        (("--reamers", "4x"), "numbers"),
+        (("--element-size", "0.01"), "[0.3, 5]"),
+    ):
+        refused = run_thrsim("ream", "--bone", "socket", "--model", str(socket_model.path), *bad, "--out", str(tmp_path / "bad"))
+        assert refused.returncode == 2 and says in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "bad").exists()
+    patch = run_thrsim("ream", "--bone", "socket", "--out", str(tmp_path / "patch"))  # the shipped model reams the patch
+    assert patch.returncode == 2 and "socket model" in patch.stderr

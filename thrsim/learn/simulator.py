@@ -228,6 +228,12 @@ class ReamingSimulator:
         self._impulse_n_s = 0.0  # push impulse since the reamer was placed (the regressor's input)
         self._step.reaction_law = None
 
+    def withdraw(self) -> None:
+        """Take the reamer out (to change its size): the next step places it clear of the bone again."""
+        self._centre = self._start = None
+        self._impulse_n_s = 0.0
+        self._step.reaction_law = None
+
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
         copy = lambda v: None if v is None else v.copy()  # noqa: E731

@@ -151,7 +151,20 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
 def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
     mesh, packed = read_pack(path, splits, labels)
     return mesh, [
-        _case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage, p.mesh or mesh)
+        _case_arrays(
+            p.case_id,
+            path,
+            p.split,
+            p.data_digest,
+            p.attrs,
+            p.alpha,
+            p.reamer_position,
+            p.reamer_axis,
+            p.damage,
+            p.mesh or mesh,
+            p.contact_force_axial,
+            p.motor_torque,
+        )
         for p in packed
     ]
 

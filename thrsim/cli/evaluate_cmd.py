@@ -94,6 +94,11 @@ def print_comparison(report: dict) -> None:
             table.add_row(g, "thesis Table 10", *cells, "")
     # wide enough for P / R / F1 cells of four horizons, also when piped to a file
     Console(width=max(console.width, 170)).print(table)
+    names = {"autonomous": "GN autonomous", "tool_forced": "GN tool-forced", "mlp": "MLP", "geometric": "geometric"}
+    for mode, layers in report.get("by_layer", {}).items():
+        if len(layers) > 1:
+            layer_cells = ", ".join(f"{layer} {_pct(c['f1'])}" for layer, c in layers.items())
+            console.print(f"{names[mode]}, F1 by bone layer at each window's longest horizon, %: {layer_cells}")
     checks = report.get("physics_checks", {})
     if checks.get("checked"):
         held = ", ".join(f"{name.replace('_', ' ')} {count}/{checks['cases']}" for name, count in checks["held"].items())

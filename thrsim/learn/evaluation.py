@@ -154,6 +154,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
     reaction_sums: dict = defaultdict(lambda: np.zeros(4))
+    by_layer: dict = {m: defaultdict(Counts) for m in MODES}
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
         graph = graphs[case.case_id]
@@ -173,6 +174,9 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 if start % start_stride:
                     continue  # a one-step window: no longest horizon of its own
                 final_pred, final_true = masks[-1], truth_removed[start + length]
+                for index_layer, layer in enumerate(graph.mesh.material_names):
+                    in_layer = graph.mesh.element_material == index_layer
+                    by_layer[mode][layer].add(final_pred & ~initial & in_layer, final_true & ~initial & in_layer)
                 true_volume = float((final_true & ~initial) @ volumes)
                 pred_volume = float((final_pred & ~initial) @ volumes)
                 if true_volume > 0:
@@ -189,6 +193,8 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     report = _report(counts, errors, cases)
     report["rows"] = "reamer_diameter_mm" if reads_any_mesh(model.settings) else "inclination_deg"
     report["physics_checks"] = physics_checks(model, cases)
+    # per bone layer (material), at each full window's longest horizon
+    report["by_layer"] = {mode: {layer: c.as_dict() for layer, c in layers.items()} for mode, layers in by_layer.items() if layers}
     # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
     report["reaction"] = {
         g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}

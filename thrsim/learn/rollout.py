@@ -161,10 +161,9 @@ def rollout(
     """Run ``frames`` steps from the ground truth at ``start``; (removed masks at start+1 … start+frames, centres).
 
     With ``feed`` the reamer moves by itself (autonomous): by the regressor, resting on the bone
-    (a patch model), or by the push ``push_n`` (default: the case's) against the reaction law the
-    step predicts (a socket model, whose first law comes from a standing step at the start);
-    ``push_n`` replaces the case's push (default: the one the case was reamed with);
-    without, it follows the recorded positions (tool-forced).
+    (a patch model), or by the push against the reaction law the step predicts (a socket model,
+    whose first law comes from a standing step at the start); without, it follows the recorded
+    positions (tool-forced). ``push_n`` replaces the push the case was reamed with.
     """
     if isinstance(feed, ReactionFeed):
         return _pushed_rollout(step, case, start, frames, threshold, feed, case.recorded_push_n() if push_n is None else push_n)

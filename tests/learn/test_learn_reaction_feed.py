@@ -113,6 +113,7 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     for source in (report, report["tool_forced"], report["mlp"], report["geometric"]):
         assert source[size]["1"]["windows"] > 0
     assert set(report["by_layer"]["tool_forced"]) == {"cortical"}  # the synthetic block: one material
+    assert report["geometric"][size]["longest_horizon"]["cavity_depth_error_mean_mm"] >= 0.0
     checks = report["physics_checks"]
     assert checks["checked"] and checks["held"] == dict.fromkeys(
         ("no_push_no_cut", "no_push_no_advance", "more_push_never_less"), len(cases)

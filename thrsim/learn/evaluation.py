@@ -84,6 +84,14 @@ def _steppers(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict:
     return {"autonomous": (learned, feed), "tool_forced": (learned, None), "mlp": (mlp, feed), "geometric": (geometric, None)}
 
 
+def cavity_depth_mm(graph: StaticGraph, removed: np.ndarray, start: np.ndarray, axis: np.ndarray) -> float | None:
+    """How deep along the axis, from the reamer centre at the window's start, the removed elements
+    reach (their deepest centroid, mm); None when none was removed."""
+    if not removed.any():
+        return None
+    return float(((graph.centroids[removed] - start) @ axis).max()) * 1e3
+
+
 def group_key(model: LoadedModel, case: CaseArrays) -> str:
     """The row a case's windows count in: its γ (patch) or its reamer size in mm (socket)."""
     if reads_any_mesh(model.settings):
@@ -151,7 +159,9 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         require_damage(cases, "evaluate it on data of solver 0.4.0 or later")
     threshold = model.threshold
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
-    errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
+    errors: dict = {
+        m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": [], "depth_error_mm": []}) for m in MODES
+    }
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
     reaction_sums: dict = defaultdict(lambda: np.zeros(4))
     by_layer: dict = {m: defaultdict(Counts) for m in MODES}
@@ -188,6 +198,9 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 mean_mm, max_mm = surface_distance_mm(graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true))
                 errors[mode][g]["surface_mean_mm"].append(mean_mm)
                 errors[mode][g]["surface_max_mm"].append(max_mm)
+                depths = [cavity_depth_mm(graph, mask & ~initial, case.positions[start], case.axis) for mask in (final_pred, final_true)]
+                if depths[1] is not None:
+                    errors[mode][g]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
@@ -228,6 +241,7 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
                 "removed_volume_error_signed_mean": _summary(e["volume_error"]),
                 "surface_distance_mean_mm": _summary(e["surface_mean_mm"]),
                 "surface_distance_max_mm": float(np.nanmax(e["surface_max_mm"])) if np.isfinite(e["surface_max_mm"]).any() else None,
+                "cavity_depth_error_mean_mm": _summary(e["depth_error_mm"]),
             }
             out[g] = row
         return out

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from thrsim.data.synthetic import block_mesh
-from thrsim.learn.features import CORNER_COLUMNS, WIDTHS, ReamerState, frame_arrays, input_widths
+from thrsim.learn.features import CORNER_COLUMNS, WIDTHS, ReamerState, frame_arrays, input_widths, node_columns
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.settings import FeatureSettings
 
@@ -23,10 +23,11 @@ def _arrays(centre, axis=(0.0, 0.0, -1.0), advance_m=2e-4, damage=None, corners=
     sub = GRAPH.subgraph(np.arange(MESH.n_tets), 0)
     alpha = np.full(len(sub.nodes), 0.58, dtype=np.float32)
     reamer = ReamerState(np.asarray(centre, dtype=np.float64), np.asarray(axis, dtype=np.float64), 230.0, advance_m, 136.0, TEETH_M)
-    return sub, frame_arrays(GRAPH, sub, alpha, reamer, feature_set, 0.3, active, damage, corners)
+    energy = np.where(np.arange(MESH.n_tets) % 2 == 0, 5e8, 1e8)  # cortical and cancellous elements
+    return sub, frame_arrays(GRAPH, sub, alpha, reamer, feature_set, 0.3, active, damage, corners, energy)
 
 
-@pytest.mark.parametrize("feature_set", ["full", "thesis"])
+@pytest.mark.parametrize("feature_set", ["full", "thesis", "socket"])
 @pytest.mark.parametrize("damage", [False, True])
 @pytest.mark.parametrize("corners", [False, True])
 def test_input_widths_are_the_widths_frame_arrays_builds(feature_set, damage, corners):
@@ -38,6 +39,7 @@ def test_input_widths_are_the_widths_frame_arrays_builds(feature_set, damage, co
     d = np.linspace(0.0, 1.0, MESH.n_tets, dtype=np.float32) if damage else None
     _, (nodes, edges, globals_) = _arrays((0.0, 0.0, -0.02), damage=d, corners=corners, feature_set=feature_set)
     assert (nodes.shape[1], edges.shape[1], globals_.shape[1]) == input_widths(features)
+    assert nodes.shape[1] == len(node_columns(features))  # every column named
     if damage:
         assert np.array_equal(nodes[:, -1], d)  # D is the last column
 
@@ -110,3 +112,21 @@ def test_full_tables_are_the_formulas_of_each_column(seed):
     expected_edges = np.column_stack([present, ~present, offset, np.linalg.norm(offset, axis=1)])
     assert np.allclose(edges, expected_edges.astype(np.float32), rtol=1e-6, atol=1e-12)
     assert np.allclose(globals_, np.r_[230.0 * axis, 230.0, reamer.advance_m][None, :].astype(np.float32))
+
+
+def test_the_socket_set_reads_nothing_of_the_bone_frame():
+    """Turn the bone, the reamer and its axis together about the origin: the socket inputs stay."""
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_euler("xyz", [25.0, -40.0, 70.0], degrees=True).as_matrix()
+    turned = StaticGraph(type(MESH)(nodes=MESH.nodes @ turn.T, tets=MESH.tets, node_sets=MESH.node_sets, fixed_nodes=MESH.fixed_nodes))
+    sub = GRAPH.subgraph(np.arange(MESH.n_tets), 0)
+    alpha = np.full(len(sub.nodes), 0.58, dtype=np.float32)
+    energy = np.where(np.arange(MESH.n_tets) % 2 == 0, 5e8, 1e8)
+    centre, axis = np.array([0.001, -0.002, -0.0005]), np.array([0.1, 0.2, -1.0]) / np.linalg.norm([0.1, 0.2, -1.0])
+    tables = []
+    for graph, rotate in ((GRAPH, np.eye(3)), (turned, turn)):
+        reamer = ReamerState(rotate @ centre, rotate @ axis, 230.0, 2e-4, 136.0, TEETH_M)
+        tables.append(frame_arrays(graph, sub, alpha, reamer, "socket", 0.3, np.ones(MESH.n_tets, dtype=bool), None, True, energy))
+    for before, after in zip(*tables, strict=True):
+        assert np.allclose(before, after, atol=1e-6)

@@ -148,11 +148,11 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
 def test_a_socket_reamed_into_the_medial_wall_ends_as_the_solver_ends_it():
     from thrsim.config import SocketConfig
     from thrsim.geometry.mesh import MEDIAL_WALL
+    from thrsim.geometry.reaming_path import breach_faces
     from thrsim.geometry.socket import generate_socket
     from thrsim.learn.bench import untrained_model
     from thrsim.learn.settings import preset
     from thrsim.learn.simulator import MEDIAL_WALL_BREACHED, ReamingSimulator
-    from thrsim.physics.reaming import breach_faces
 
     mesh = generate_socket(SocketConfig(element_size_mm=2.5))
     model = untrained_model(mesh, preset("socket"), teeth_radius_m=24e-3)
@@ -192,4 +192,4 @@ def test_thrsim_ream_reams_the_whole_socket_with_a_sequence_of_reamers(socket_mo
         assert refused.returncode == 2 and says in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
         assert not (tmp_path / "bad").exists()
     patch = run_thrsim("ream", "--bone", "socket", "--out", str(tmp_path / "patch"))  # the shipped model reams the patch
-    assert patch.returncode == 2 and "socket model" in patch.stderr
+    assert patch.returncode == 2 and "socket feature set" in patch.stderr

@@ -11,9 +11,10 @@ from checkout_cli import checkout_env
 from learn_helpers import REPO
 
 from thrsim.errors import ThrsimInputError
+from thrsim.geometry.reaming_path import tip_exit_depth
+from thrsim.learn.features import reach_m
 from thrsim.learn.rollout import BoneState
 from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, angles_of, start_position
-from thrsim.physics.reaming import tip_exit_depth
 
 AXIS = np.array([np.sin(np.radians(15)) * np.cos(np.radians(30)), np.sin(np.radians(15)) * np.sin(np.radians(30)), -np.cos(np.radians(15))])
 
@@ -147,7 +148,9 @@ def test_only_the_region_near_the_reamer_changes(simulator):
     step = simulator._step
     alpha = np.full(simulator.n_elements, 0.58, dtype=np.float32)
     centre = simulator.reamer_start(AXIS) + 5e-4 * AXIS
-    region = model.graph.region(alpha >= 0.3, centre, step.reach_m, model.settings.features.front_hops)
+    region = model.graph.region(
+        alpha >= 0.3, centre, reach_m(step.teeth_radius_m, model.settings.features), model.settings.features.front_hops
+    )
     assert 0 < len(region) < simulator.n_elements
     out = step(BoneState.start(alpha), centre, AXIS, 230.0, 5e-4, 136.0)
     outside = np.ones(simulator.n_elements, dtype=bool)

@@ -114,8 +114,7 @@ def _case_arrays(
         omega_rad_s=float(attrs.get("omega_rad_s", 136.0)),
         split=split,
         end_reason=str(attrs.get("end_reason", "completed")),
-        # the teeth reach R + protrusion from the head centre (thrsim.geometry.reamer)
-        teeth_radius_m=(0.5 * float(reamer["head_diameter_mm"]) + float(reamer["tooth_protrusion_mm"])) * 1e-3,
+        teeth_radius_m=ReamerConfig.model_validate(reamer).size_mm * 0.5e-3,  # the teeth's reach from the head centre
         digest=digest,
         solver_version=str(attrs.get("thrsim_version", "unknown")),
         frame_dt_s=1.0 / float(config.get("frame_rate_hz", FRAME_RATE_HZ)),

@@ -19,16 +19,50 @@ from thrsim.learn.settings import FeatureSet, FeatureSettings
 
 use_numba_cache()  # before the first kernel: Numba reads the cache folder then
 
+
+#: what each node column holds, by feature set (before the corner and damage columns), in the
+#: order the compiled kernels write them; "relative" is centroid − reamer centre
+NODE_COLUMNS = {
+    "full": (
+        "relative_x", "relative_y", "relative_z", "axial", "radial", "teeth_distance", "cutting_speed",
+        "cos_shell_normal", "socket_radius", "alpha", "active", "open_faces",
+    ),
+    "thesis": ("relative_x", "relative_y", "relative_z", "alpha"),
+    "socket": ("axial", "radial", "teeth_distance", "cutting_speed", "cos_shell_normal", "alpha", "active", "open_faces", "log10_cutting_energy"),
+}  # fmt: skip
+#: the corner columns (``FeatureSettings.corners``): four sorted corner distances, the nearest at t − 1
+CORNER_NAMES = ("corner_distance_0", "corner_distance_1", "corner_distance_2", "corner_distance_3", "nearest_corner_before")
+
+
+def node_columns(features: FeatureSettings) -> tuple[str, ...]:
+    """The names of a model's node inputs, in order."""
+    return NODE_COLUMNS[features.feature_set] + CORNER_NAMES * int(features.corners) + ("damage",) * int(features.damage)
+
+
+def reach_m(teeth_radius_m: float, features: FeatureSettings) -> float:
+    """How far from the reamer centre the cutting front is looked for: the teeth's reach plus the margin."""
+    return teeth_radius_m + features.reach_margin_mm * 1e-3
+
+
+def select_subgraph(
+    graph: StaticGraph, features: FeatureSettings, active: np.ndarray, centre: np.ndarray, teeth_radius_m: float
+) -> Subgraph:
+    """The subgraph a step updates (the cutting front and its halo, or the whole graph): one rule for training and stepping."""
+    if features.whole_graph:
+        return graph.whole()
+    return graph.subgraph(graph.region(active, centre, reach_m(teeth_radius_m, features), features.front_hops), features.halo_hops)
+
+
 #: widths of (node, edge, global) inputs per feature set, before the corner and damage columns
-WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3), "socket": (9, 6, 2)}
-#: node columns of ``FeatureSettings.corners``: four sorted corner distances, the nearest at t − 1
-CORNER_COLUMNS = 5
+EDGE_GLOBAL_WIDTHS = {"full": (6, 5), "thesis": (2, 3), "socket": (6, 2)}
+WIDTHS = {name: (len(NODE_COLUMNS[name]), *widths) for name, widths in EDGE_GLOBAL_WIDTHS.items()}
+CORNER_COLUMNS = len(CORNER_NAMES)
 
 
 def input_widths(features: FeatureSettings) -> tuple[int, int, int]:
     """Widths of (node, edge, global) inputs: the feature set's, plus the corner and damage node columns."""
-    node, edge, global_ = WIDTHS[features.feature_set]
-    return node + CORNER_COLUMNS * int(features.corners) + int(features.damage), edge, global_
+    _, edge, global_ = WIDTHS[features.feature_set]
+    return len(node_columns(features)), edge, global_
 
 
 @dataclass(frozen=True)

@@ -202,7 +202,7 @@ def ream_socket(
     check_out(out)
     model = load_model(model_dir)
     if not reads_any_mesh(model.settings):
-        raise ThrsimInputError(f"{model.path}: a patch model; the socket needs a socket model (thrsim train --arch socket)", "model_dir")
+        raise ThrsimInputError(f"{model.path}: a patch model; the socket needs a model trained with the socket feature set", "model_dir")
     mesh = generate_socket(SocketConfig(element_size_mm=element_size_mm))
     simulator = ReamingSimulator(model=model, threads=threads, mesh=mesh, cancellous=cancellous)
     simulator.reset(hip)

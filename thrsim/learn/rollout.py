@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays
+from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays, select_subgraph
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.reaction_feed import ReactionFeed
@@ -75,7 +75,6 @@ class LearnedStep:
     def set_teeth_radius(self, teeth_radius_m: float) -> None:
         """Cut with another reamer size from the next step (a socket model reads the size)."""
         self.teeth_radius_m = teeth_radius_m
-        self.reach_m = teeth_radius_m + self.features.reach_margin_mm * 1e-3
 
     def inputs(
         self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float
@@ -83,10 +82,7 @@ class LearnedStep:
         """The region's subgraph and the network's inputs for it (None for an empty region: nothing to run)."""
         graph = self.graph
         active = state.alpha >= self.model.threshold
-        if self.features.whole_graph:
-            sub = graph.whole()
-        else:
-            sub = graph.subgraph(graph.region(active, centre, self.reach_m, self.features.front_hops), self.features.halo_hops)
+        sub = select_subgraph(graph, self.features, active, centre, self.teeth_radius_m)
         if sub.n_region == 0:
             return sub, None
         reamer = ReamerState(

@@ -29,6 +29,7 @@ from thrsim.config import CANCELLOUS_PRESETS, PUSH_FORCE_N, LabelConfig, Side
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.reaming_path import INITIAL_GAP_M, bone_in_path, breach_faces, breach_reason, clear_start, tip_exit_depth
 from thrsim.learn.cases import element_cutting_energy
 from thrsim.learn.compiled import compile_network
 from thrsim.learn.features import GraphBatch
@@ -38,13 +39,6 @@ from thrsim.learn.reaction_feed import ReactionFeed
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.nav.bone_frame import angles_of, check_side, on_side
-from thrsim.physics.reaming import (  # start and end as the solver's cases do
-    INITIAL_GAP_M,
-    bone_in_path,
-    breach_faces,
-    breach_reason,
-    tip_exit_depth,
-)
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
 PERFORATED, PASSED_THROUGH, MEDIAL_WALL_BREACHED = "perforated", "passed_through", "medial_wall_breached"
@@ -90,23 +84,10 @@ class SimulatorSnapshot:
 
 def start_position(nodes: np.ndarray, axis: np.ndarray, teeth_radius_m: float, gap_m: float = INITIAL_GAP_M) -> np.ndarray:
     """Reamer centre s·D on its axis where the teeth clear every bone node by ``gap_m`` (as the solver starts)."""
-    reach = teeth_radius_m + gap_m
-
-    def clearance(s: float) -> float:
-        return float(np.linalg.norm(nodes - s * axis, axis=1).min()) - reach
-
-    lo, hi = -2.0 * reach, 0.0
-    if clearance(lo) <= 0:
-        raise ThrsimInputError("the reamer cannot be placed clear of this bone along that axis")
-    farthest = float(np.linalg.norm(nodes, axis=1).max()) + reach
-    while clearance(hi) > 0:
-        if hi > farthest:
-            raise ThrsimInputError("the reamer axis misses the bone: its teeth never reach it")
-        lo, hi = hi, hi + 0.25 * reach
-    for _ in range(60):
-        mid = 0.5 * (lo + hi)
-        lo, hi = (mid, hi) if clearance(mid) > 0 else (lo, mid)
-    return lo * axis
+    try:
+        return clear_start(nodes, np.zeros(3), axis, teeth_radius_m + gap_m) * axis
+    except ValueError as error:
+        raise ThrsimInputError(str(error)) from None
 
 
 def check_axis(reamer_axis) -> np.ndarray:

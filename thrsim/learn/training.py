@@ -38,7 +38,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
-from thrsim.learn.features import ReamerState, batch, frame_arrays
+from thrsim.learn.features import ReamerState, batch, frame_arrays, select_subgraph
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.metrics import Counts
@@ -167,12 +167,7 @@ class Trainer:
             centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
         graph = self.graphs[case.case_id]
         active_t = alpha_t >= self.threshold
-        if self.settings.features.whole_graph:
-            sub = graph.whole()
-        else:
-            reach_m = case.teeth_radius_m + self.settings.features.reach_margin_mm * 1e-3
-            region = graph.region(active_t, centre, reach_m, self.settings.features.front_hops)
-            sub = graph.subgraph(region, self.settings.features.halo_hops)
+        sub = select_subgraph(graph, self.settings.features, active_t, centre, case.teeth_radius_m)
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         active = alpha_in >= self.threshold
         alpha_in = self._noisy(alpha_in, active, self.threshold, rng)

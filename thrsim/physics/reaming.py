@@ -61,15 +61,14 @@ from thrsim import portable_math as pm
 from thrsim.config import ReamingCaseConfig
 from thrsim.errors import SimulationError, ThrsimInputError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, SIDE, SUPPORTED, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
+from thrsim.geometry.reaming_path import INITIAL_GAP_M, along_axis, bone_in_path, breach_faces, breach_reason, clear_start, tip_exit_depth
 from thrsim.geometry.socket import generate_socket
-from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
 from thrsim.physics.explicit import ExplicitSolid, Tissue, solid_step, tissues_of
 from thrsim.physics.support import foundation_stiffness
 
-INITIAL_GAP_M = 5e-5
 #: frames after first contact spent seating the reamer, left out of the steady-reaming statistics
 SEATING_FRAMES = 5
 #: a case whose reamer neither removes bone nor moves for this many frames has stalled
@@ -276,7 +275,7 @@ class ReamingSimulation:
         self.contact = scratch._replace(force=self.solid.external_force, cutting_damage=self.solid.cutting_damage)
         self.mass = case.hold.effective_mass_kg
         self.force_n = case.force_n  # the surgeon's push; may change during a run
-        self.gravity_load = self.reamer.mass_kg * case.reamer.gravity_m_s2 * float(_along(GRAVITY_DIRECTION, self.axis))
+        self.gravity_load = self.reamer.mass_kg * case.reamer.gravity_m_s2 * float(along_axis(GRAVITY_DIRECTION, self.axis))
         self.start_position = self._initial_position()
         self.state = np.array([self.start_position, 0.0])
         self.ledger = np.zeros(LEDGER_SIZE)
@@ -355,22 +354,10 @@ class ReamingSimulation:
     def _initial_position(self) -> float:
         """Axial coordinate s where the teeth clear the nearest bone node by the initial gap."""
         nodes = self.mesh.nodes[self.solid.alive_nodes]
-        reach = self.reamer.outer_radius + INITIAL_GAP_M
-
-        def clearance(s: float) -> float:
-            return float(np.linalg.norm(nodes - self.line_point - s * self.axis, axis=1).min()) - reach
-
-        lo, hi = -2.0 * reach, 0.0
-        if clearance(lo) <= 0:
-            raise SimulationError("the reamer cannot be placed clear of the bone")
-        if clearance(hi) > 0:
-            lo = hi
-            while clearance(hi) > 0:
-                hi += 0.25 * reach
-        for _ in range(80):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if clearance(mid) > 0 else (lo, mid)
-        return lo
+        try:
+            return clear_start(nodes, self.line_point, self.axis, self.reamer.outer_radius + INITIAL_GAP_M)
+        except ValueError as error:
+            raise SimulationError(str(error)) from None
 
     @property
     def centre(self) -> np.ndarray:
@@ -403,7 +390,7 @@ class ReamingSimulation:
         solver = self.case.solver
         travel = abs(self.speed) * steps * self.solid.dt + solver.zone_lookahead_mm * 1e-3
         relative = self.mesh.nodes + self.solid.displacement - self.centre
-        along = np.clip(_along(relative, self.axis), 0.0, travel)
+        along = np.clip(along_axis(relative, self.axis), 0.0, travel)
         lateral = relative - along[:, None] * self.axis
         near = (lateral * lateral).sum(axis=1) < (self.reamer.outer_radius + self.zone_halo_m) ** 2
         in_zone = near[self.mesh.tets].any(axis=1) & (self.solid.active > 0)
@@ -650,7 +637,7 @@ class ReamingSimulation:
         status = records["status"]
         removed_now = (status[-1] == 0) & ~self.prepared
         simulated = len(log.time) - 1
-        axial = _along(records["reamer_position"] - self.line_point, self.axis) - self.start_position
+        axial = along_axis(records["reamer_position"] - self.line_point, self.axis) - self.start_position
         external = energy[-1, names["external_work"]]
         summary = {
             "frames": simulated,
@@ -751,57 +738,6 @@ def _stalled(log: FrameLog) -> bool:
     removed_then, removed_now = (log.status[-1 - STALL_FRAMES] == 0).sum(), (log.status[-1] == 0).sum()
     moved = abs(log.reamer_axial[-1][0] - log.reamer_axial[-1 - STALL_FRAMES][0])
     return bool(removed_now == removed_then and moved < STALL_MOTION_M)
-
-
-def _along(points: np.ndarray, axis: np.ndarray) -> np.ndarray:
-    """points·axis written elementwise: no BLAS in anything that feeds the solver's decisions."""
-    return points[..., 0] * axis[0] + points[..., 1] * axis[1] + points[..., 2] * axis[2]
-
-
-#: how a socket is breached, in the order checked: the node set whose elements' loss means it
-BREACHES = (("medial_wall_breached", MEDIAL_WALL), ("perforated", SUPPORTED))
-
-
-def breach_faces(mesh: TetMesh, prepared: np.ndarray | None = None) -> dict[str, np.ndarray]:
-    """The elements on each breach face of a socket (:data:`BREACHES`), less those a prepared cavity
-    already removed. Shared by the solver and the learned simulator, so both end at the same place."""
-    touching = {name: np.isin(mesh.tets, mesh.node_sets[name]).any(axis=1) for _, name in BREACHES if name in mesh.node_sets}
-    return {name: np.flatnonzero(on & (True if prepared is None else ~prepared)) for name, on in touching.items()}
-
-
-def breach_reason(face_elements: dict[str, np.ndarray], active: np.ndarray) -> str | None:
-    """The first breach (:data:`BREACHES`) whose face has lost an element, or None."""
-    for reason, name in BREACHES:
-        on_face = face_elements.get(name)
-        if on_face is not None and not bool(active[on_face].all()):
-            return reason
-    return None
-
-
-def tip_exit_depth(mesh: TetMesh, axis: np.ndarray) -> float | None:
-    """How far along D the outer face lies under the teeth's tip; None when no bone is under it.
-
-    Bone is under the tip when outer-face nodes lie within one mean edge length of the axis
-    line s·D; the outermost of them (largest x·D) is where the tip leaves the bone. Shared by the
-    solver and the learned simulator, so both end a case at the same place.
-    """
-    outer = mesh.fixed_nodes
-    if len(outer) == 0:
-        return None
-    points = mesh.nodes[outer]
-    along = _along(points, axis)
-    lateral = np.linalg.norm(points - along[:, None] * axis, axis=1)
-    under_tip = lateral <= float(rms_edge_lengths(mesh.nodes, mesh.tets).mean())
-    return float(along[under_tip].max()) if under_tip.any() else None
-
-
-def bone_in_path(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, outer_radius: float) -> bool:
-    """Whether any of ``points`` (attached bone nodes, m) lies where the advancing dome can still meet it:
-    in front of the head's equatorial plane and within the teeth's reach of the axis."""
-    relative = points - centre
-    along = _along(relative, axis)
-    lateral_sq = (relative * relative).sum(axis=1) - along**2
-    return bool(np.any((along > 0.0) & (lateral_sq < outer_radius**2)))
 
 
 def _or_minus_one(value: int | None) -> int:

@@ -81,7 +81,6 @@ class LiveSession:
             "versions": json.dumps(versions()),
         }
         self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
-        self.last_state: dict | None = None
         self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
@@ -140,7 +139,6 @@ class LiveSession:
             session = {"id": self.id, "elapsed_s": now}
             state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
             state["session"] = session
-            self.last_state = state
             return state
 
     def save(self, folder: Path | None = None) -> Path:

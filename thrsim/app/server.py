@@ -264,9 +264,7 @@ def _headers(scope) -> dict[str, str]:
 class _Viewer:
     socket: WebSocket
     queue: asyncio.Queue = field(default_factory=lambda: asyncio.Queue(maxsize=1))
-    sent: int = 0
     binary_held: Any = None  # what the mode's binary messages gave this viewer so far (reaming: the bone's levels)
-    binary_bytes: int = 0
 
     def offer(self, text: str) -> None:
         if self.queue.full():
@@ -740,10 +738,8 @@ async def _send_states(viewer: _Viewer, seat: Seat) -> None:
     with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
         while True:
             await viewer.socket.send_text(await viewer.queue.get())
-            viewer.sent += 1
             binary = seat.session.mode.binary
             found = None if binary is None else binary(seat.session.trainer, viewer.binary_held)
             if found is not None:
                 message, viewer.binary_held = found
                 await viewer.socket.send_bytes(message)
-                viewer.binary_bytes += len(message)

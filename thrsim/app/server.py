@@ -556,12 +556,12 @@ def create_app(settings: ServeSettings) -> FastAPI:
         await asyncio.to_thread(close_interrupted, settings.sessions_dir)  # before the tracker and the ticker compete with it
         igtl_server = None
         if settings.igtl:
-            from thrsim.io.server import NavigationServer
+            from thrsim.io.server import IgtlServer
 
             first = next(iter(hub.prototypes.values()))  # every mode's pelvis is the same synthetic one
             igtl_tracker = _ForwardingTracker(hub, side=first.side, landmarks=first.targets)
             igtl_config = settings.igtl_config()
-            igtl_server = NavigationServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
+            igtl_server = IgtlServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:

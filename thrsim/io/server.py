@@ -60,7 +60,7 @@ _CRC_IN_THREAD_BYTES = 64 * 1024
 class _Connection:
     """One peer: its writer and the header version to answer in."""
 
-    def __init__(self, server: NavigationServer, writer: asyncio.StreamWriter):
+    def __init__(self, server: IgtlServer, writer: asyncio.StreamWriter):
         self.server = server
         self.writer = writer
         peer = writer.get_extra_info("peername")
@@ -95,7 +95,7 @@ class _Connection:
         self.close()
 
 
-class NavigationServer:
+class IgtlServer:
     """Serve many OpenIGTLink clients at once; see the module docstring for the protocol."""
 
     def __init__(

@@ -71,6 +71,29 @@ def test_the_server_and_the_pages_start_from_the_same_aim():
     assert angles == pytest.approx([zone.inclination_deg, zone.anteversion_deg])
 
 
+def test_the_trained_ranges_are_read_from_the_model_card():
+    """The push (150–310 N) and aim (γ ≤ 45°) the shipped model learned are its card's
+    (``LoadedModel.trained_force_n``, ``trained_inclination_deg``): the trainer, its page, the
+    sessions and the report hold no copy, so a model trained on other ranges is judged by its own."""
+    found = []
+    for path in _modules():
+        if path.relative_to(PACKAGE).parts[0] not in ("app", "report", "session"):
+            continue
+        for value, _, token in _numbers(path):
+            line = token.line
+            if (value in (150.0, 310.0) and re.search(r"(?i:force|push|_n\b)|\bN\b", line)) or (
+                value == 45.0 and re.search(r"trained|learn|γ|gamma|inclination", line, re.IGNORECASE)
+            ):
+                found.append(f"{path.relative_to(PACKAGE)}:{token.start[0]}: {line.strip()}")
+    for page in [*STATIC.glob("*.js"), *STATIC.glob("*.html")]:
+        for number, line in enumerate(page.read_text().splitlines(), 1):
+            if re.search(r"\b(150|310)\b", line) and re.search(r"(?i:force|push)|\bN\b", line):
+                found.append(f"{page.name}:{number}: {line.strip()}")
+            if re.search(r"\b45\b", line) and re.search(r"trained|learn|γ|gamma|inclination", line, re.IGNORECASE):
+                found.append(f"{page.name}:{number}: {line.strip()}")
+    assert not found, "a trained range of its own (read the model card's):\n" + "\n".join(found)
+
+
 def _raised_texts(path: Path):
     tree = ast.parse(path.read_text())
     for node in ast.walk(tree):

@@ -2,15 +2,11 @@
 
 Times given to the trainer are seconds since the session started; inputs are logged before the
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
-The log is the session's journal on disk (:mod:`thrsim.session.journal`), written as inputs
-arrive, so a crash of the server loses at most the last second; the next start closes what a
-crash left open (:func:`close_interrupted`).
-The server steps sessions on a worker thread while inputs arrive on its event loop: every entry
-point holds the session's lock, so an input lands between two steps, never inside one. Tracker
-poses and force readings do not wait for the lock: a step of the reaming mode holds it for tens
-of milliseconds, and the event loop blocked on it would hold back the states it publishes too.
-They queue with their arrival times and are logged and applied, in order, as the next step or
-control takes the lock, which is when they would have landed had they waited.
+The log is the session's journal on disk (:mod:`thrsim.session.journal`), so a crash loses at
+most the last second; the next start closes what a crash left open (:func:`close_interrupted`).
+Every entry point holds the session's lock, so an input lands between two steps, never inside
+one; tracker poses and forces do not wait for it (a reaming step holds it for tens of
+milliseconds): they queue with their arrival times and are applied, in order, at the next step.
 """
 
 from __future__ import annotations

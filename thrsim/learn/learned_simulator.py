@@ -1,22 +1,14 @@
 """The learned simulator around the pure network: input normalisation, logits, α(t+1), the threshold.
 
-Post-processing follows the thesis [7.3.3]: elements removed at t (α < threshold) keep their α;
-halo nodes (context only) keep theirs too; every other node gets α' = sigmoid(logit), with the
-logit optionally added to logit(α_t) so that "nothing changes" is the untrained default.
-
-The removal head (``ArchSettings.removal_head``). α mixes von Mises stress and PEEQ (eq. 47), so
-whether an element goes in the next frame is, seen from α, partly chance: on the rim at γ = 0
-the solver removes ~100 of ~1,000 loaded elements per frame, and which ones depends on the
-reamer's hop. A network that only regresses α(t+1) learns its expectation, which for an element
-under the teeth settles near 0.85 and never crosses 0.3: the tool-forced rollout at γ = 0 removed
-a quarter of the solver's bone by frame 20 although every single step from the solver's state
-was right. The head predicts the probability p that an active element is removed by t + 1; the
-rollout adds its hazard −log(1 − p) = softplus(logit) per element and frame, and removes the
-element once the sum reaches ln 2, the median of its removal time.
-
-Damage (``FeatureSettings.damage``). The network also reads each element's damage D(t) and
-predicts D(t+1) (a third output, its logit added to logit(D_t) as α's is); the prediction never
-falls below D(t), since damage only grows. The loss adds D's cross-entropy on the same nodes.
+Post-processing follows the thesis [7.3.3]: elements removed at t (α < threshold) and halo nodes
+(context only) keep their α; every other node gets α' = sigmoid(logit), the logit optionally
+added to logit(α_t) so that "nothing changes" is the untrained default. The removal head
+(``ArchSettings.removal_head``) predicts the probability p that an active element is removed by
+t + 1, because α alone only learns removal's expectation, which never crosses the threshold
+under the teeth (the docs' Learned simulator page); the rollout adds the hazard
+−log(1 − p) = softplus(logit) per element and frame, and removes the element once the sum
+reaches ln 2, the median of its removal time. With damage (``FeatureSettings.damage``) the
+network also predicts D(t+1), never below D(t).
 """
 
 from __future__ import annotations

@@ -1,8 +1,8 @@
 """Johnson–Cook plasticity and ductile damage for cortical bone: pure kernels, no I/O.
 
-Hardening (thermal softening off) [Table 4]: σ_y = [A + B εᵖⁿ]·[1 + C ln(ε̇ᵖ/ε̇₀)], the rate
+Hardening (thermal softening off) [Table 4]: ``σ_y = [A + B εᵖⁿ]·[1 + C ln(ε̇ᵖ/ε̇₀)]``, the rate
 term only for ε̇ᵖ > ε̇₀, as in ABAQUS. Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with
-ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]; the thesis constants give ε_f < 0 for every
+``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]``; the thesis constants give ε_f < 0 for every
 triaxiality η, read explicitly as "initiate at first yield" and never used as a divisor.
 Evolution is linear in the plastic displacement after initiation, D = L_e·Δεᵖ / u_f, and the
 element is deleted at D ≥ 1. The return mapping is written here because no library offers a

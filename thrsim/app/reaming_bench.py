@@ -160,7 +160,7 @@ def time_reaming_page(
     drawn_frames, bone_frames = totals[1], totals[3]
     bytes_per_frame = totals[4] / bone_frames if bone_frames else None
     return {
-        "what": "the reaming page with a tracker streaming the reamer at 60 Hz while reaming at the safe zone's centre",
+        "what": f"the reaming page with a tracker streaming the reamer at {TrackingVolumeConfig().rate_hz:g} Hz while reaming at the safe zone's centre",
         "simulator_frames_per_s": totals[5] / elapsed,
         "states_per_s": totals[2] / elapsed,
         "bone_frames_per_s": bone_frames / elapsed,

@@ -136,3 +136,15 @@ def test_every_module_docstring_is_a_few_lines():
     assert not long, f"module docstrings over {MODULE_DOCSTRING_LINES} lines (move the detail, see above):\n" + "\n".join(long)
     shortened = [name for name in LONG_DOCSTRINGS_FOR_NOW if lines.get(name, 0) <= MODULE_DOCSTRING_LINES]
     assert not shortened, f"short now (or gone): drop them from LONG_DOCSTRINGS_FOR_NOW: {shortened}"
+
+
+def test_the_contributor_guide_names_the_examples_to_follow():
+    """The parts to copy: the pure network beside the learned simulator, kernels with no I/O and named
+    state, the model directory, the trainer protocol with exact replay, errors mapped at the edge."""
+    guide = (DOCS / "contributing.md").read_text()
+    patterns = guide.split("\n## Patterns to follow\n", 1)[1].split("\n## ", 1)[0]
+    for heading in ("pure network", "no I/O", "model directory", "exact replay", "exit codes at the edge"):
+        assert re.search(rf"^### .*{re.escape(heading)}", patterns, flags=re.MULTILINE | re.IGNORECASE), heading
+    named = set(re.findall(r"`(thrsim/[\w/]+\.py)`", patterns))
+    assert {"thrsim/learn/network.py", "thrsim/learn/model_dir.py", "thrsim/app/replay.py", "thrsim/cli/__init__.py"} <= named, named
+    assert all((REPO_ROOT / path).is_file() for path in named), sorted(p for p in named if not (REPO_ROOT / p).is_file())

@@ -148,3 +148,12 @@ def test_the_contributor_guide_names_the_examples_to_follow():
     named = set(re.findall(r"`(thrsim/[\w/]+\.py)`", patterns))
     assert {"thrsim/learn/network.py", "thrsim/learn/model_dir.py", "thrsim/app/replay.py", "thrsim/cli/__init__.py"} <= named, named
     assert all((REPO_ROOT / path).is_file() for path in named), sorted(p for p in named if not (REPO_ROOT / p).is_file())
+
+
+def test_the_tracker_page_names_every_device_and_the_port_the_trainer_uses():
+    from thrsim.config import KNOWN_TRACKER_DEVICES, IgtlConfig
+
+    page = (DOCS / "tracker.md").read_text()
+    missing = [device for device in KNOWN_TRACKER_DEVICES if f"`{device}`" not in page and device not in page]
+    assert not missing, f"tracker.md does not name these device names: {missing}"
+    assert str(IgtlConfig().port) in page and "PLUS" in page and "3D Slicer" in page

@@ -1,5 +1,7 @@
-"""One definition of each thing: the defaults live in thrsim.config, the page takes its own from the
-server, the library's errors name settings (the CLI names the flags)."""
+"""One definition of each thing: the defaults live in thrsim.config, the trained ranges in the model
+card, the page takes its own from the server, one Side and one mirror, the server names no mode, the
+report's parts import no circle, the library's errors name settings (the CLI names the flags), and
+nothing is defined that the package never uses."""
 
 from __future__ import annotations
 

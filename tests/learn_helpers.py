@@ -40,3 +40,13 @@ def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
         **train,
     }
     return ModelSettings(arch=arch, features=preset("production").features, train=TrainSettings(**options))
+
+
+def tiny_socket_settings(epochs: int = 3, **train) -> ModelSettings:
+    """As :func:`tiny_settings`, with the socket preset's features and its reaction head."""
+    tiny = tiny_settings(epochs, **train)
+    return ModelSettings(
+        arch=tiny.arch.model_copy(update={"reaction_head": True, "removal_head": True}),
+        features=preset("socket").features,
+        train=tiny.train,
+    )

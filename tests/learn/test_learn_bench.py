@@ -21,3 +21,12 @@ def test_four_times_the_area_of_a_spherical_cap():
 
     half = _four_times_area(19.0)
     assert np.isclose(1 - np.cos(np.radians(half)), 4 * (1 - np.cos(np.radians(19.0))))
+
+
+def test_the_socket_model_s_step_is_timed_on_the_whole_socket():
+    from thrsim.learn.bench import time_socket_steps
+
+    (row,) = time_socket_steps(None, frames=2, element_sizes_mm=(2.5,))
+    assert row["element_size_mm"] == 2.5 and row["elements"] > 1000 and row["weights"] == "initial"
+    assert row["step_ms_median"] > 0 and row["step_ms_max"] >= row["step_ms_median"]
+    assert row["region_elements_max"] > 0  # the reamer reached the articular face

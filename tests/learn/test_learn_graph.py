@@ -142,3 +142,18 @@ def test_surface_distance_is_symmetric_nearest_face_distance_in_mm():
     mean_mm, max_mm = surface_distance_mm(grid, grid + [0.0, 0.0, 0.2e-3])
     assert np.isclose(mean_mm, 0.2) and np.isclose(max_mm, 0.2)
     assert np.isnan(surface_distance_mm(grid[:0], grid)[0])
+
+
+def test_the_socket_s_articular_face_is_where_the_cutting_front_starts():
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.socket import generate_socket
+
+    mesh = generate_socket(SocketConfig(element_size_mm=1.5, window_polar_deg=0.0, window_half_angle_deg=15.0))
+    graph = StaticGraph(mesh)
+    exposed = graph.exposed(np.ones(mesh.n_tets, dtype=bool))
+    assert exposed.any()
+    on_articular = np.isin(mesh.tets, mesh.node_sets["articular"]).sum(axis=1) >= 3
+    assert set(np.flatnonzero(exposed)) <= set(np.flatnonzero(on_articular))
+    pole = np.array([0.0, 0.0, -1.0])
+    region = graph.region(np.ones(mesh.n_tets, dtype=bool), np.zeros(3), 0.5 * SocketConfig().socket_diameter_mm * 1e-3 + 1e-3, 1)
+    assert len(region) > 0 and (graph.centroids[region] @ pole > 0).all()

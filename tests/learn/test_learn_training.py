@@ -20,7 +20,7 @@ from thrsim.learn.training import Trainer
 
 def _trainer(cases, settings):
     mesh = cases[0]
-    return Trainer(StaticGraph(mesh), cases[1], [], settings, cases[1][0].teeth_radius_m, 0.3)
+    return Trainer(StaticGraph(mesh), cases[1], [], settings, 0.3)
 
 
 @pytest.fixture(scope="module")

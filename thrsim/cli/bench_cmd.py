@@ -22,7 +22,8 @@ def bench(
     socket: bool = typer.Option(
         False,
         "--socket",
-        help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch",
+        help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch; "
+        "with --learned, the socket model's step on the whole socket at 1.5 and 1.0 mm (--model: a socket model to time)",
     ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
@@ -65,6 +66,13 @@ def bench(
 
         torch.set_num_threads(1)
         loaded = load_model(model) if model is not None else None
+        if socket:
+            from thrsim.learn.bench import time_socket_steps
+            from thrsim.learn.model_dir import reads_any_mesh
+
+            socket_model = loaded if loaded is not None and reads_any_mesh(loaded.settings) else None
+            loaded = None if socket_model is not None else loaded
+            result["learned_socket"] = {"whole_socket": time_socket_steps(socket_model)}
         result["learned"] = run_learned_benchmarks(loaded, solver_seconds_per_frame=result["solver"]["seconds_per_frame"])
     if reaming_page:
         result["reaming_page"] = _reaming_page(model, browser_seconds)

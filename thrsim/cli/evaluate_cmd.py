@@ -45,7 +45,7 @@ def evaluate(
 
     torch.set_num_threads(threads)
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
-    mesh, cases = load_cases(data, splits=splits)
+    mesh, cases = load_cases(data, splits=splits, one_mesh=False)
     loaded = load_model(model, expect_mesh=mesh)
     report = run_evaluation(
         loaded,
@@ -63,16 +63,18 @@ def evaluate(
 
 
 def print_comparison(report: dict) -> None:
-    """Rows γ × model; columns P / R / F1 per horizon, beside the thesis's Table 10."""
-    table = Table(title="removed elements on held-out orientations, % (P / R / F1; n = windows)")
-    table.add_column("γ")
+    """Rows γ (a socket model: reamer size) × model; columns P / R / F1 per horizon, beside the thesis's Table 10."""
+    by_size = report.get("rows") == "reamer_diameter_mm"
+    table = Table(title=f"removed elements on held-out {'cases' if by_size else 'orientations'}, % (P / R / F1; n = windows)")
+    table.add_column("reamer mm" if by_size else "γ")
     table.add_column("model")
     horizons = ("1", "30", "60", "end")
     for h in horizons:
         table.add_column(f"t+{h}" if h != "end" else "to end")
     table.add_column("surface mean mm")
-    gammas = sorted({g for g in report if g.replace(".", "", 1).isdigit()}, key=float)
-    thesis = report["thesis_table_10_percent"]
+    sources = (report, report["tool_forced"], report["mlp"], report["geometric"])
+    gammas = sorted({g for source in sources for g in source if g.replace(".", "", 1).isdigit()}, key=float)
+    thesis = {} if by_size else report["thesis_table_10_percent"]
     for g in gammas:
         for name, source in (
             ("GN autonomous", report),
@@ -92,3 +94,18 @@ def print_comparison(report: dict) -> None:
             table.add_row(g, "thesis Table 10", *cells, "")
     # wide enough for P / R / F1 cells of four horizons, also when piped to a file
     Console(width=max(console.width, 170)).print(table)
+    names = {"autonomous": "GN autonomous", "tool_forced": "GN tool-forced", "mlp": "MLP", "geometric": "geometric"}
+    for mode, layers in report.get("by_layer", {}).items():
+        if len(layers) > 1:
+            layer_cells = ", ".join(f"{layer} {_pct(c['f1'])}" for layer, c in layers.items())
+            console.print(f"{names[mode]}, F1 by bone layer at each window's longest horizon, %: {layer_cells}")
+    checks = report.get("physics_checks", {})
+    if checks.get("checked"):
+        held = ", ".join(f"{name.replace('_', ' ')} {count}/{checks['cases']}" for name, count in checks["held"].items())
+        volumes = ", ".join(f"{share}× {volume:.1f}" for share, volume in checks["removed_volume_mm3_mean_by_push_share"].items())
+        console.print(f"physics checks over {checks['frames']} frames (cases that hold): {held}; mean removed mm³ by push share: {volumes}")
+    elif checks:
+        console.print(f"physics checks: not run ({checks['why']})")
+    for size, errors in report.get("reaction", {}).items():
+        force, torque = errors["force_error"], errors["torque_error"]
+        console.print(f"reamer {size} mm: reaction error {_pct(force)} %, motor torque error {_pct(torque)} % (Σ|error| / Σ|solver's|)")

@@ -60,6 +60,8 @@ class PackedCase:
     damage: np.ndarray | None = None  # (T,E) float32 D, where the case file records it
     damage_initiation: np.ndarray | None = None  # (T,E) float32 ω
     mesh: TetMesh | None = None  # the case's own mesh where it has one (a socket window), else None: the pack's
+    contact_force_axial: np.ndarray | None = None  # (T,) N, where the case records it
+    motor_torque: np.ndarray | None = None  # (T,) N·m, where the case records it
 
 
 def pack_files(path: str | os.PathLike) -> list[Path]:
@@ -404,6 +406,8 @@ def _read_pack_file(
             attrs=attrs,
             data_digest=str(attrs.get("source_data_digest", "")),
             mesh=own_mesh,
+            contact_force_axial=read_dataset(g, "contact_force_axial", path, "f", (frames,)) if "contact_force_axial" in g else None,
+            motor_torque=read_dataset(g, "motor_torque", path, "f", (frames,)) if "motor_torque" in g else None,
             **{
                 name: dequantise_damage(read_dataset(g, name, path, "u", (elements, frames)), damage_levels) if name in g else None
                 for name in OPTIONAL_PER_ELEMENT

@@ -79,9 +79,13 @@ def synthetic_run_case(
     # energies of the reamer's motion, so the summary's kinetic ÷ internal comes from the frames
     head_mass_kg = case.reamer.density_kg_m3 * (2 * math.pi / 3) * case.reamer.head_radius**3
     kinetic_j = 0.5 * head_mass_kg * (speed / case.frame_dt_s) ** 2
+    # a stand-in reaction: a share per element in the head's reach that was bone, more at a faster feed
+    reaction = np.zeros(t_frames)
     for t in range(t_frames):
         position[t] = start + axis * speed * t
         if t > 0:
+            engaged = int(((np.linalg.norm(centroids - position[t], axis=1) < radius) & (status[t - 1] == 1)).sum())
+            reaction[t] = 0.5 * engaged * (1.0 + speed / 2e-4)
             depth = radius - np.linalg.norm(centroids - position[t], axis=1)
             grow = np.clip(depth / 5e-4, 0.0, None).astype(np.float32) * 0.2
             peeq[t] = peeq[t - 1] + grow
@@ -102,6 +106,8 @@ def synthetic_run_case(
         energy=energy,
         energy_names=("kinetic", "internal", "plastic_dissipation", "contact"),
         contact_force=np.tile(-axis * case.force_n, (t_frames, 1)),
+        contact_force_axial=reaction,
+        motor_torque=1e-3 * reaction,
         # as the solver records them: damage reaches 1 where an element goes (PEEQ 0.6 here)
         damage=np.clip(peeq / 0.6, 0.0, 1.0).astype(np.float32),
         damage_initiation=np.clip(peeq / 0.3, 0.0, 1.0).astype(np.float32),

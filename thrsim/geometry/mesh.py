@@ -20,6 +20,8 @@ ARTICULAR, MEDIAL_WALL, SUPPORTED, RIM = "articular", "medial_wall", "supported"
 #: a window of the socket's side faces: cuts through the socket's own bone, held like the supported
 #: boundary but not a way through the bone (a reamer reaching them has not perforated)
 WINDOW_SIDE = "window_side"
+#: the node set of the face a reamer meets first, the patch's and the socket's
+REAMED_FACES = (INNER, ARTICULAR)
 #: bone materials by name; a mesh without material tags is all cortical (the thesis's patch)
 CORTICAL, CANCELLOUS = "cortical", "cancellous"
 #: the material names of a mesh without material tags: all cortical

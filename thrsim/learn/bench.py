@@ -188,3 +188,44 @@ def run_learned_benchmarks(
 def _four_times_area(half_angle_deg: float) -> float:
     """Half-angle of a spherical cap with 4× the area of one with ``half_angle_deg`` (area ∝ 1 − cos)."""
     return float(np.degrees(np.arccos(1.0 - 4.0 * (1.0 - np.cos(np.radians(half_angle_deg))))))
+
+
+#: the whole socket's element sizes the socket model's step is timed at (the frontier toward the solver's 0.45 mm)
+SOCKET_ELEMENT_SIZES_MM = (1.5, 1.0)
+
+
+def time_socket_steps(
+    model: LoadedModel | None, frames: int = 40, element_sizes_mm: tuple[float, ...] = SOCKET_ELEMENT_SIZES_MM
+) -> list[dict]:
+    """ms per step of a socket model (``model``, or initial socket weights) on the whole default socket
+    at each element size: the reamer reamed straight in along the socket's axis at 3 mm/s one size up
+    (tool-forced, so every size times the same path), the first five steps left out as warm-up."""
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.socket import generate_socket
+
+    socket = SocketConfig()
+    reamer_mm = socket.socket_diameter_mm + 2.0
+    axis = np.array([0.0, 0.0, -1.0])
+    rows = []
+    for size in element_sizes_mm:
+        started = time.perf_counter()
+        mesh = generate_socket(socket.model_copy(update={"element_size_mm": size}))
+        meshing_s = time.perf_counter() - started
+        used = model if model is not None else untrained_model(mesh, preset("socket"), teeth_radius_m=reamer_mm * 0.5e-3)
+        if model is None:
+            used.card["reamer"]["sizes_mm"] = [reamer_mm]
+        simulator = ReamingSimulator(model=used, mesh=mesh)
+        start = simulator.reamer_start(axis)
+        times, regions = [], []
+        for k in range(frames + 5):
+            result = simulator.step(axis, PUSH_FORCE_N, reamer_position=start + axis * (3e-3 * k / 60.0), reamer_mm=reamer_mm)
+            times.append(result.seconds * 1e3)
+            regions.append(simulator._step.last.region)
+        steps = np.array(times[5:])
+        rows.append({
+            "element_size_mm": size, "elements": mesh.n_tets, "meshing_s": meshing_s, "reamer_mm": reamer_mm,
+            "step_ms_median": float(np.median(steps)), "step_ms_max": float(steps.max()),
+            "frames_per_s_median": 1e3 / float(np.median(steps)), "region_elements_max": int(max(regions)),
+            "weights": "trained" if model is not None else "initial",
+        })  # fmt: skip
+    return rows

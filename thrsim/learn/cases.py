@@ -1,8 +1,10 @@
 """Ground-truth cases in memory for training and evaluation: α per frame, reamer path, settings.
 
 A dataset directory (``thrsim dataset``, with its manifest and splits), a learning pack
-(``thrsim dataset pack``) or a single case file is read into arrays once; every case must share one mesh, which becomes the model's mesh. Extra
-datasets a newer solver writes are ignored; only the layout of :mod:`thrsim.data.case_file` is read.
+(``thrsim dataset pack``) or a single case file is read into arrays once. A patch model learns one
+mesh, which every case must share; a socket model learns from windows, each case with its own mesh
+and its elements' cutting energy. Extra datasets a newer solver writes are ignored; only the layout
+of :mod:`thrsim.data.case_file` is read.
 """
 
 from __future__ import annotations
@@ -14,13 +16,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig, ReamerHoldConfig, ReamingCaseConfig
 from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.data.pack import is_pack, read_pack
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.graph import mesh_digest
+from thrsim.learn.graph import StaticGraph, mesh_digest
+from thrsim.physics.reaming import cutting_energies
 
 
 @dataclass
@@ -41,6 +44,20 @@ class CaseArrays:
     solver_version: str
     frame_dt_s: float = 1.0 / FRAME_RATE_HZ
     damage: np.ndarray | None = None  # (T, E) float32 D, where the case records it (solver 0.4.0 on)
+    mesh: TetMesh | None = None  # the case's bone
+    element_cutting_energy_j_m3: np.ndarray | None = None  # (E,) the cutting law's u_c of each element
+    reaction_n: np.ndarray | None = None  # (T,) the bone's axial reaction on the reamer over each frame
+    motor_torque_n_m: np.ndarray | None = None  # (T,) the torque spinning the reamer took over each frame
+    hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
+
+    def recorded_push_n(self) -> float:
+        """The push the bone and the hold took, median over the frames: the recorded reaction plus the
+        hold's damping times the feed (the reamer's weight, which the solver adds to a set push and
+        takes from a set feed's, left out); the set push where no reaction is recorded."""
+        if self.reaction_n is None or self.frames < 2:
+            return self.force_n
+        feed = self.advances() / self.frame_dt_s
+        return float(np.median(self.reaction_n[1:] + self.hold.axial_damping_n_s_m * feed))
 
     @property
     def frames(self) -> int:
@@ -60,8 +77,25 @@ def require_damage(cases: list[CaseArrays], remedy: str) -> None:
         )
 
 
+def element_cutting_energy(config: dict, mesh: TetMesh) -> np.ndarray:
+    """u_c (J/m³) of each element from the case's settings (the solver's defaults where a setting is absent)."""
+    case = ReamingCaseConfig.model_validate({"inclination_deg": 0.0, "anteversion_deg": 0.0, **config})
+    return cutting_energies(case, mesh)[mesh.element_material]
+
+
 def _case_arrays(
-    case_id: str, path: Path, split: str | None, digest: str, attrs: dict, alpha: np.ndarray, positions, axis, damage: np.ndarray | None
+    case_id: str,
+    path: Path,
+    split: str | None,
+    digest: str,
+    attrs: dict,
+    alpha: np.ndarray,
+    positions,
+    axis,
+    damage: np.ndarray | None,
+    mesh: TetMesh,
+    reaction_n: np.ndarray | None = None,
+    motor_torque_n_m: np.ndarray | None = None,
 ) -> CaseArrays:
     axis = np.asarray(axis, dtype=np.float64).reshape(3)
     config = attrs.get("config")
@@ -86,6 +120,11 @@ def _case_arrays(
         solver_version=str(attrs.get("thrsim_version", "unknown")),
         frame_dt_s=1.0 / float(config.get("frame_rate_hz", FRAME_RATE_HZ)),
         damage=None if damage is None else np.asarray(damage, dtype=np.float32),
+        mesh=mesh,
+        element_cutting_energy_j_m3=element_cutting_energy(config, mesh),
+        reaction_n=None if reaction_n is None else np.asarray(reaction_n, dtype=np.float64),
+        motor_torque_n_m=None if motor_torque_n_m is None else np.asarray(motor_torque_n_m, dtype=np.float64),
+        hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
     )
 
 
@@ -94,21 +133,49 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
     frames = case.frames
     alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
     return case.mesh, _case_arrays(
-        case_id, path, split, digest or data_digest(path), case.attrs, alpha, frames.reamer_position, case.reamer_axis, frames.damage
+        case_id,
+        path,
+        split,
+        digest or data_digest(path),
+        case.attrs,
+        alpha,
+        frames.reamer_position,
+        case.reamer_axis,
+        frames.damage,
+        case.mesh,
+        frames.contact_force_axial,
+        frames.motor_torque,
     )
 
 
 def _read_pack(path: Path, splits: tuple[str, ...] | None, labels: LabelConfig) -> tuple[TetMesh, list[CaseArrays]]:
     mesh, packed = read_pack(path, splits, labels)
     return mesh, [
-        _case_arrays(p.case_id, path, p.split, p.data_digest, p.attrs, p.alpha, p.reamer_position, p.reamer_axis, p.damage) for p in packed
+        _case_arrays(
+            p.case_id,
+            path,
+            p.split,
+            p.data_digest,
+            p.attrs,
+            p.alpha,
+            p.reamer_position,
+            p.reamer_axis,
+            p.damage,
+            p.mesh or mesh,
+            p.contact_force_axial,
+            p.motor_torque,
+        )
+        for p in packed
     ]
 
 
 def load_cases(
-    source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None
+    source: str | os.PathLike, splits: tuple[str, ...] | None = None, labels: LabelConfig | None = None, *, one_mesh: bool = True
 ) -> tuple[TetMesh, list[CaseArrays]]:
-    """The mesh and the cases of a dataset directory or learning pack (optionally some splits only) or of one case file."""
+    """The mesh and the cases of a dataset directory or learning pack (optionally some splits only) or of one case file.
+
+    ``one_mesh``: refuse cases whose meshes differ (a patch model's data); otherwise each case keeps
+    its own (``CaseArrays.mesh``) and the mesh returned is the first case's."""
     from thrsim.data.generate import load_dataset
 
     labels = labels or LabelConfig()
@@ -138,7 +205,7 @@ def load_cases(
         case_mesh, case = _read_case(Path(entry["path"]), entry["case_id"], entry.get("split"), entry.get("data_digest"), labels)
         if mesh is None:
             mesh, digest = case_mesh, mesh_digest(case_mesh)
-        elif mesh_digest(case_mesh) != digest:
+        elif one_mesh and mesh_digest(case_mesh) != digest:
             raise ThrsimInputError(f"{entry['path']}: its mesh differs from the other cases' (one model learns one mesh)")
         if case.frames < 2:
             continue
@@ -146,3 +213,20 @@ def load_cases(
     if mesh is None or not cases:
         raise ThrsimInputError(f"{source}: no case has two frames or more")
     return mesh, cases
+
+
+def case_graphs(graph: StaticGraph, cases: list[CaseArrays], any_mesh: bool) -> dict[str, StaticGraph]:
+    """Each case's graph by case id: ``graph`` where the case's bone is its mesh, else (``any_mesh``,
+    a socket model's frame-free inputs) one built once per distinct mesh; refused otherwise."""
+    by_digest = {graph.digest: graph}
+    graphs = {}
+    for case in cases:
+        digest = graph.digest if case.mesh is None else mesh_digest(case.mesh)
+        if digest not in by_digest:
+            if not any_mesh or case.mesh is None:
+                raise ThrsimInputError(
+                    f"{case.path}: case {case.case_id} has another mesh than the model's (a patch model learns one mesh)"
+                )
+            by_digest[digest] = StaticGraph(case.mesh)
+        graphs[case.case_id] = by_digest[digest]
+    return graphs

@@ -17,10 +17,13 @@ from collections import defaultdict
 
 import numpy as np
 
-from thrsim.learn.cases import CaseArrays, require_damage
+from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
+from thrsim.learn.graph import StaticGraph
 from thrsim.learn.metrics import Counts, surface_distance_mm
-from thrsim.learn.model_dir import LoadedModel
-from thrsim.learn.rollout import GeometricStep, LearnedStep, rollout
+from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
+from thrsim.learn.reaction_feed import ReactionFeed
+from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
+from thrsim.learn.training import next_reaction
 
 HORIZONS = (1, 30, 60)
 MODES = ("autonomous", "tool_forced", "mlp", "geometric")
@@ -57,14 +60,83 @@ def windows(
     return out
 
 
-def _steppers(model: LoadedModel) -> dict:
-    learned = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m)
+def _steppers(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict:
+    """Each mode's step and feed on ``case``'s bone and reamer. A socket model's autonomous feed is
+    the push the case was reamed with against the reaction law (a model without the reaction
+    head has none: its modes are tool-forced)."""
+    features, energy = model.settings.features, case.element_cutting_energy_j_m3
+    learned = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
+    mlp = LearnedStep(model.mlp, graph, features, case.teeth_radius_m, energy)
+    geometric = GeometricStep(graph, case.teeth_radius_m)
+    if reads_any_mesh(model.settings):
+        modes: dict[str, tuple[object, object]] = {"tool_forced": (learned, None), "mlp": (mlp, None), "geometric": (geometric, None)}
+        if model.settings.arch.reaction_head:
+            pushed = ReactionFeed(graph.mesh, case.teeth_radius_m, model.threshold, case.frame_dt_s, model.hold)
+            autonomous = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
+            modes = {"autonomous": (autonomous, pushed), **modes, "mlp": (mlp, pushed)}
+        return modes
     feed = model.reamer_feed()
+    return {"autonomous": (learned, feed), "tool_forced": (learned, None), "mlp": (mlp, feed), "geometric": (geometric, None)}
+
+
+def group_key(model: LoadedModel, case: CaseArrays) -> str:
+    """The row a case's windows count in: its γ (patch) or its reamer size in mm (socket)."""
+    if reads_any_mesh(model.settings):
+        return f"{2e3 * case.teeth_radius_m:g}"
+    return gamma_key(case.inclination_deg)
+
+
+def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> tuple[float, float, float, float] | None:
+    """Σ|R̂ − R|, Σ|R|, Σ|T̂ − T|, Σ|T| over a tool-forced pass through ``case``: each frame's law
+    at the next recorded feed against the recorded reaction R and torque T (None: nothing to compare)."""
+    if not model.settings.arch.reaction_head or case.reaction_n is None or case.motor_torque_n_m is None:
+        return None
+    step = LearnedStep(model.gn, graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+    state = BoneState.start(case.alpha[0], None if case.damage is None else case.damage[0])
+    sums = np.zeros(4)
+    for frame in range(1, case.frames - 1):
+        moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
+        state = step(state, case.positions[frame], case.axis, case.recorded_push_n(), moved, case.omega_rad_s)
+        reaction, torque, feed = next_reaction(case, frame)
+        law = step.reaction_law if step.reaction_law is not None else np.zeros(4)
+        sums += [abs(law[0] + law[1] * feed - reaction), abs(reaction), abs(law[2] + law[3] * feed - torque), abs(torque)]
+    return tuple(float(v) for v in sums)  # type: ignore[return-value]
+
+
+#: the share of each case's push the physics checks ream at: none, less, as recorded, more
+CHECK_PUSH_SHARES = (0.0, 0.5, 1.0, 2.0)
+
+
+def physics_checks(model: LoadedModel, cases: list[CaseArrays], frames: int = 30) -> dict:
+    """What the physics demands of any model's autonomous rollouts, from each case's first frame over
+    ``frames`` frames: no push removes nothing and does not advance; more push never removes or
+    advances less. Counts of the cases that hold, and the removed volume at each push share."""
+    graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
+    held = {"no_push_no_cut": 0, "no_push_no_advance": 0, "more_push_never_less": 0}
+    volumes: dict[str, list[float]] = {f"{share:g}": [] for share in CHECK_PUSH_SHARES}
+    for case in cases:
+        graph = graphs[case.case_id]
+        step, feed = _steppers(model, case, graph).get("autonomous", (None, None))
+        if step is None:
+            return {"checked": False, "why": "the model has no autonomous feed (a socket model without the reaction head)"}
+        horizon = min(frames, case.frames - 1)
+        start_removed = case.alpha[0] < model.threshold
+        removed, advanced = [], []
+        for share in CHECK_PUSH_SHARES:
+            masks, centres = rollout(step, case, 0, horizon, model.threshold, feed, push_n=share * case.recorded_push_n())
+            cut = masks[-1] & ~start_removed
+            removed.append(float(cut @ graph.volumes) * 1e9)
+            advanced.append(float((centres[-1] - case.positions[0]) @ case.axis))
+            volumes[f"{share:g}"].append(removed[-1])
+        held["no_push_no_cut"] += removed[0] == 0.0
+        held["no_push_no_advance"] += advanced[0] == 0.0
+        held["more_push_never_less"] += removed == sorted(removed) and advanced == sorted(advanced)
     return {
-        "autonomous": (learned, feed),
-        "tool_forced": (learned, None),
-        "mlp": (LearnedStep(model.mlp, model.graph, model.settings.features, model.teeth_radius_m), feed),
-        "geometric": (GeometricStep(model.graph, model.teeth_radius_m), None),
+        "checked": True,
+        "cases": len(cases),
+        "frames": frames,
+        "held": held,
+        "removed_volume_mm3_mean_by_push_share": {share: float(np.mean(v)) for share, v in volumes.items()},
     }
 
 
@@ -76,10 +148,16 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": []}) for m in MODES}
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
-    steppers = _steppers(model)
-    volumes = model.graph.volumes
+    reaction_sums: dict = defaultdict(lambda: np.zeros(4))
+    by_layer: dict = {m: defaultdict(Counts) for m in MODES}
+    graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
-        g = gamma_key(case.inclination_deg)
+        graph = graphs[case.case_id]
+        steppers, volumes = _steppers(model, case, graph), graph.volumes
+        g = group_key(model, case)
+        compared = reaction_errors(model, case, graph)
+        if compared is not None:
+            reaction_sums[g] += np.array(compared)
         truth_removed = case.alpha < threshold
         for start, keys, length in windows(case.frames, start_stride, one_step_stride):
             initial = truth_removed[start]
@@ -91,6 +169,9 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 if start % start_stride:
                     continue  # a one-step window: no longest horizon of its own
                 final_pred, final_true = masks[-1], truth_removed[start + length]
+                for index_layer, layer in enumerate(graph.mesh.material_names):
+                    in_layer = graph.mesh.element_material == index_layer
+                    by_layer[mode][layer].add(final_pred & ~initial & in_layer, final_true & ~initial & in_layer)
                 true_volume = float((final_true & ~initial) @ volumes)
                 pred_volume = float((final_pred & ~initial) @ volumes)
                 if true_volume > 0:
@@ -99,12 +180,21 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                         by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
                 if mode == "autonomous":
                     by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
-                mean_mm, max_mm = surface_distance_mm(model.graph.reamed_surface(~final_pred), model.graph.reamed_surface(~final_true))
+                mean_mm, max_mm = surface_distance_mm(graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true))
                 errors[mode][g]["surface_mean_mm"].append(mean_mm)
                 errors[mode][g]["surface_max_mm"].append(max_mm)
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
+    report["rows"] = "reamer_diameter_mm" if reads_any_mesh(model.settings) else "inclination_deg"
+    report["physics_checks"] = physics_checks(model, cases)
+    # per bone layer (material), at each full window's longest horizon
+    report["by_layer"] = {mode: {layer: c.as_dict() for layer, c in layers.items()} for mode, layers in by_layer.items() if layers}
+    # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
+    report["reaction"] = {
+        g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}
+        for g, v in sorted(reaction_sums.items(), key=lambda item: float(item[0]))
+    }
     # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
     report["by_force"] = {
         f: {
@@ -148,6 +238,7 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
             "inclination_deg": c.inclination_deg,
             "anteversion_deg": c.anteversion_deg,
             "force_n": c.force_n,
+            "reamer_diameter_mm": round(2e3 * c.teeth_radius_m, 3),
             "frames": c.frames,
             "end_reason": c.end_reason,
             "split": c.split,

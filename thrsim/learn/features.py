@@ -20,7 +20,7 @@ from thrsim.learn.settings import FeatureSet, FeatureSettings
 use_numba_cache()  # before the first kernel: Numba reads the cache folder then
 
 #: widths of (node, edge, global) inputs per feature set, before the corner and damage columns
-WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3)}
+WIDTHS = {"full": (12, 6, 5), "thesis": (4, 2, 3), "socket": (9, 6, 2)}
 #: node columns of ``FeatureSettings.corners``: four sorted corner distances, the nearest at t − 1
 CORNER_COLUMNS = 5
 
@@ -57,6 +57,8 @@ class GraphBatch:
     alpha: torch.Tensor
     update: torch.Tensor
     damage: torch.Tensor | None = None
+    #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s); NaN where unknown
+    reaction: torch.Tensor | None = None
 
     def network_args(self) -> tuple:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
@@ -72,6 +74,7 @@ def frame_arrays(
     active_all: np.ndarray,
     damage_sub: np.ndarray | None = None,
     corners: bool = False,
+    cutting_energy_j_m3: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(node, edge, global) float32 feature arrays of one subgraph; ``alpha_sub`` is α on ``sub.nodes``,
     ``damage_sub``, when given, D there (the last node column); ``corners`` adds the corner
@@ -79,7 +82,8 @@ def frame_arrays(
 
     ``active_all`` (every element's active flag) gives each node its count of open faces
     (no active tet behind them), which tells the network where the free surface is even when
-    the removed neighbours are not in the subgraph.
+    the removed neighbours are not in the subgraph. ``cutting_energy_j_m3`` (every element's u_c)
+    is read by the socket set only.
     """
     alpha_sub = np.asarray(alpha_sub, dtype=np.float64)
     active = alpha_sub >= threshold
@@ -91,6 +95,8 @@ def frame_arrays(
             nodes = np.column_stack([nodes, damage_sub])
         edges = np.stack([~broken, broken], axis=1)
         return nodes.astype(np.float32), edges.astype(np.float32), force[None, :].astype(np.float32)
+    if feature_set == "socket":
+        return _socket_arrays(graph, sub, alpha_sub, reamer, threshold, active_all, damage_sub, corners, cutting_energy_j_m3)
     # every interactive step and every training sample passes here: one compiled loop per table
     # instead of some twenty NumPy passes over the region (about 2 ms → 0.3 ms a frame)
     nodes = np.empty((len(sub.nodes), WIDTHS["full"][0] + CORNER_COLUMNS * int(corners) + int(damage_sub is not None)), dtype=np.float32)
@@ -118,6 +124,117 @@ def frame_arrays(
 
 
 _NO_DAMAGE = np.empty(0, dtype=np.float64)
+
+
+def _socket_arrays(graph, sub, alpha_sub, reamer, threshold, active_all, damage_sub, corners, cutting_energy_j_m3):
+    """The socket set's tables (see ``FeatureSettings``): nothing in them depends on the bone frame."""
+    if cutting_energy_j_m3 is None:
+        raise ValueError("the socket feature set reads every element's cutting energy")
+    width = WIDTHS["socket"][0] + CORNER_COLUMNS * int(corners) + int(damage_sub is not None)
+    nodes = np.empty((len(sub.nodes), width), dtype=np.float32)
+    centre = np.ascontiguousarray(reamer.centre, dtype=np.float64)
+    axis = np.ascontiguousarray(reamer.axis, dtype=np.float64)
+    _socket_node_features(
+        sub.nodes,
+        graph.centroids,
+        graph.corners,
+        graph.neighbours,
+        np.ascontiguousarray(cutting_energy_j_m3, dtype=np.float64),
+        alpha_sub,
+        np.ascontiguousarray(active_all, dtype=np.bool_),
+        centre,
+        axis,
+        reamer.teeth_radius_m,
+        reamer.omega_rad_s,
+        reamer.advance_m,
+        threshold,
+        corners,
+        _NO_DAMAGE if damage_sub is None else np.asarray(damage_sub, dtype=np.float64),
+        nodes,
+    )
+    edges = np.empty((len(sub.senders), WIDTHS["socket"][1]), dtype=np.float32)
+    _socket_edge_features(sub.nodes, sub.senders, sub.receivers, graph.centroids, alpha_sub >= threshold, centre, axis, edges)
+    return nodes, edges, np.array([[reamer.advance_m, reamer.teeth_radius_m]], dtype=np.float32)
+
+
+@njit(cache=True)
+def _socket_node_features(
+    ids, centroids, corners, neighbours, cutting_energy, alpha_sub, active_all, centre, axis, teeth_radius, omega, advance, threshold,
+    with_corners, damage_sub, out,
+):  # fmt: skip
+    """The socket node table: as the full set's without the bone-frame columns (the relative
+    centroid's x, y, z and the distance from the socket's centre), plus log10 u_c (J/mm³)."""
+    ax, ay, az = axis[0], axis[1], axis[2]
+    px, py, pz = centre[0] - advance * ax, centre[1] - advance * ay, centre[2] - advance * az
+    distance = np.empty(4)
+    for i in range(len(ids)):
+        element = ids[i]
+        cx, cy, cz = centroids[element, 0], centroids[element, 1], centroids[element, 2]
+        rx, ry, rz = cx - centre[0], cy - centre[1], cz - centre[2]
+        axial = rx * ax + ry * ay + rz * az
+        tx, ty, tz = rx - axial * ax, ry - axial * ay, rz - axial * az
+        radial = np.sqrt(tx * tx + ty * ty + tz * tz)
+        open_faces = 0
+        for k in range(4):
+            neighbour = neighbours[element, k]
+            if neighbour < 0 or not active_all[neighbour]:
+                open_faces += 1
+        out[i, 0] = axial
+        out[i, 1] = radial
+        out[i, 2] = np.sqrt(rx * rx + ry * ry + rz * rz) - teeth_radius
+        out[i, 3] = omega * radial
+        out[i, 4] = (cx * ax + cy * ay + cz * az) / max(np.sqrt(cx * cx + cy * cy + cz * cz), 1e-12)
+        out[i, 5] = alpha_sub[i]
+        out[i, 6] = 1.0 if alpha_sub[i] >= threshold else 0.0
+        out[i, 7] = open_faces
+        out[i, 8] = np.log10(cutting_energy[element] * 1e-9)
+        column = 9
+        if with_corners:
+            nearest_before = np.inf
+            for k in range(4):
+                dx, dy, dz = corners[element, k, 0] - centre[0], corners[element, k, 1] - centre[1], corners[element, k, 2] - centre[2]
+                value = np.sqrt(dx * dx + dy * dy + dz * dz)
+                slot = k
+                while slot > 0 and distance[slot - 1] > value:
+                    distance[slot] = distance[slot - 1]
+                    slot -= 1
+                distance[slot] = value
+                dx, dy, dz = corners[element, k, 0] - px, corners[element, k, 1] - py, corners[element, k, 2] - pz
+                nearest_before = min(nearest_before, np.sqrt(dx * dx + dy * dy + dz * dz))
+            for k in range(4):
+                out[i, column + k] = distance[k] - teeth_radius
+            out[i, column + 4] = nearest_before - teeth_radius
+            column += 5
+        if len(damage_sub) > 0:
+            out[i, column] = damage_sub[i]
+
+
+@njit(cache=True)
+def _socket_edge_features(ids, senders, receivers, centroids, active_sub, centre, axis, out):
+    """The socket edge table: present / broken one-hot, the centroid offset (receiver − sender) along
+    the axis, along the receiver's radial direction from it and around it, and its length."""
+    for e in range(len(senders)):
+        sender, receiver = ids[senders[e]], ids[receivers[e]]
+        broken = not (active_sub[senders[e]] and active_sub[receivers[e]])
+        out[e, 0] = 0.0 if broken else 1.0
+        out[e, 1] = 1.0 if broken else 0.0
+        dx = centroids[receiver, 0] - centroids[sender, 0]
+        dy = centroids[receiver, 1] - centroids[sender, 1]
+        dz = centroids[receiver, 2] - centroids[sender, 2]
+        rx, ry, rz = centroids[receiver, 0] - centre[0], centroids[receiver, 1] - centre[1], centroids[receiver, 2] - centre[2]
+        along = rx * axis[0] + ry * axis[1] + rz * axis[2]
+        ux, uy, uz = rx - along * axis[0], ry - along * axis[1], rz - along * axis[2]
+        norm = np.sqrt(ux * ux + uy * uy + uz * uz)
+        if norm > 1e-12:
+            ux, uy, uz = ux / norm, uy / norm, uz / norm
+        axial = dx * axis[0] + dy * axis[1] + dz * axis[2]
+        radial = dx * ux + dy * uy + dz * uz
+        # around the axis: the offset along D × u
+        wx, wy, wz = axis[1] * uz - axis[2] * uy, axis[2] * ux - axis[0] * uz, axis[0] * uy - axis[1] * ux
+        out[e, 2] = axial
+        out[e, 3] = radial
+        out[e, 4] = dx * wx + dy * wy + dz * wz
+        out[e, 5] = np.sqrt(dx * dx + dy * dy + dz * dz)
 
 
 @njit(cache=True)
@@ -210,10 +327,13 @@ def _full_edge_features(ids, senders, receivers, centroids, active_sub, out):
 
 
 def batch(
-    parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]], damage: list[np.ndarray] | None = None
+    parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]],
+    damage: list[np.ndarray] | None = None,
+    reaction: list[tuple[float, float, float]] | None = None,
 ) -> GraphBatch:
     """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
-    ``damage``, for models with damage, D on each part's nodes."""
+    ``damage``, for models with damage, D on each part's nodes; ``reaction``, for training a
+    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s)."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
     for index, (sub, alpha_sub, (n, e, g)) in enumerate(parts):
@@ -244,4 +364,5 @@ def batch(
         alpha=cat(alpha, np.float32),
         update=cat(update, np.bool_),
         damage=None if damage is None else cat(damage, np.float32),
+        reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(-1, 3),
     )

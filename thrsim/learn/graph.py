@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from thrsim.cache import use_numba_cache
-from thrsim.geometry.mesh import INNER, TetMesh
+from thrsim.geometry.mesh import REAMED_FACES, TetMesh
 from thrsim.geometry.tet_metrics import TET_FACES
 
 use_numba_cache()  # before the first kernel: Numba reads the cache folder then
@@ -142,9 +142,10 @@ class StaticGraph:
 
 
 def _inner_face_table(mesh: TetMesh) -> np.ndarray:
-    """(E, 4) bool: the tet's local face lies on the articular boundary (all three nodes in ``inner``)."""
+    """(E, 4) bool: the tet's local face lies on the face the reamer meets first (all three nodes in
+    the patch's ``inner`` or the socket's ``articular`` set)."""
     table = np.zeros((mesh.n_tets, 4), dtype=bool)
-    inner = mesh.node_sets.get(INNER)
+    inner = next((mesh.node_sets[name] for name in REAMED_FACES if name in mesh.node_sets), None)
     if inner is None or len(inner) == 0:
         return table
     on_inner = np.zeros(mesh.n_nodes, dtype=bool)

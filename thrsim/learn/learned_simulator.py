@@ -1,14 +1,15 @@
 """The learned simulator around the pure network: input normalisation, logits, α(t+1), the threshold.
 
-Post-processing follows the thesis [7.3.3]: elements removed at t (α < threshold) and halo nodes
-(context only) keep their α; every other node gets α' = sigmoid(logit), the logit optionally
-added to logit(α_t) so that "nothing changes" is the untrained default. The removal head
-(``ArchSettings.removal_head``) predicts the probability p that an active element is removed by
-t + 1, because α alone only learns removal's expectation, which never crosses the threshold
-under the teeth (the docs' Learned simulator page); the rollout adds the hazard
-−log(1 − p) = softplus(logit) per element and frame, and removes the element once the sum
-reaches ln 2, the median of its removal time. With damage (``FeatureSettings.damage``) the
-network also predicts D(t+1), never below D(t).
+Post-processing follows the thesis [7.3.3]: removed elements and halo nodes keep their α; every
+other node gets α' = sigmoid(logit), the logit optionally added to logit(α_t) so that "nothing
+changes" is the untrained default. The removal head (``ArchSettings.removal_head``) predicts the
+probability p that an active element goes by t + 1 (α alone learns removal's expectation, which
+never crosses the threshold under the teeth); the rollout adds the hazard −log(1 − p) per frame
+and removes the element once the sum reaches ln 2. With damage the network also predicts D(t+1),
+never below D(t). The reaction head (``ArchSettings.reaction_head``) gives each node a
+non-negative share (softplus) of the next frame's axial reaction and motor torque, a part and a
+part per unit of feed: summed, the law R(v) = A + B·v the feed balances the push against
+(:mod:`thrsim.learn.reaction_feed`), so more push never advances the reamer less (why: the docs).
 """
 
 from __future__ import annotations
@@ -31,19 +32,30 @@ REMOVAL_HAZARD = math.log(2.0)
 
 
 class Outputs(NamedTuple):
-    """Per-node logits: α(t+1); removed at t+1 (removal head); D(t+1) (models with damage)."""
+    """Per-node logits: α(t+1); removed at t+1 (removal head); D(t+1) (models with damage); the raw
+    reaction and torque shares (reaction head)."""
 
     alpha: torch.Tensor
     removal: torch.Tensor | None
     damage: torch.Tensor | None
+    reaction: torch.Tensor | None = None
 
 
 class Prediction(NamedTuple):
-    """Per node at t + 1: α, this step's removal hazard and D (None without damage)."""
+    """Per node at t + 1: α, this step's removal hazard and D (None without damage); per subgraph,
+    with the reaction head, the next frame's reaction law (A N, B N·s/m, A_T N·m, B_T N·m·s/m)."""
 
     alpha: torch.Tensor
     hazard: torch.Tensor
     damage: torch.Tensor | None
+    reaction: torch.Tensor | None = None
+
+
+#: reaction law columns: axial reaction at no feed (N) and per m/s; motor torque likewise (N·m)
+REACTION_LAW = ("reaction_n", "reaction_n_s_m", "torque_n_m", "torque_n_m_s_m")
+#: the feed one node's "per unit of feed" share is counted in (m/s), and the node count one
+#: share is scaled by: an untrained head's law is then of the order of the training values
+_FEED_UNIT_M_S, _NODES_UNIT = 1e-3, 1000.0
 
 
 class Normaliser(nn.Module):
@@ -70,6 +82,8 @@ class Normaliser(nn.Module):
 class LearnedSimulator(nn.Module):
     """Normalisers + a network (``kind`` "gn": the Graph Network; "mlp": the node-wise baseline)."""
 
+    reaction_scale: torch.Tensor
+
     def __init__(self, settings: ModelSettings, kind: str = "gn", threshold: float = 0.3):
         super().__init__()
         node_in, edge_in, global_in = input_widths(settings.features)
@@ -78,7 +92,12 @@ class LearnedSimulator(nn.Module):
         self.residual_logit = settings.arch.residual_logit
         self.removal_head = settings.arch.removal_head
         self.damage = settings.features.damage
-        outputs = 1 + int(self.removal_head) + int(self.damage)
+        self.reaction_head = settings.arch.reaction_head
+        self.reaction_column = 1 + int(self.removal_head) + int(self.damage)
+        outputs = self.reaction_column + 4 * int(self.reaction_head)
+        if self.reaction_head:
+            # the reaction's and torque's root mean square in training: the units the loss and the shares are in
+            self.register_buffer("reaction_scale", torch.ones(2))
         self.node_norm = Normaliser(node_in)
         self.edge_norm = Normaliser(edge_in)
         self.global_norm = Normaliser(global_in)
@@ -95,6 +114,13 @@ class LearnedSimulator(nn.Module):
         self.node_norm.fit(batch.nodes)
         self.edge_norm.fit(batch.edges)
         self.global_norm.fit(batch.globals_)
+        if self.reaction_head:
+            if batch.reaction is None:
+                raise ValueError("a reaction head needs the cases' recorded reaction and torque")
+            for column in range(2):
+                values = batch.reaction[:, column]
+                values = values[torch.isfinite(values)]
+                self.reaction_scale[column] = float(values.square().mean().sqrt()) if len(values) and values.abs().max() > 0 else 1.0
 
     def normalised_inputs(self, batch: GraphBatch) -> tuple:
         """The network's arguments: normalised features and the graph's index tensors."""
@@ -120,7 +146,15 @@ class LearnedSimulator(nn.Module):
             damage_logit = out[:, 1 + int(self.removal_head)]
             if self.residual_logit:
                 damage_logit = damage_logit + _logit(_damage(batch))
-        return Outputs(alpha_logit, removal_logit, damage_logit)
+        return Outputs(alpha_logit, removal_logit, damage_logit, out[:, self.reaction_column :] if self.reaction_head else None)
+
+    def reaction_law(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
+        """(subgraphs, 4) reaction laws (see ``REACTION_LAW``) from the nodes' raw shares."""
+        mask = self.trainable_mask(batch).to(shares.dtype)[:, None]
+        positive = nn.functional.softplus(shares) * mask / _NODES_UNIT
+        sums = positive.new_zeros((batch.globals_.shape[0], 4)).index_add_(0, batch.node_graph, positive)
+        force, torque = self.reaction_scale[0], self.reaction_scale[1]
+        return sums * torch.stack([force, force / _FEED_UNIT_M_S, torque, torque / _FEED_UNIT_M_S])
 
     def loss(self, batch: GraphBatch, alpha_next: torch.Tensor, damage_next: torch.Tensor | None = None) -> torch.Tensor:
         """Cross-entropy on α(t+1) (eq. 49), plus, with the removal head, on removed-at-t+1 and,
@@ -134,7 +168,23 @@ class LearnedSimulator(nn.Module):
             if damage_next is None:
                 raise ValueError("a model with damage needs D(t+1) targets")
             loss = loss + masked_bce(out.damage, damage_next, mask)
+        if out.reaction is not None:
+            loss = loss + self._reaction_loss(batch, out.reaction)
         return loss
+
+    def _reaction_loss(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
+        """Squared error of the reaction and the torque at the recorded feed, in units of their root mean square."""
+        if batch.reaction is None:
+            raise ValueError("a model with a reaction head needs the next frame's reaction, torque and feed")
+        law = self.reaction_law(batch, shares)
+        known = torch.isfinite(batch.reaction).all(dim=1)
+        if not bool(known.any()):
+            return shares.sum() * 0.0
+        target, law = batch.reaction[known], law[known]
+        feed = target[:, 2]
+        force = (law[:, 0] + law[:, 1] * feed - target[:, 0]) / self.reaction_scale[0]
+        torque = (law[:, 2] + law[:, 3] * feed - target[:, 1]) / self.reaction_scale[1]
+        return (force.square().mean() + torque.square().mean()) * 0.5
 
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
         """Nodes the loss sees and the model updates: in the region and active at t."""
@@ -156,7 +206,8 @@ class LearnedSimulator(nn.Module):
         damage = None
         if out.damage is not None:
             damage = torch.where(mask, torch.maximum(torch.sigmoid(out.damage), _damage(batch)), _damage(batch))
-        return Prediction(alpha, hazard, damage)
+        reaction = None if out.reaction is None else self.reaction_law(batch, out.reaction)
+        return Prediction(alpha, hazard, damage, reaction)
 
     def alpha_next(self, batch: GraphBatch) -> torch.Tensor:
         """α at t + 1 alone (see :meth:`predict`)."""

@@ -27,7 +27,7 @@ from safetensors.torch import load_file as load_tensors
 from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
-from thrsim.config import FRAME_RATE_HZ, LabelConfig
+from thrsim.config import FRAME_RATE_HZ, LabelConfig, ReamerHoldConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.advance import ArrayRegressor, Kind
@@ -54,6 +54,7 @@ class _CardSection(BaseModel):
 class ReamerCard(_CardSection):
     teeth_radius_m: float = Field(gt=0, le=0.1, description="radius of the teeth's sphere the model was trained with")
     omega_rad_s: float = Field(ge=-1e4, le=1e4, description="the reamer's spin in the training cases")
+    hold: ReamerHoldConfig = Field(default_factory=ReamerHoldConfig, description="the hand-held reamer's hold in the training cases")
 
 
 class MeshCard(_CardSection):
@@ -132,6 +133,11 @@ class LoadedModel:
         """Seconds of reaming one step of the model stands for: the training cases' frame time (cards
         written before cards recorded it: the thesis's frame rate, which every case then had)."""
         return float(self.card.get("data", {}).get("frame_dt_s", 1.0 / FRAME_RATE_HZ))
+
+    @property
+    def hold(self) -> ReamerHoldConfig:
+        """The hand-held reamer's hold the training cases were solved with (the card's, else the default)."""
+        return ReamerHoldConfig.model_validate(self.card["reamer"].get("hold", {}))
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""
@@ -300,6 +306,11 @@ def read_advance(file: Path) -> ArrayRegressor:
         raise ThrsimInputError(f"{file}: {error}") from None
 
 
+def reads_any_mesh(settings: ModelSettings) -> bool:
+    """A socket model's inputs hold nothing of the bone frame: it runs on any mesh (windows, the whole socket)."""
+    return settings.features.feature_set == "socket"
+
+
 def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | None = None) -> LoadedModel:
     """Read and check a model directory (the shipped model when ``path`` is None)."""
     if path is None:
@@ -317,16 +328,16 @@ def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | Non
     mesh = read_mesh(path)
     tensors = _read_safetensors(path / NETWORK, load_tensors)
     advance = read_advance(path / ADVANCE)
-    digest = mesh_digest(mesh)
-    if expect_mesh is not None and mesh_digest(expect_mesh) != digest:
-        raise ThrsimInputError(
-            f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "
-            f"({expect_mesh.n_tets} tets, digest {mesh_digest(expect_mesh)[:12]})"
-        )
     try:
         settings = ModelSettings.model_validate(card["settings"])
     except ValidationError as error:
         raise ThrsimInputError(f"{path}: the card's settings are not valid for this thrsim ({str(error).splitlines()[0]})") from None
+    digest = mesh_digest(mesh)
+    if expect_mesh is not None and not reads_any_mesh(settings) and mesh_digest(expect_mesh) != digest:
+        raise ThrsimInputError(
+            f"{path}: the model belongs to another mesh ({mesh.n_tets} tets, digest {digest[:12]}) than the data "
+            f"({expect_mesh.n_tets} tets, digest {mesh_digest(expect_mesh)[:12]})"
+        )
     threshold = float(card["labels"]["removed_threshold"])
     gn, mlp = LearnedSimulator(settings, "gn", threshold), LearnedSimulator(settings, "mlp", threshold)
     check_network_tensors(path / NETWORK, tensors, network_tensors(gn, mlp))

@@ -62,19 +62,22 @@ def train_model(
     if not out.parent.is_dir():
         raise ThrsimInputError(f"{out}: parent folder {out.parent} does not exist")
     labels = LabelConfig()
-    mesh, cases = load_cases(data, labels=labels)
+    socket = settings.features.feature_set == "socket"
+    mesh, cases = load_cases(data, labels=labels, one_mesh=not socket)
     train = [c for c in cases if c.split == "train"]
     validation = [c for c in cases if c.split == "validation"]
     held_out = [c for c in cases if c.split in ("validation", "test")]
     if not train:
         raise ThrsimInputError(f"{data}: no complete training cases (a dataset directory from `thrsim dataset` is needed)")
     radii = {round(c.teeth_radius_m, 9) for c in cases}
-    if len(radii) != 1:
+    if len({c.hold for c in train}) != 1:
+        raise ThrsimInputError(f"{data}: training cases hold the reamer differently (effective mass, damping); one model learns one hold")
+    if len(radii) != 1 and not socket:
         raise ThrsimInputError(f"{data}: cases use different reamers ({sorted(radii)} m teeth radius); one model learns one reamer")
-    teeth_radius_m = radii.pop()
+    teeth_radius_m = float(np.median([c.teeth_radius_m for c in train]))
     graph = StaticGraph(mesh)
     init = load_model(init_from, expect_mesh=mesh) if init_from is not None else None
-    trainer = Trainer(graph, train, validation, settings, teeth_radius_m, labels.removed_threshold, init)
+    trainer = Trainer(graph, train, validation, settings, labels.removed_threshold, init)
     checkpoint = out / CHECKPOINT
     out.mkdir(exist_ok=True)
     resumed = trainer.load_checkpoint(checkpoint)
@@ -101,14 +104,19 @@ def train_model(
         "arch": arch_name,
         "settings": settings.model_dump(mode="json"),
         "labels": labels.model_dump(mode="json"),
-        "reamer": {"teeth_radius_m": teeth_radius_m, "omega_rad_s": float(np.median([c.omega_rad_s for c in cases]))},
+        "reamer": {
+            "teeth_radius_m": teeth_radius_m,
+            "omega_rad_s": float(np.median([c.omega_rad_s for c in cases])),
+            "sizes_mm": sorted({round(2e3 * c.teeth_radius_m, 3) for c in train}),
+            "hold": train[0].hold.model_dump(mode="json"),
+        },
         "data": {
             "source": str(data),  # as given: a shipped card names no machine's folders
             "form": f"learning pack (α in levels of 1/{ALPHA_LEVELS})" if is_pack(data) else "case files",
             "digest": data_identity(cases),
             "solver_versions": sorted({c.solver_version for c in cases}),
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
-            "force_range_n": [min(c.force_n for c in train), max(c.force_n for c in train)],
+            "force_range_n": [min(c.recorded_push_n() for c in train), max(c.recorded_push_n() for c in train)],
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),

@@ -23,7 +23,7 @@ from pydantic import TypeAdapter, ValidationError
 from thrsim.atomic import atomic_folder
 from thrsim.config import FrameCount, Orientation
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.simulator import PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
+from thrsim.learn.simulator import MEDIAL_WALL_BREACHED, PASSED_THROUGH, PERFORATED, ReamingSimulator, check_force
 from thrsim.learn.vtk_series import write_frame, write_pvd
 from thrsim.nav.bone_frame import check_side, cup_angles_from_bone, on_side
 from thrsim.provenance import json_default, package_versions
@@ -34,6 +34,7 @@ SERIES = "ream.pvd"
 END_REASON_TEXT = {
     PERFORATED: "perforated, the reamer's teeth passed the bone's outer face",
     PASSED_THROUGH: "passed through, no bone was left in the reamer's path",
+    MEDIAL_WALL_BREACHED: "breached the medial wall, the reamer went through into the pelvis",
     "completed": "completed, every frame asked for was run, with bone still in the reamer's path",
 }
 #: --png draws the last frame with at least this share of the elements left: the last frames of a
@@ -156,3 +157,108 @@ def _picture(
     with BoneRenderer(simulator.mesh, 1024, 768, threshold=simulator.model.threshold) as renderer:
         image = renderer.image(alpha, reamer=ReamerView(reamer_position, axis, teeth_radius_m))
     return save_png(image, png)
+
+
+#: frames a reamer stands still (advance under a micrometre each) before the next size is taken: seated
+SEATED_FRAMES = 30
+#: the whole socket's default element size for learned reaming (mm): the finest that steps at
+#: interactive rates on a 2-core CPU (see the benchmarks page, "socket model")
+SOCKET_ELEMENT_SIZE_MM = 1.5
+
+
+def parse_reamers(text: str) -> list[float]:
+    """``"46,48,50"`` → [46.0, 48.0, 50.0]: each a finite size in mm, growing, one or more."""
+    try:
+        sizes = [float(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ThrsimInputError(f"reamer sizes must be numbers of mm separated by commas, got {text!r}", "reamers") from None
+    if not sizes or not all(np.isfinite(sizes)) or any(not 30.0 <= size <= 80.0 for size in sizes):
+        raise ThrsimInputError(f"reamer sizes must lie in [30, 80] mm, got {text!r}", "reamers")
+    if sizes != sorted(sizes):
+        raise ThrsimInputError(f"reamers are taken in growing sizes, got {text!r}", "reamers")
+    return sizes
+
+
+def ream_socket(
+    inclination_deg: float, anteversion_deg: float, force_n: float, frames_per_reamer: int, side: str, out: str | os.PathLike,
+    model_dir: str | os.PathLike | None, reamers: list[float], element_size_mm: float = SOCKET_ELEMENT_SIZE_MM,
+    cancellous: str = "normal", threads: int | None = None,
+) -> dict:  # fmt: skip
+    """Ream the whole default socket with a socket model, one reamer after another (each until it is
+    seated, the bone breached or ``frames_per_reamer`` run); write each reamer's last frame and a summary."""
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.socket import generate_socket
+    from thrsim.learn.model_dir import load_model, reads_any_mesh
+
+    out = Path(out)
+    try:
+        TypeAdapter(FrameCount).validate_python(frames_per_reamer)
+    except ValidationError as error:
+        raise ThrsimInputError(f"{error.errors()[0]['msg']}, got {frames_per_reamer}", "frames") from None
+    force = check_force(force_n)
+    hip = check_side(side)
+    if not (np.isfinite(element_size_mm) and 0.3 <= element_size_mm <= 5.0):
+        raise ThrsimInputError(f"must lie in [0.3, 5] mm, got {element_size_mm:g}", "element_size_mm")
+    check_out(out)
+    model = load_model(model_dir)
+    if not reads_any_mesh(model.settings):
+        raise ThrsimInputError(f"{model.path}: a patch model; the socket needs a socket model (thrsim train --arch socket)", "model_dir")
+    mesh = generate_socket(SocketConfig(element_size_mm=element_size_mm))
+    simulator = ReamingSimulator(model=model, threads=threads, mesh=mesh, cancellous=cancellous)
+    simulator.reset(hip)
+    axis = on_side(Orientation(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg).reamer_axis, hip)
+    frame_dt = simulator.model.frame_dt_s
+    steps: list[dict] = []
+    with atomic_folder(out) as staging:
+        entries = [
+            (0.0, *write_frame(staging, 0, simulator.mesh, simulator.alpha, simulator.removed, simulator.reamer_start(axis), axis, 0.0))
+        ]
+        frame, end_reason, step_ms = 0, None, []
+        for size in reamers:
+            simulator.withdraw()
+            still, results = 0, []
+            for _ in range(frames_per_reamer):
+                t0 = time.perf_counter()
+                state = simulator.step(axis, force, reamer_mm=size)
+                step_ms.append((time.perf_counter() - t0) * 1e3)
+                results.append(state)
+                still = still + 1 if state.advance_m < 1e-6 else 0
+                end_reason = state.end_reason
+                if end_reason is not None or still >= SEATED_FRAMES:
+                    break
+            frame += len(results)
+            last = results[-1]
+            entries.append(
+                (
+                    frame * frame_dt,
+                    *write_frame(staging, frame, simulator.mesh, last.alpha, last.removed, last.reamer_position, axis, size * 0.5e-3),
+                )
+            )
+            reactions = [r.reaction_n for r in results if r.reaction_n is not None]
+            torques = [r.motor_torque_n_m for r in results if r.motor_torque_n_m is not None]
+            steps.append({
+                "reamer_mm": size, "frames": len(results), "seconds": len(results) * frame_dt,
+                "ended": end_reason or ("seated" if still >= SEATED_FRAMES else "frames"),
+                "removed_volume_mm3": last.removed_volume_m3 * 1e9, "travel_mm": simulator.depth_m * 1e3,
+                "reaction_n_mean": float(np.mean(reactions)) if reactions else None,
+                "motor_torque_n_m_mean": float(np.mean(torques)) if torques else None,
+                "out_of_range": sorted({flag for r in results for flag in r.out_of_range}),
+            })  # fmt: skip
+            if end_reason is not None:
+                break
+        write_pvd(staging / SERIES, entries)
+        series_path = out.resolve() / SERIES
+        summary = {
+            "bone": "socket", "inclination_deg": inclination_deg, "anteversion_deg": anteversion_deg, "force_n": force, "side": side,
+            "element_size_mm": element_size_mm, "cancellous": cancellous, "elements": simulator.n_elements,
+            "reamers": steps, "end_reason": end_reason or "completed",
+            "end_reason_text": END_REASON_TEXT[end_reason or "completed"],
+            "removed": int(simulator.removed.sum()), "removed_volume_mm3": simulator.removed_volume_m3 * 1e9,
+            "ms_per_frame_median": float(np.median(step_ms)), "ms_per_frame_max": float(np.max(step_ms)),
+            "model": {"path": str(simulator.model.path), "arch": simulator.model.card.get("arch"), "data_digest": simulator.model.card["data"]["digest"]},
+            "series": SERIES, "series_path": str(series_path),
+            "open_with": f"ParaView: File > Open {series_path}, Apply; one time step per reamer, Threshold removed = 0 shows the bone left",
+            "versions": package_versions(),
+        }  # fmt: skip
+        (staging / SUMMARY).write_text(json.dumps(summary, indent=2, default=json_default))
+    return summary

@@ -18,6 +18,7 @@ import torch
 from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
+from thrsim.learn.reaction_feed import ReactionFeed
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import FeatureSettings
 
@@ -50,13 +51,31 @@ class StepInfo:
 class LearnedStep:
     """α(t) → α(t+1) with a trained :class:`LearnedSimulator` (Graph Network or node-wise MLP)."""
 
-    def __init__(self, model: LearnedSimulator, graph: StaticGraph, features: FeatureSettings, teeth_radius_m: float):
+    def __init__(
+        self,
+        model: LearnedSimulator,
+        graph: StaticGraph,
+        features: FeatureSettings,
+        teeth_radius_m: float,
+        cutting_energy_j_m3: np.ndarray | None = None,
+    ):
+        """``cutting_energy_j_m3``: every element's u_c, which the socket feature set reads. A socket
+        model cuts only while the reamer advances: standing or pulled back, the teeth find no
+        uncut bone in their path (the solver's cut follows the feed), so its step keeps the bone."""
         self.model = model.eval()
         self.graph = graph
         self.features = features
-        self.teeth_radius_m = teeth_radius_m
-        self.reach_m = teeth_radius_m + features.reach_margin_mm * 1e-3
+        self.set_teeth_radius(teeth_radius_m)
+        self.cutting_energy_j_m3 = cutting_energy_j_m3
+        self.cuts_only_advancing = features.feature_set == "socket"
+        #: the reaction law of the frame after the last step (reaction head), None before the first or without one
+        self.reaction_law: np.ndarray | None = None
         self.last = StepInfo(0, 0)
+
+    def set_teeth_radius(self, teeth_radius_m: float) -> None:
+        """Cut with another reamer size from the next step (a socket model reads the size)."""
+        self.teeth_radius_m = teeth_radius_m
+        self.reach_m = teeth_radius_m + self.features.reach_margin_mm * 1e-3
 
     def inputs(
         self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float
@@ -81,7 +100,16 @@ class LearnedStep:
         alpha_sub = state.alpha[sub.nodes]
         damage_sub = state.damage[sub.nodes] if self.features.damage else None
         arrays = frame_arrays(
-            graph, sub, alpha_sub, reamer, self.features.feature_set, self.model.threshold, active, damage_sub, self.features.corners
+            graph,
+            sub,
+            alpha_sub,
+            reamer,
+            self.features.feature_set,
+            self.model.threshold,
+            active,
+            damage_sub,
+            self.features.corners,
+            self.cutting_energy_j_m3,
         )
         return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
 
@@ -92,9 +120,14 @@ class LearnedStep:
         sub, inputs = self.inputs(state, centre, axis, force_n, advance_m, omega_rad_s)
         self.last = StepInfo(sub.n_region, len(sub.nodes))
         if inputs is None:
+            self.reaction_law = None if not self.model.reaction_head else np.zeros(4)
             return out
         with torch.inference_mode():
             prediction = self.model.predict(inputs)
+        if prediction.reaction is not None:
+            self.reaction_law = prediction.reaction[0].numpy().astype(np.float64)
+        if self.cuts_only_advancing and not advance_m > 0.0:
+            return out
         region, n = sub.region, sub.n_region
         out.alpha[region] = prediction.alpha[:n].numpy()
         out.hazard[region] += prediction.hazard[:n].numpy()
@@ -122,31 +155,54 @@ class GeometricStep:
         return out
 
 
-def rollout(step, case, start: int, frames: int, threshold: float, feed: ReamerFeed | None) -> tuple[list[np.ndarray], np.ndarray]:
+def rollout(
+    step, case, start: int, frames: int, threshold: float, feed: ReamerFeed | ReactionFeed | None, push_n: float | None = None
+) -> tuple[list[np.ndarray], np.ndarray]:
     """Run ``frames`` steps from the ground truth at ``start``; (removed masks at start+1 … start+frames, centres).
 
-    With ``feed`` the reamer moves by the regressor, resting on the bone (autonomous); without,
-    it follows the recorded positions (tool-forced).
+    With ``feed`` the reamer moves by itself (autonomous): by the regressor, resting on the bone
+    (a patch model), or by the push ``push_n`` (default: the case's) against the reaction law the
+    step predicts (a socket model, whose first law comes from a standing step at the start);
+    ``push_n`` replaces the case's push (default: the one the case was reamed with);
+    without, it follows the recorded positions (tool-forced).
     """
+    if isinstance(feed, ReactionFeed):
+        return _pushed_rollout(step, case, start, frames, threshold, feed, case.recorded_push_n() if push_n is None else push_n)
     state = BoneState.start(case.alpha[start], None if case.damage is None else case.damage[start])
     centre = case.positions[start].copy()
     masks, centres = [], []
+    push = case.force_n if push_n is None else push_n
     for k in range(1, frames + 1):
         if feed is None:
             new_centre = case.positions[start + k]
         else:
-            impulse = case.force_n * case.frame_dt_s * (start + k - 1)
+            impulse = push * case.frame_dt_s * (start + k - 1)
             new_centre = (
                 centre
                 + feed.advance_m(
-                    state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, case.force_n, impulse
+                    state.alpha, centre, case.positions[0], case.axis, case.inclination_deg, case.anteversion_deg, push, impulse
                 )
                 * case.axis
             )
         moved = float((new_centre - centre) @ case.axis)
-        state = step(state, new_centre, case.axis, case.force_n, moved, case.omega_rad_s)
+        state = step(state, new_centre, case.axis, push, moved, case.omega_rad_s)
         removed = state.alpha < threshold
         centre = new_centre
         masks.append(removed)
+        centres.append(centre)
+    return masks, np.array(centres)
+
+
+def _pushed_rollout(step: LearnedStep, case, start: int, frames: int, threshold: float, feed: ReactionFeed, push_n: float):
+    """A socket model's autonomous rollout: each frame's advance from the push and the last predicted law."""
+    state = BoneState.start(case.alpha[start], None if case.damage is None else case.damage[start])
+    centre = case.positions[start].copy()
+    step(state, centre, case.axis, push_n, 0.0, case.omega_rad_s)  # standing: the bone's law, no cut
+    masks, centres = [], []
+    for _ in range(frames):
+        moved = feed.advance_m(step.reaction_law, state.alpha, centre, case.axis, push_n)
+        centre = centre + moved * case.axis
+        state = step(state, centre, case.axis, push_n, moved, case.omega_rad_s)
+        masks.append(state.alpha < threshold)
         centres.append(centre)
     return masks, np.array(centres)

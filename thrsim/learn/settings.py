@@ -9,7 +9,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-FeatureSet = Literal["full", "thesis"]
+FeatureSet = Literal["full", "thesis", "socket"]
 
 
 class _Frozen(BaseModel):
@@ -26,6 +26,9 @@ class ArchSettings(_Frozen):
     an untrained network already predicts "nothing changes". ``removal_head``: a second output,
     the probability that an active element is removed by the next frame, whose hazard
     −log(1 − p) the rollout accumulates per element (see :mod:`thrsim.learn.learned_simulator`).
+    ``reaction_head``: four more outputs, each node's non-negative share of the bone's axial reaction
+    and of the motor torque over the next frame, as a part that holds at any feed and a part per
+    unit of feed; their sums make the reaction law the push is balanced against (the feed).
     """
 
     node_encoder: tuple[int, ...] = (32, 32)
@@ -42,6 +45,7 @@ class ArchSettings(_Frozen):
     layer_norm: bool = True
     residual_logit: bool = True
     removal_head: bool = False
+    reaction_head: bool = False
     mlp_baseline: tuple[int, ...] = (32, 32)
 
 
@@ -54,6 +58,13 @@ class FeatureSettings(_Frozen):
     length; global = force vector along D, its magnitude and the reamer's advance this frame.
     ``thesis`` [7.3.1]: node = centroid − reamer centre and α; edge = present/broken one-hot;
     global = force vector.
+    ``socket``: the bone frame drops out, so one model serves every window of the socket, every
+    reamer size and the whole socket: node = axial and radial parts of centroid − reamer centre,
+    signed distance to the teeth's sphere, cutting speed, cosine between the axis and the direction
+    from the socket's centre, α, active flag, open faces and log10 of the element's cutting energy
+    (its material); edge = present/broken one-hot + centroid offset along the axis, along the
+    receiver's radial direction and around the axis, and its length; global = the reamer's advance
+    this frame and its teeth radius. No push: a case at a set feed pushes what the bone takes.
 
     ``damage``: each node also reads its element's damage D(t) and the network predicts D(t+1),
     which the rollout carries as state (never below D(t): damage only grows). α mixes PEEQ and von
@@ -61,14 +72,14 @@ class FeatureSettings(_Frozen):
     deletion; the solver's own repeatability of newly removed elements one frame on is 96 %.
     Needs cases that record damage (solver 0.4.0 and later).
 
-    ``corners`` (with ``full``): each node also reads its tetrahedron's four corner distances to
+    ``corners`` (with ``full`` or ``socket``): each node also reads its tetrahedron's four corner distances to
     the teeth's sphere (sorted; negative inside) and its nearest corner's at the previous frame's
     centre. The teeth cut at the nodes, and a centroid cannot tell a tet that pokes one corner
     into the teeth's path from one that lies flat along it.
     """
 
     feature_set: FeatureSet = "full"
-    corners: bool = Field(False, description="node inputs: the tet's corner distances to the teeth's sphere (full set only)")
+    corners: bool = Field(False, description="node inputs: the tet's corner distances to the teeth's sphere (full and socket sets)")
     damage: bool = Field(False, description="node input D(t) and output D(t+1) (cases must record damage)")
     reach_margin_mm: float = Field(1.0, gt=0, description="front elements whose centroid is within teeth reach + this of the reamer centre")
     front_hops: int = Field(1, ge=0, description="face-hops the updated region grows from the front into the bone")
@@ -77,8 +88,8 @@ class FeatureSettings(_Frozen):
 
     @model_validator(mode="after")
     def _corners_need_the_full_set(self) -> FeatureSettings:
-        if self.corners and self.feature_set != "full":
-            raise ValueError("corners are inputs of the full feature set only")
+        if self.corners and self.feature_set == "thesis":
+            raise ValueError("corners are inputs of the full and socket feature sets only")
         return self
 
 
@@ -143,11 +154,17 @@ def thesis_arch() -> ArchSettings:
 
 
 def preset(name: str) -> ModelSettings:
-    """``production`` (sized for an interactive CPU step) or ``thesis`` (the reference)."""
+    """``production`` (the patch, sized for an interactive CPU step), ``socket`` (the same network on
+    the socket's frame-free inputs) or ``thesis`` (the reference)."""
     if name == "production":
         return ModelSettings(arch=ArchSettings(removal_head=True), features=FeatureSettings(damage=True, corners=True))
+    if name == "socket":
+        return ModelSettings(
+            arch=ArchSettings(removal_head=True, reaction_head=True),
+            features=FeatureSettings(feature_set="socket", damage=True, corners=True),
+        )
     if name == "thesis":
         return ModelSettings(arch=thesis_arch(), features=FeatureSettings(feature_set="thesis"))
     from thrsim.errors import ThrsimInputError
 
-    raise ThrsimInputError(f"unknown architecture {name!r}: choose production or thesis")
+    raise ThrsimInputError(f"unknown architecture {name!r}: choose production, socket or thesis")

@@ -3,13 +3,17 @@
 Loads a model directory (the shipped model by default) and its mesh; each :meth:`step` takes the
 tracked reamer axis and the push force and returns the new bone state. Without a given position
 the reamer advances along its axis by the regressor (autonomous mode); a given position forces
-it (tool-forced mode, e.g. positions recorded by the solver). The left hip is the mirror of the
-right across the bone frame's x = 0 plane: the model runs on the right mesh with mirrored
-vectors, and the element ids are the same on both sides.
+it (tool-forced mode). The left hip is the mirror of the right across the bone frame's x = 0:
+the model runs on the right mesh with mirrored vectors, the element ids the same on both sides.
+A socket model (:func:`~thrsim.learn.model_dir.reads_any_mesh`) runs on any bone mesh, with any
+reamer size in the range it learned, its reamer advancing by the push against the bone's
+reaction (:mod:`thrsim.learn.reaction_feed`); each step returns that reaction and the motor
+torque, and flags what lies outside what the model learned.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -19,20 +23,29 @@ import numpy as np
 import torch
 from threadpoolctl import threadpool_limits
 
-from thrsim.config import PUSH_FORCE_N, LabelConfig, Side
+from thrsim.config import CANCELLOUS_PRESETS, PUSH_FORCE_N, LabelConfig, Side
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.cases import element_cutting_energy
 from thrsim.learn.compiled import compile_network
 from thrsim.learn.features import GraphBatch
-from thrsim.learn.graph import attached_nodes
-from thrsim.learn.model_dir import LoadedModel, load_model
+from thrsim.learn.graph import StaticGraph, attached_nodes
+from thrsim.learn.model_dir import LoadedModel, load_model, reads_any_mesh
+from thrsim.learn.reaction_feed import ReactionFeed
+from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.nav.bone_frame import angles_of, check_side, on_side
-from thrsim.physics.reaming import INITIAL_GAP_M, bone_in_path, tip_exit_depth  # start and end as the solver's cases do
+from thrsim.physics.reaming import (  # start and end as the solver's cases do
+    INITIAL_GAP_M,
+    bone_in_path,
+    breach_faces,
+    breach_reason,
+    tip_exit_depth,
+)
 
 #: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
-PERFORATED, PASSED_THROUGH = "perforated", "passed_through"
+PERFORATED, PASSED_THROUGH, MEDIAL_WALL_BREACHED = "perforated", "passed_through", "medial_wall_breached"
 
 
 @dataclass(frozen=True)
@@ -48,10 +61,17 @@ class StepResult:
     advance_m: float
     seconds: float
     #: None while there is bone to ream; PERFORATED when the teeth's tip has passed the outer face
-    #: where bone is under it, PASSED_THROUGH when no bone is left in the reamer's path
+    #: where bone is under it (a socket: an element of its supported boundary has gone),
+    #: MEDIAL_WALL_BREACHED when one on the socket's medial wall has, PASSED_THROUGH when no bone
+    #: is left in the reamer's path
     end_reason: str | None = None
     #: the reamer size (mm) this frame cut with (:meth:`ReamingSimulator.cutting_size_mm`)
     reamer_mm: float | None = None
+    #: a socket model's bone reaction along the axis (N) and motor torque (N·m) over the frame
+    reaction_n: float | None = None
+    motor_torque_n_m: float | None = None
+    #: inputs outside what the model learned this frame ("push", "reamer size"), never silently extrapolated
+    out_of_range: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -129,19 +149,39 @@ class ReamingSimulator:
         model: LoadedModel | None = None,
         threads: int | None = None,
         compile: bool = False,
+        mesh: TetMesh | None = None,
+        cancellous: str = "normal",
     ):
         """``threads``: PyTorch's threads and NumPy's BLAS threads, for the whole process. A step's
         NumPy work is small (thousands of rows), where OpenBLAS's threads cost more than they
         save, much more on a loaded machine: a boolean mask times the volumes took 1.6 ms with
         two BLAS threads beside other work, 0.07 ms with one.
         ``compile``: run the network through ``torch.compile`` (see :mod:`thrsim.learn.compiled`),
-        compiling now; if that fails the simulator stays eager and ``compile_error`` says why."""
+        compiling now; if that fails the simulator stays eager and ``compile_error`` says why.
+        ``mesh`` and ``cancellous`` (a socket model only): the bone to ream instead of the model's
+        own, and its cancellous bone (``CANCELLOUS_PRESETS``)."""
         if threads is not None:
             torch.set_num_threads(threads)
             threadpool_limits(threads, user_api="blas")
-        self.model = model if model is not None else load_model(model_dir)
-        self._step = LearnedStep(self.model.gn, self.model.graph, self.model.settings.features, self.model.teeth_radius_m)
-        self._feed = self.model.reamer_feed()
+        model = model if model is not None else load_model(model_dir)
+        self.socket = reads_any_mesh(model.settings)
+        if mesh is not None:
+            if not self.socket:
+                raise ThrsimInputError("a patch model reams the mesh it was trained on only; a socket model takes any bone")
+            model = dataclasses.replace(model, mesh=mesh, graph=StaticGraph(mesh))
+        self.model = model
+        self._breach_faces = breach_faces(model.mesh) if self.socket else {}
+        energy = None
+        if self.socket:
+            if cancellous not in CANCELLOUS_PRESETS:
+                raise ThrsimInputError(f"unknown cancellous bone {cancellous!r}: known {', '.join(sorted(CANCELLOUS_PRESETS))}")
+            energy = element_cutting_energy({"cancellous": CANCELLOUS_PRESETS[cancellous].model_dump()}, model.mesh)
+        self._step = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m, energy)
+        self._feed: ReamerFeed | ReactionFeed = (
+            ReactionFeed(model.mesh, model.teeth_radius_m, model.threshold, model.frame_dt_s, model.hold)
+            if self.socket
+            else model.reamer_feed()
+        )
         self._threshold = self.model.threshold
         self._tip_exit: tuple[tuple[float, ...], float | None] | None = None  # (axis, depth) of the last axis seen
         self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
@@ -184,6 +224,13 @@ class ReamingSimulator:
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
         self._impulse_n_s = 0.0  # push impulse since the reamer was placed (the regressor's input)
+        self._step.reaction_law = None
+
+    def withdraw(self) -> None:
+        """Take the reamer out (to change its size): the next step places it clear of the bone again."""
+        self._centre = self._start = None
+        self._impulse_n_s = 0.0
+        self._step.reaction_law = None
 
     def snapshot(self) -> SimulatorSnapshot:
         """The state now (copies), for :meth:`restore`."""
@@ -199,6 +246,7 @@ class ReamingSimulator:
         self._centre = None if snapshot.centre is None else snapshot.centre.copy()
         self._start = None if snapshot.start is None else snapshot.start.copy()
         self._impulse_n_s = snapshot.impulse_n_s
+        self._step.reaction_law = None  # the bone changed: the next step stands first to read its law
 
     @property
     def alpha(self) -> np.ndarray:
@@ -216,7 +264,7 @@ class ReamingSimulator:
     def reamer_start(self, reamer_axis) -> np.ndarray:
         """Where the reamer starts on this axis (teeth just clear of the bone), in this side's frame."""
         axis = self._to_right(check_axis(reamer_axis))
-        return self._to_side(start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m))
+        return self._to_side(start_position(self.model.mesh.nodes, axis, self._step.teeth_radius_m))
 
     def _to_right(self, vector: np.ndarray) -> np.ndarray:
         return on_side(vector, self.side)
@@ -224,11 +272,33 @@ class ReamingSimulator:
     _to_side = _to_right  # the mirror is its own inverse
 
     def cutting_size_mm(self, reamer_mm: float | None) -> float:
-        """The reamer size (mm) a frame cuts with when ``reamer_mm`` is asked for: the model's learned
+        """The reamer size (mm) a frame cuts with when ``reamer_mm`` is asked for: a socket model cuts
+        with the size asked (flagged when outside the sizes it learned); a patch model with its learned
         size nearest to it (:attr:`LoadedModel.trained_reamer_mm`), so a model trained on one size
         cuts with that size whatever is asked; None asks for the first learned size."""
         sizes = self.model.trained_reamer_mm
-        return sizes[0] if reamer_mm is None else min(sizes, key=lambda size: abs(size - reamer_mm))
+        if reamer_mm is None:
+            return sizes[0]
+        if self.socket:
+            if not (math.isfinite(reamer_mm) and 10.0 <= reamer_mm <= 100.0):
+                raise ThrsimInputError(f"reamer size must be between 10 and 100 mm, got {reamer_mm!r}")
+            return float(reamer_mm)
+        return min(sizes, key=lambda size: abs(size - reamer_mm))
+
+    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray) -> tuple[str, ...]:
+        """What of a step's inputs lies outside what the model learned (its card's ranges): the push,
+        the reamer size, the tilt γ of the axis from the socket's (right-side frame)."""
+        flags = []
+        pushes = self.model.trained_force_n
+        if pushes is not None and not pushes[0] <= force_n <= pushes[1]:
+            flags.append("push")
+        tilts = self.model.trained_inclination_deg
+        if tilts is not None and not tilts[0] - 1e-6 <= angles_of(axis)[0] <= tilts[1] + 1e-6:
+            flags.append("tilt")
+        sizes = self.model.trained_reamer_mm
+        if not min(sizes) - 1e-6 <= reamer_mm <= max(sizes) + 1e-6:
+            flags.append("reamer size")
+        return tuple(flags)
 
     def step(self, reamer_axis, force_n: float, reamer_position=None, reamer_mm: float | None = None) -> StepResult:
         """Advance one frame with the reamer of size ``reamer_mm`` (mm; see :meth:`cutting_size_mm`);
@@ -236,6 +306,11 @@ class ReamingSimulator:
         started = time.perf_counter()
         axis = self._to_right(check_axis(reamer_axis))
         force = check_force(force_n)
+        size_mm = self.cutting_size_mm(reamer_mm)
+        if self.socket and abs(2e3 * self._step.teeth_radius_m - size_mm) > 1e-9:
+            self._step.set_teeth_radius(size_mm * 0.5e-3)
+            self._feed.teeth_radius_m = size_mm * 0.5e-3
+            self._step.reaction_law = None  # another head: its contact is not the last one's
         if reamer_position is not None:
             given = np.asarray(reamer_position, dtype=np.float64).reshape(-1)
             if given.shape != (3,) or not np.isfinite(given).all():
@@ -245,13 +320,21 @@ class ReamingSimulator:
                 self._centre = self._start = new_centre
         else:
             if self._centre is None or self._start is None:  # set together
-                self._centre = self._start = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
-            gamma, theta = angles_of(axis)
-            new_centre = (
-                self._centre
-                + self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s) * axis
-            )
+                self._centre = self._start = start_position(self.model.mesh.nodes, axis, self._step.teeth_radius_m)
+            if isinstance(self._feed, ReactionFeed):
+                if self._step.reaction_law is None:  # standing: the bone's law at the reamer now, no cut
+                    self._step(self.bone, self._centre, axis, force, 0.0, self.model.omega_rad_s)
+                moved = self._feed.advance_m(self._step.reaction_law, self.alpha, self._centre, axis, force)
+            else:
+                gamma, theta = angles_of(axis)
+                moved = self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s)
+            new_centre = self._centre + moved * axis
         advance = float((new_centre - self._centre) @ axis)
+        law = self._step.reaction_law
+        reaction = torque = None
+        if self.socket and law is not None:
+            feed = advance / self.model.frame_dt_s
+            reaction, torque = float(law[0] + law[1] * max(feed, 0.0)), float(law[2] + law[3] * max(feed, 0.0))
         before = self.removed
         self.bone = self._step(self.bone, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed
@@ -270,16 +353,25 @@ class ReamingSimulator:
             advance_m=advance,
             seconds=time.perf_counter() - started,
             end_reason=end_reason,
-            reamer_mm=self.cutting_size_mm(reamer_mm),
+            reamer_mm=size_mm,
+            reaction_n=reaction,
+            motor_torque_n_m=torque,
+            out_of_range=self.out_of_range(force, size_mm, axis) if self.socket else (),
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:
         """The solver's end conditions, checked on the learned state (right-side frame)."""
+        teeth = self._step.teeth_radius_m
+        if self.socket:
+            reason = breach_reason(self._breach_faces, ~removed)
+            if reason is not None:
+                return reason
+            attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)
+            return None if bone_in_path(self.model.mesh.nodes[attached], centre, axis, teeth) else PASSED_THROUGH
         key = tuple(axis.tolist())
         if self._tip_exit is None or self._tip_exit[0] != key:
             self._tip_exit = (key, tip_exit_depth(self.model.mesh, axis))
         exit_depth = self._tip_exit[1]
-        teeth = self.model.teeth_radius_m
         if exit_depth is not None and float(centre @ axis) + teeth > exit_depth:
             return PERFORATED
         attached = attached_nodes(self.model.mesh.tets, ~removed, self.model.mesh.n_nodes)

@@ -29,7 +29,7 @@ from safetensors.torch import save as tensor_bytes
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import case_samples, fit_advance
-from thrsim.learn.cases import CaseArrays, require_damage
+from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.features import ReamerState, batch, frame_arrays
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
@@ -61,15 +61,20 @@ class Trainer:
         train: list[CaseArrays],
         validation: list[CaseArrays],
         settings: ModelSettings,
-        teeth_radius_m: float,
         threshold: float,
         init: LoadedModel | None = None,
     ):
         if not train:
             raise ThrsimInputError("no training cases")
         self.graph, self.train_cases, self.validation = graph, train, validation
-        self.settings, self.teeth_radius_m, self.threshold = settings, teeth_radius_m, threshold
-        self.reach_m = teeth_radius_m + settings.features.reach_margin_mm * 1e-3
+        self.settings, self.threshold = settings, threshold
+        self.graphs = case_graphs(graph, [*train, *validation], any_mesh=settings.features.feature_set == "socket")
+        if settings.arch.reaction_head:
+            unrecorded = [case.case_id for case in train if case.reaction_n is None or case.motor_torque_n_m is None]
+            if unrecorded:
+                raise ThrsimInputError(
+                    f"{len(unrecorded)} case(s) record no reaction or torque (e.g. {unrecorded[0]}), which the reaction head learns"
+                )
         if settings.features.damage:
             require_damage([*train, *validation], 'regenerate the data or train with the settings {"features": {"damage": false}}')
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
@@ -104,6 +109,10 @@ class Trainer:
             digest.update(tensor.detach().contiguous().numpy().tobytes())
         self.init_digest = digest.hexdigest()
 
+    def _step(self, model: LearnedSimulator, case: CaseArrays) -> LearnedStep:
+        """The learned step on ``case``'s bone, with its reamer."""
+        return LearnedStep(model, self.graphs[case.case_id], self.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+
     def _pushed_steps(self, t: int, rng: np.random.Generator | None) -> int:
         """How many of the network's own steps lead to the input at t (0: the ground truth)."""
         train = self.settings.train
@@ -116,7 +125,7 @@ class Trainer:
     def _pushed_state(self, case: CaseArrays, t: int, steps: int) -> BoneState:
         """The bone at t from the Graph Network's tool-forced rollout of ``steps`` frames from the ground truth."""
         was_training = self.gn.training
-        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
+        step = self._step(self.gn, case)
         state = BoneState.start(case.alpha[t - steps], None if case.damage is None else case.damage[t - steps])
         for frame in range(t - steps + 1, t + 1):
             moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
@@ -133,7 +142,8 @@ class Trainer:
         return np.where(active, noisy, values).astype(np.float32)
 
     def _sample(self, index: int, rng: np.random.Generator | None):
-        """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes."""
+        """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes, and
+        the next frame's (reaction, torque, feed) (see :func:`next_reaction`)."""
         case_index, t = self.samples[index]
         case = self.train_cases[case_index]
         pushed = self._pushed_steps(int(t), rng)
@@ -147,19 +157,20 @@ class Trainer:
         centre = case.positions[t + 1].copy()
         if rng is not None and self.settings.train.position_noise_mm > 0:
             centre += rng.normal(0.0, self.settings.train.position_noise_mm * 1e-3, 3)
-        graph = self.graph
+        graph = self.graphs[case.case_id]
         active_t = alpha_t >= self.threshold
         if self.settings.features.whole_graph:
             sub = graph.whole()
         else:
-            region = graph.region(active_t, centre, self.reach_m, self.settings.features.front_hops)
+            reach_m = case.teeth_radius_m + self.settings.features.reach_margin_mm * 1e-3
+            region = graph.region(active_t, centre, reach_m, self.settings.features.front_hops)
             sub = graph.subgraph(region, self.settings.features.halo_hops)
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         active = alpha_in >= self.threshold
         alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
         damage_in = None if not with_damage or damage_t is None else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
         advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
-        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, self.teeth_radius_m)
+        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
         arrays = frame_arrays(
             graph,
             sub,
@@ -170,14 +181,16 @@ class Trainer:
             active_t,
             damage_in,
             self.settings.features.corners,
+            case.element_cutting_energy_j_m3,
         )
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
-        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next
+        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next, next_reaction(case, int(t) + 1)
 
     def _batch(self, drawn: list) -> tuple:
         """Network inputs, α(t+1) and D(t+1) (None without damage) of drawn samples."""
         with_damage = self.settings.features.damage
-        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None)
+        reaction = [d[4] for d in drawn] if self.settings.arch.reaction_head else None
+        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None, reaction)
         alpha_next = torch.from_numpy(np.concatenate([d[2] for d in drawn]).astype(np.float32))
         damage_next = torch.from_numpy(np.concatenate([d[3] for d in drawn]).astype(np.float32)) if with_damage else None
         return inputs, alpha_next, damage_next
@@ -229,9 +242,9 @@ class Trainer:
         """Micro F1 of newly removed elements after tool-forced rollouts from frame 0 of each validation case."""
         if not self.validation:
             return None
-        step = LearnedStep(self.gn, self.graph, self.settings.features, self.teeth_radius_m)
         counts = Counts()
         for case in self.validation:
+            step = self._step(self.gn, case)
             horizon = min(self.settings.train.validation_horizon, case.frames - 1)
             masks, _ = rollout(step, case, 0, horizon, self.threshold, None)
             start = case.alpha[0] < self.threshold
@@ -244,7 +257,7 @@ class Trainer:
         identity = {
             "settings": self.settings.model_dump(mode="json"),
             "cases": [c.case_id for c in self.train_cases],
-            "mesh": self.graph.digest,
+            "mesh": sorted({graph.digest for graph in self.graphs.values()}),
         }
         if self.init_digest is not None:
             identity["init"] = self.init_digest
@@ -312,6 +325,23 @@ class Trainer:
             if budget is not None and time.perf_counter() - started > budget * 60:
                 break
         return time.perf_counter() - started
+
+
+#: frames the reaction targets are averaged over: the solver's reaction comes in element-sized bursts
+#: (a median frame's under 1 N, one in a hundred over 100 N), its mean over a tenth of a second does not
+REACTION_FRAMES = 6
+
+
+def next_reaction(case: CaseArrays, frame: int) -> tuple[float, float, float]:
+    """The mean reaction (N), torque (N·m) and feed (m/s) over the :data:`REACTION_FRAMES` frames after
+    ``frame`` (fewer at the case's end), which the law the network sees at ``frame`` predicts; NaN
+    past the case's end or where the case records none."""
+    if case.reaction_n is None or case.motor_torque_n_m is None or frame + 1 >= case.frames:
+        return (math.nan, math.nan, math.nan)
+    last = min(case.frames - 1, frame + REACTION_FRAMES)
+    feed = float((case.positions[last] - case.positions[frame]) @ case.axis) / ((last - frame) * case.frame_dt_s)
+    window = slice(frame + 1, last + 1)
+    return (float(case.reaction_n[window].mean()), float(case.motor_torque_n_m[window].mean()), feed)
 
 
 def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100):

@@ -249,11 +249,7 @@ class ReamingSimulation:
         self.frame_stats = np.zeros(FRAME_STATS_SIZE)
         self._scratch = np.zeros(4)
         self.steps_per_frame = max(1, round(case.frame_dt_s / self.solid.dt))
-        self._face_elements = {
-            name: np.flatnonzero(np.isin(self.mesh.tets, self.mesh.node_sets[name]).any(axis=1) & ~self.prepared)
-            for name in (MEDIAL_WALL, SUPPORTED)
-            if case.bone_kind == "socket" and name in self.mesh.node_sets
-        }
+        self._face_elements = breach_faces(self.mesh, self.prepared) if case.bone_kind == "socket" else {}
         self.tip_exit_depth = None if case.bone_kind == "socket" else tip_exit_depth(self.mesh, self.axis)
         self.spin_work_at_frame_start = 0.0
         self.zone_sizes: list[int] = []  # active elements integrated, at each choice of the zone
@@ -310,11 +306,7 @@ class ReamingSimulation:
         """For a socket: ``medial_wall_breached`` when an element on the medial wall's pelvic face has
         gone (a hole into the pelvis), ``perforated`` when one on the supported boundary has (through
         the bone elsewhere); None while both hold. The patch uses :meth:`perforated` instead."""
-        for reason, name in (("medial_wall_breached", MEDIAL_WALL), ("perforated", SUPPORTED)):
-            on_face = self._face_elements.get(name)
-            if on_face is not None and np.any(self.solid.active[on_face] == 0):
-                return reason
-        return None
+        return breach_reason(self._face_elements, self.solid.active != 0)
 
     @property
     def drive(self) -> ReamerDrive:
@@ -730,6 +722,26 @@ def _stalled(log: FrameLog) -> bool:
 def _along(points: np.ndarray, axis: np.ndarray) -> np.ndarray:
     """points·axis written elementwise: no BLAS in anything that feeds the solver's decisions."""
     return points[..., 0] * axis[0] + points[..., 1] * axis[1] + points[..., 2] * axis[2]
+
+
+#: how a socket is breached, in the order checked: the node set whose elements' loss means it
+BREACHES = (("medial_wall_breached", MEDIAL_WALL), ("perforated", SUPPORTED))
+
+
+def breach_faces(mesh: TetMesh, prepared: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The elements on each breach face of a socket (:data:`BREACHES`), less those a prepared cavity
+    already removed. Shared by the solver and the learned simulator, so both end at the same place."""
+    touching = {name: np.isin(mesh.tets, mesh.node_sets[name]).any(axis=1) for _, name in BREACHES if name in mesh.node_sets}
+    return {name: np.flatnonzero(on & (True if prepared is None else ~prepared)) for name, on in touching.items()}
+
+
+def breach_reason(face_elements: dict[str, np.ndarray], active: np.ndarray) -> str | None:
+    """The first breach (:data:`BREACHES`) whose face has lost an element, or None."""
+    for reason, name in BREACHES:
+        on_face = face_elements.get(name)
+        if on_face is not None and not bool(active[on_face].all()):
+            return reason
+    return None
 
 
 def tip_exit_depth(mesh: TetMesh, axis: np.ndarray) -> float | None:

@@ -1,0 +1,194 @@
+"""The physics a socket model's feed must obey, checked on a trained model (the reaction head).
+
+No push, no cut and no advance; a reamer in free air cuts nothing and stops at the bone; more
+push never removes less; a reamer pulled back cuts nothing. These hold by construction (the
+reaction law's non-negative shares, the cut only while advancing), so they hold for any trained
+model: here a tiny one trained on the synthetic dataset.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from learn_helpers import tiny_socket_settings
+
+from thrsim.config import ReamerHoldConfig
+from thrsim.errors import ThrsimInputError
+from thrsim.learn.cases import load_cases
+from thrsim.learn.model_dir import load_model
+from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s
+from thrsim.learn.reamer_feed import advance_to_support
+from thrsim.learn.rollout import BoneState, LearnedStep, rollout
+
+
+@pytest.fixture(scope="module")
+def socket_model(synthetic_dataset, tmp_path_factory):
+    import torch
+
+    from thrsim.learn.pipeline import train_model
+
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("socket-model") / "model"
+    train_model(synthetic_dataset, out, tiny_socket_settings())
+    return load_model(out)
+
+
+@pytest.fixture(scope="module")
+def case(synthetic_dataset):
+    _, cases = load_cases(synthetic_dataset, splits=("test",))
+    return cases[0]
+
+
+def _parts(model, case):
+    step = LearnedStep(model.gn, model.graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+    feed = ReactionFeed(model.mesh, case.teeth_radius_m, model.threshold, case.frame_dt_s, ReamerHoldConfig())
+    return step, feed
+
+
+def _removed(masks, case, model) -> int:
+    return int((masks[-1] & ~(case.alpha[0] < model.threshold)).sum())
+
+
+def test_the_card_records_the_reamer_sizes_and_the_law_is_non_negative(socket_model, case):
+    assert socket_model.trained_reamer_mm == (round(2e3 * case.teeth_radius_m, 3),)
+    step, _ = _parts(socket_model, case)
+    step(BoneState.start(case.alpha[0]), case.positions[3], case.axis, 230.0, 0.0, case.omega_rad_s)
+    assert step.reaction_law is not None and step.reaction_law.shape == (4,)
+    assert (step.reaction_law >= 0).all()
+
+
+def test_no_push_no_advance_no_cut(socket_model, case):
+    step, feed = _parts(socket_model, case)
+    masks, centres = rollout(step, case, 3, 6, socket_model.threshold, feed, push_n=0.0)
+    assert np.allclose(centres, case.positions[3])
+    assert _removed(masks, case, socket_model) == 0
+
+
+def test_in_free_air_the_reamer_cuts_nothing_and_stops_at_the_bone(socket_model, case):
+    step, feed = _parts(socket_model, case)
+    away = case.positions[0] - 0.1 * case.axis  # 100 mm clear of the bone
+    state = BoneState.start(case.alpha[0])
+    new = step(state, away, case.axis, 230.0, 1e-3, case.omega_rad_s)
+    assert step.last.region == 0 and np.array_equal(new.alpha, state.alpha)
+    assert step.reaction_law is not None and not step.reaction_law.any()
+    free = 230.0 / ReamerHoldConfig().axial_damping_n_s_m * case.frame_dt_s  # the push against the hold alone
+    assert feed.advance_m(step.reaction_law, state.alpha, away, case.axis, 230.0) == pytest.approx(free)
+    contact = advance_to_support(socket_model.mesh.nodes, away, case.axis, case.teeth_radius_m, 1)
+    assert free < contact < 0.1
+    assert feed.advance_m(step.reaction_law, state.alpha, away, case.axis, 1e6) == pytest.approx(contact)  # never past the bone
+
+
+def test_pulled_back_the_reamer_cuts_nothing(socket_model, case):
+    step, _ = _parts(socket_model, case)
+    state = BoneState.start(case.alpha[6])
+    back = case.positions[6] - 0.2e-3 * case.axis
+    assert np.array_equal(step(state, back, case.axis, 230.0, -0.2e-3, case.omega_rad_s).alpha, state.alpha)
+
+
+def test_more_push_never_removes_less(socket_model, case):
+    step, feed = _parts(socket_model, case)
+    removed, depth = [], []
+    for push in (0.0, 50.0, 150.0, 230.0, 310.0, 600.0):
+        masks, centres = rollout(step, case, 2, 8, socket_model.threshold, feed, push_n=push)
+        removed.append(_removed(masks, case, socket_model))
+        depth.append(float((centres[-1] - case.positions[2]) @ case.axis))
+    assert removed == sorted(removed) and depth == sorted(depth)
+    assert removed[0] == 0 and removed[-1] > 0
+
+
+def test_the_feed_follows_the_law():
+    law = np.array([100.0, 5e4, 0.1, 10.0])
+    assert feed_m_s(law, 50.0, 2000.0) == 0.0  # the bone holds more than the push: stalled
+    assert feed_m_s(law, 230.0, 2000.0) == pytest.approx(130.0 / 52000.0)
+    assert feed_m_s(law, 310.0, 2000.0) > feed_m_s(law, 230.0, 2000.0)
+
+
+def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):
+    from thrsim.learn.evaluation import evaluate
+
+    _, cases = load_cases(synthetic_dataset, splits=("test",), one_mesh=False)
+    report = evaluate(socket_model, cases, start_stride=6, one_step_stride=6)
+    size = f"{2e3 * cases[0].teeth_radius_m:g}"
+    assert report["rows"] == "reamer_diameter_mm"
+    for source in (report, report["tool_forced"], report["mlp"], report["geometric"]):
+        assert source[size]["1"]["windows"] > 0
+    assert set(report["by_layer"]["tool_forced"]) == {"cortical"}  # the synthetic block: one material
+    checks = report["physics_checks"]
+    assert checks["checked"] and checks["held"] == dict.fromkeys(
+        ("no_push_no_cut", "no_push_no_advance", "more_push_never_less"), len(cases)
+    )
+    errors = report["reaction"][size]
+    assert 0.0 <= errors["force_error"] < 10.0 and 0.0 <= errors["torque_error"] < 10.0
+
+
+def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(socket_model, case):
+    from thrsim.data.synthetic import block_mesh
+    from thrsim.learn.simulator import ReamingSimulator
+
+    bone = block_mesh(n=5)  # not the mesh the model was trained on
+    simulator = ReamingSimulator(model=socket_model, mesh=bone)
+    assert simulator.n_elements == bone.n_tets
+    trained = socket_model.trained_reamer_mm[0]
+    still = [simulator.step(case.axis, 0.0, reamer_mm=trained) for _ in range(3)]
+    assert all(result.advance_m == 0.0 and not result.removed.any() for result in still)
+    pushed = [simulator.step(case.axis, 230.0, reamer_mm=trained) for _ in range(8)]
+    assert all(result.advance_m >= 0.0 for result in pushed) and sum(result.advance_m for result in pushed) > 0
+    assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
+    assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
+    assert set(pushed[-1].out_of_range) <= {"push", "tilt"}
+    bigger = simulator.step(case.axis, 230.0, reamer_mm=trained + 4.0)
+    assert bigger.reamer_mm == trained + 4.0 and "reamer size" in bigger.out_of_range
+    tilted = simulator.step((0.0, np.sin(np.radians(80.0)), -np.cos(np.radians(80.0))), 230.0, reamer_mm=trained)
+    assert "tilt" in tilted.out_of_range  # the synthetic cases tilt 0-30°
+    with pytest.raises(ThrsimInputError):
+        ReamingSimulator(model=socket_model, mesh=bone, cancellous="chalk")
+
+
+def test_a_socket_reamed_into_the_medial_wall_ends_as_the_solver_ends_it():
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.mesh import MEDIAL_WALL
+    from thrsim.geometry.socket import generate_socket
+    from thrsim.learn.bench import untrained_model
+    from thrsim.learn.settings import preset
+    from thrsim.learn.simulator import MEDIAL_WALL_BREACHED, ReamingSimulator
+    from thrsim.physics.reaming import breach_faces
+
+    mesh = generate_socket(SocketConfig(element_size_mm=2.5))
+    model = untrained_model(mesh, preset("socket"), teeth_radius_m=24e-3)
+    model.card["reamer"]["sizes_mm"] = [48.0]
+    simulator = ReamingSimulator(model=model, mesh=mesh)
+    axis = np.array([0.0, 0.0, -1.0])
+    assert simulator.step(axis, 230.0, reamer_mm=48.0).end_reason is None
+    on_wall = breach_faces(mesh)[MEDIAL_WALL]
+    assert len(on_wall) > 0
+    simulator.bone.alpha[on_wall[:1]] = 0.0  # one element of the medial wall's pelvic face gone
+    assert simulator.step(axis, 230.0, reamer_mm=48.0).end_reason == MEDIAL_WALL_BREACHED
+
+
+def test_thrsim_ream_reams_the_whole_socket_with_a_sequence_of_reamers(socket_model, tmp_path):
+    import json
+
+    from learn_helpers import run_thrsim
+
+    size = socket_model.trained_reamer_mm[0]
+    reamers = f"{size:g},{size + 2:g}"
+    done = run_thrsim(
+        "ream", "--bone", "socket", "--model", str(socket_model.path), "--reamers", reamers, "--element-size", "2.5",
+        "--frames", "6", "--out", str(tmp_path / "socket"), "--json", timeout=600,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert [step["reamer_mm"] for step in summary["reamers"]] == [size, size + 2]
+    assert all(step["frames"] >= 1 and step["ended"] in ("seated", "frames", "passed_through") for step in summary["reamers"])
+    assert "reamer size" in summary["reamers"][1]["out_of_range"]  # the synthetic cases had one size
+    assert (tmp_path / "socket" / "ream.pvd").is_file()
+    for bad, says in (
+        (("--reamers", f"{size + 2:g},{size:g}"), "growing"),
+        (("--reamers", "4x"), "numbers"),
+        (("--element-size", "0.01"), "[0.3, 5]"),
+    ):
+        refused = run_thrsim("ream", "--bone", "socket", "--model", str(socket_model.path), *bad, "--out", str(tmp_path / "bad"))
+        assert refused.returncode == 2 and says in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "bad").exists()
+    patch = run_thrsim("ream", "--bone", "socket", "--out", str(tmp_path / "patch"))  # the shipped model reams the patch
+    assert patch.returncode == 2 and "socket model" in patch.stderr

@@ -1,0 +1,47 @@
+"""How far a socket model's reamer moves under the surgeon's push: the push against the bone's reaction and the hold.
+
+The solver's hand-held reamer is an effective mass on an axial damper (``ReamerHoldConfig``):
+M·s̈ = F − R − c·ṡ. Over a frame the inertia term is small beside the others, so the frame's feed
+is the v at which the push meets the bone's reaction law (:mod:`thrsim.learn.learned_simulator`,
+R(v) = A + B·v, A and B ≥ 0) and the damper: v = max(0, F − A) / (B + c). Hence no push, no feed;
+more push, never less feed; a reaction above the push stalls the reamer. With nothing in contact
+(A = B = 0) the reamer closes in at F / c but stops where the first bone enters the teeth's dome.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from thrsim.config import ReamerHoldConfig
+from thrsim.geometry.mesh import TetMesh
+from thrsim.learn.graph import attached_nodes
+from thrsim.learn.reamer_feed import advance_to_support
+
+
+def feed_m_s(law: np.ndarray, force_n: float, damping_n_s_m: float) -> float:
+    """The feed (m/s) at which ``force_n`` meets the reaction law (A, B, …) and the hold's damping."""
+    reaction_n, per_feed = float(law[0]), float(law[1])
+    return max(0.0, force_n - reaction_n) / (per_feed + damping_n_s_m)
+
+
+class ReactionFeed:
+    """The advance of one autonomous frame of a socket model (see the module)."""
+
+    def __init__(self, mesh: TetMesh, teeth_radius_m: float, threshold: float, frame_dt_s: float, hold: ReamerHoldConfig):
+        self.tets, self.nodes = np.asarray(mesh.tets), np.asarray(mesh.nodes)
+        self.teeth_radius_m, self.threshold, self.frame_dt_s = teeth_radius_m, threshold, frame_dt_s
+        self.damping_n_s_m = hold.axial_damping_n_s_m
+
+    def advance_m(self, law: np.ndarray | None, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float) -> float:
+        """Advance along ``axis`` (m) over the next frame under ``force_n``, given the reaction law the
+        last step predicted (None or all zero: nothing in contact)."""
+        if not force_n > 0.0:
+            return 0.0
+        if law is not None and (law[0] > 0.0 or law[1] > 0.0):
+            return feed_m_s(law, force_n, self.damping_n_s_m) * self.frame_dt_s
+        free = force_n / self.damping_n_s_m * self.frame_dt_s
+        attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
+        contact = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, 1)
+        return free if math.isinf(contact) else min(free, contact)

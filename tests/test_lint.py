@@ -30,3 +30,15 @@ def test_ruff_with_the_checkouts_rules_refuses_unsorted_imports_and_unformatted_
     lint = _ruff("check", "--no-cache", "--config", config, "--output-format", "concise", str(bad), cwd=tmp_path)
     assert lint.returncode == 1 and {"I001", "B905"} <= {word for word in lint.stdout.split() if word[:1].isupper()}, lint.stdout
     assert _ruff("format", "--check", "--no-cache", "--config", config, str(bad), cwd=tmp_path).returncode == 1
+
+
+def test_ci_lints_formats_and_type_checks_before_the_tests():
+    lines = [line.strip() for line in (REPO_ROOT / ".ci" / "run").read_text().splitlines()]
+    where = {step: next((i for i, line in enumerate(lines) if line.startswith(step)), None) for step in (
+        "./install.sh", "python3 -m ruff check .", "python3 -m ruff format --check .", "python3 -m mypy", "python3 -m pytest")}  # fmt: skip
+    missing = [step for step, index in where.items() if index is None]
+    assert not missing, f".ci/run lacks {missing}"
+    assert (
+        where["./install.sh"] < min(where["python3 -m ruff check ."], where["python3 -m mypy"])
+        and max(where.values()) == where["python3 -m pytest"]
+    )

@@ -114,3 +114,10 @@ def test_no_code_cites_files_this_repository_does_not_hold():
         if citing.search(line)
     ]
     assert not offenders, offenders
+
+
+def test_the_quick_start_installs_serves_the_trainer_reams_and_tests():
+    quick = README.split("\n## Quick start\n", 1)[1].split("\n## ", 1)[0]
+    steps = ["./install.sh", "thrsim serve", "http://127.0.0.1:8000/", "thrsim ream", "python3 -m pytest"]
+    at = [quick.find(step) for step in steps]
+    assert -1 not in at and at == sorted(at), dict(zip(steps, at, strict=True))  # in the order a newcomer takes them

@@ -13,7 +13,7 @@ import time
 import numba
 import numpy as np
 
-from thrsim.config import BonePatchConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size
+from thrsim.config import PUSH_FORCE_N, BonePatchConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size
 from thrsim.geometry.bone_patch import generate_bone_patch
 from thrsim.physics.reaming import CONTACT_STEPS, ReamingSimulation
 from thrsim.provenance import package_versions
@@ -79,7 +79,7 @@ def bench_socket(frames: int) -> dict:
             **_time_frames(ReamingSimulation(window), frames),
         },
         "whole": {
-            "case": f"48 mm reamer on the native 46 mm socket at {WHOLE_SOCKET_ELEMENT_MM} mm elements, 230 N along the socket axis",
+            "case": f"48 mm reamer on the native 46 mm socket at {WHOLE_SOCKET_ELEMENT_MM} mm elements, {PUSH_FORCE_N:g} N along the socket axis",
             **_time_frames(ReamingSimulation(whole), frames),
         },
     }

@@ -1,14 +1,11 @@
 """Where thrsim keeps compiled code (Numba kernels, TorchInductor), and what a cache of it depends on.
 
 Caches live in the user's cache folder (``$XDG_CACHE_HOME``, default ``~/.cache``), never in the
-package (a read-only install) nor in a folder of a shared name in /tmp (another user could own
-it first, or put code in it). Where the cache folder cannot be written (a read-only home, a
-service user without one), a private temporary folder is used instead: slower starts, never a
-crash.
+package (a read-only install) nor in a shared-name folder in /tmp (another user could own it or
+put code in it); where that cannot be written, a private temporary folder: slower, never a crash.
 
 Numba keys a kernel's cache on its own file only, but a kernel inlines the kernels it calls from
-other files (the reaming loop: contact, solid and material kernels, all of them
-portable_math.py's) and compiles in constants of modules it imports (config.py's friction cap):
+other files (portable_math.py's among them) and compiles in constants of modules it imports:
 after an edit there, stale machine code, which can crash. So every kernel module calls
 :func:`use_numba_cache` before defining a kernel, and the cache folder is named after a hash of
 :data:`KERNEL_MODULES` and every thrsim module they import, transitively (an explicit

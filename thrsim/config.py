@@ -531,7 +531,7 @@ class IgtlConfig(_Frozen):
     Only peers in ``allowed_peers`` (networks; loopback alone by default) are served; a connection
     from anywhere else is closed at once. Poses are kept per device name: the ``known_devices``
     always, and at most ``max_other_devices`` other names (first come), so no client can grow the
-    shared session without bound by inventing names. A connection that sends nothing for
+    shared tracker state without bound by inventing names. A connection that sends nothing for
     ``idle_timeout_s`` is closed. A client earns its slot by sending what the trainer uses (a
     known device's pose, a force): when every one of the ``max_clients`` slots is taken, a
     newcomer takes the slot of a connection that has earned nothing in the ``reclaim_after_s``

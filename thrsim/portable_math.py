@@ -1,16 +1,13 @@
 """exp, log, pow, sin, cos, atan2 and cbrt from + − × ÷ and √ only: the same bits on every x86-64.
 
-glibc picks its libm at run time by CPU (FMA, AVX2, AVX-512 variants of exp, log, pow, sin, cos,
-atan2) and NumPy dispatches its own SIMD loops the same way; each variant is accurate to about an
-ulp but they disagree in the last bit, and a reaming trajectory turns one ulp into a different
-cut within a few frames. Every transcendental function that feeds the solver state is therefore
-computed here, by IEEE-754 basic operations (correctly rounded everywhere, never fused: Numba
-compiles without fast-math), in a fixed order. Accuracy: a few ulp over the ranges the solver
-uses (checked against the C library in the tests); no library offers bit-portable elementary
-functions for Numba, hence written by hand.
-
-Range reductions follow Cody & Waite (ln 2 and π/2 split so that k·c_hi is exact); the kernels
-are Taylor series truncated below 1e-17 relative on the reduced interval.
+glibc picks its libm at run time by CPU (FMA, AVX2, AVX-512 variants) and NumPy dispatches its
+own SIMD loops the same way; each variant is accurate to about an ulp but they disagree in the
+last bit, and a reaming trajectory turns one ulp into a different cut within a few frames. So
+every transcendental function that feeds the solver state is computed here from IEEE-754 basic
+operations (correctly rounded, never fused: Numba compiles without fast-math), in a fixed order,
+accurate to a few ulp over the solver's ranges (the tests check against the C library). Range
+reductions follow Cody & Waite (ln 2 and π/2 split so that k·c_hi is exact); the kernels are
+Taylor series truncated below 1e-17 relative on the reduced interval.
 """
 
 from __future__ import annotations

@@ -6,7 +6,7 @@ import pytest
 from igtl_helpers import RunningServer
 
 from thrsim.config import IgtlConfig
-from thrsim.io.server import NavigationServer
+from thrsim.io.server import IgtlServer
 
 
 @pytest.fixture
@@ -15,7 +15,7 @@ def make_server():
 
     def make(config: IgtlConfig | None = None, **kwargs) -> RunningServer:
         config = config or IgtlConfig(port=0)
-        server = RunningServer(NavigationServer(config, **kwargs))
+        server = RunningServer(IgtlServer(config, **kwargs))
         running.append(server)
         return server
 

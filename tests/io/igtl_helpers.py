@@ -13,11 +13,11 @@ import time
 import numpy as np
 
 from thrsim.io import igtl
-from thrsim.io.server import NavigationServer
+from thrsim.io.server import IgtlServer
 
 
 class RunningServer:
-    def __init__(self, server: NavigationServer):
+    def __init__(self, server: IgtlServer):
         self.server = server
         self.loop = asyncio.new_event_loop()
         started = threading.Event()

@@ -24,7 +24,7 @@ from igtl_helpers import RunningServer, read_message, reamer_pose_mm, transform_
 from thrsim.config import KNOWN_TRACKER_DEVICES, IgtlConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
-from thrsim.io.server import NAVIGATION_STATE, NavigationServer
+from thrsim.io.server import NAVIGATION_STATE, IgtlServer
 from thrsim.nav.tracker_state import TrackerState
 
 pytestmark = pytest.mark.timeout(180)
@@ -173,7 +173,7 @@ def listener():
     lines = _Lines()
     logger = logging.getLogger("thrsim.io.server")
     logger.addHandler(lines)
-    server = RunningServer(NavigationServer(IgtlConfig(port=0, io_timeout_s=2.0, max_body_bytes=4096)))
+    server = RunningServer(IgtlServer(IgtlConfig(port=0, io_timeout_s=2.0, max_body_bytes=4096)))
     yield server, lines
     server.stop()
     logger.removeHandler(lines)

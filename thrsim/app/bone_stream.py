@@ -4,20 +4,10 @@ The state of every element is one byte (:meth:`thrsim.app.reaming.ReamingTrainer
 0 removed, 1..32 α). Each viewer is sent only what changed since what *it* last received, so a
 slow viewer that skipped states still ends up exact. A frame is a little-endian header ``kind``
 (1 byte), u32 frame, u32 count, then a zlib stream (RFC 1950, what the browser's
-``DecompressionStream("deflate")`` reads) of:
-
-* keyframe ``b"K"``: count × u8 levels (on connect, or when most elements changed);
-* delta ``b"D"``: the count changed element ids, ascending, each as the gap to the previous
-  id minus one (the first: the id itself) in LEB128 varints, then count × u8 levels.
-
-Why this form: while reaming, about 1,900 of the default mesh's 20,019 elements change their
-byte per frame, nearly all within 127 ids of the previous one (gmsh numbers neighbouring tets
-close together), so the gaps take a byte each and deflate halves what is left: 2.5 kB per
-frame against 5.9 kB as u16 ids plus levels and 80 kB as float32 α.
-
-The mesh (``GET /api/reaming/mesh``): ``b"THRM"``, u32 version, u32 nodes, u32 elements, then
-nodes (N×3 f32, mm, the patch frame), tets (E×4 u32) and face neighbours (E×4 i32, −1 on the
-boundary, local face i opposite vertex i).
+``DecompressionStream("deflate")`` reads) of a keyframe (:func:`keyframe`) or a delta
+(:func:`delta`). Changed ids go as varint gaps because gmsh numbers neighbouring tets close
+together: nearly every gap takes one byte (sizes: Benchmarks and validation, page drawing
+and the reaming page under load). The mesh's bytes: :func:`mesh_payload`.
 """
 
 from __future__ import annotations
@@ -40,7 +30,9 @@ _ZLIB_LEVEL = 1
 
 
 def mesh_payload(mesh: TetMesh) -> bytes:
-    """The bytes of ``GET /api/reaming/mesh``."""
+    """The bytes of ``GET /api/reaming/mesh``: ``b"THRM"``, u32 version, u32 nodes, u32 elements, then
+    nodes (N×3 f32, mm, the patch frame), tets (E×4 u32) and face neighbours (E×4 i32, −1 on the
+    boundary, local face i opposite vertex i)."""
     nodes = np.ascontiguousarray(mesh.nodes * 1e3, dtype="<f4")
     tets = np.ascontiguousarray(mesh.tets, dtype="<u4")
     neighbours = np.ascontiguousarray(mesh.adjacency.neighbours, dtype="<i4")
@@ -80,12 +72,14 @@ def _read_varints(data: bytes, count: int) -> tuple[np.ndarray, int]:
 
 
 def keyframe(frame: int, levels: np.ndarray) -> bytes:
+    """Frame ``b"K"``: count × u8 levels (on connect, or when most elements changed)."""
     body = np.ascontiguousarray(levels, dtype=np.uint8).tobytes()
     return _HEADER.pack(b"K", frame, len(levels)) + zlib.compress(body, _ZLIB_LEVEL)
 
 
 def delta(frame: int, ids: np.ndarray, levels: np.ndarray) -> bytes:
-    """``ids`` ascending."""
+    """Frame ``b"D"``: the count changed element ids (``ids`` ascending), each as the gap to the previous
+    id minus one (the first: the id itself) in LEB128 varints, then count × u8 levels."""
     ids = np.asarray(ids, dtype=np.int64)
     gaps = np.diff(ids, prepend=-1) - 1
     body = _varints(gaps) + np.asarray(levels, dtype=np.uint8).tobytes()

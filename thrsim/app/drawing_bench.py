@@ -1,16 +1,11 @@
 """Drawing speed of the trainer page (``thrsim bench --browser``).
 
 A real ``thrsim serve`` child process (this code: the parent of the imported ``thrsim`` leads its
-``PYTHONPATH``) and Debian's headless Chromium driven by Playwright, with the flags the browser
-tests use (software WebGL2: SwiftShader). The page is opened with ``?continuous=1``: it draws on
-every animation frame and turns the reamer a little each time, so the figure counts frames of a
-scene that changes on every one. Headless Chromium paces animation frames at 60 Hz, so 60 frames/s
-is the most this can show. Frames per second depend on how much CPU the machine leaves the
-browser; Chromium's CPU time per frame (all its processes, read from /proc) is steadier under
-load, though not independent of it, so both are reported. The page lowers its canvas's
-resolution while it draws slower than the display (thrsim/app/static/render_scale.js): the render
-scale at the start and the end of the count, and how often it changed meanwhile, say at what
-resolution the frames were drawn.
+``PYTHONPATH``) and Debian's headless Chromium driven by Playwright with software WebGL2, on the
+page's ``?continuous=1`` (it draws every animation frame and turns the reamer each time, so the
+scene changes on every frame; headless Chromium paces frames at 60 Hz, the most this can show).
+Frames per second and Chromium's CPU time per frame (steadier under load) are both reported,
+with the render scale the page drew at (it lowers its resolution while it draws slowly).
 """
 
 from __future__ import annotations

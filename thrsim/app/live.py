@@ -2,15 +2,11 @@
 
 Times given to the trainer are seconds since the session started; inputs are logged before the
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
-The log is the session's journal on disk (:mod:`thrsim.session.journal`), written as inputs
-arrive, so a crash of the server loses at most the last second; the next start closes what a
-crash left open (:func:`close_interrupted`).
-The server steps sessions on a worker thread while inputs arrive on its event loop: every entry
-point holds the session's lock, so an input lands between two steps, never inside one. Tracker
-poses and force readings do not wait for the lock: a step of the reaming mode holds it for tens
-of milliseconds, and the event loop blocked on it would hold back the states it publishes too.
-They queue with their arrival times and are logged and applied, in order, as the next step or
-control takes the lock, which is when they would have landed had they waited.
+The log is the session's journal on disk (:mod:`thrsim.session.journal`), so a crash loses at
+most the last second; the next start closes what a crash left open (:func:`close_interrupted`).
+Every entry point holds the session's lock, so an input lands between two steps, never inside
+one; tracker poses and forces do not wait for it (a reaming step holds it for tens of
+milliseconds): they queue with their arrival times and are applied, in order, at the next step.
 """
 
 from __future__ import annotations
@@ -81,7 +77,6 @@ class LiveSession:
             "versions": json.dumps(versions()),
         }
         self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
-        self.last_state: dict | None = None
         self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
@@ -140,7 +135,6 @@ class LiveSession:
             session = {"id": self.id, "elapsed_s": now}
             state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
             state["session"] = session
-            self.last_state = state
             return state
 
     def save(self, folder: Path | None = None) -> Path:

@@ -1,17 +1,12 @@
 """The navigation-skills trainer: the thesis's first system [3.1–3.3] as one session's logic.
 
-A trainee sees the IR camera's tracking volume, keeps the markers visible, acquires 27 pelvic
-landmarks with a tracked probe, gets the anterior pelvic plane (APP) from them, and aims the
-reamer with a ray coloured by the Lewinnek safe zone; a guided step calibrates the display
-against the tracker. Tools are driven by a real tracker (OpenIGTLink poses) or, without one,
-by the page's controls, which move simulated tools on a synthetic pelvis: the trainee puts the
-probe's tip where they moved it (``place``), so a landmark is acquired as close as they put it.
-
-Frames: the *reference frame* is the pelvic reference array's (as trackers report poses); the
-synthetic pelvis model sits in it at ``model_to_reference`` (the array clamped on the iliac
-crest, facing the default camera). The page draws the *scene frame* = the model frame, placed
-by the registration's fit once it exists. Numerics come from :mod:`thrsim.nav`; this module only
-orchestrates them, steps at the server's tick and keeps what the report needs. No I/O.
+A trainee keeps the markers in the IR camera's tracking volume, acquires 27 pelvic landmarks
+with a tracked probe, gets the anterior pelvic plane (APP) from them, and aims the reamer with a
+ray coloured by the Lewinnek safe zone; a guided step calibrates the display against the
+tracker. Tools are driven by a real tracker (OpenIGTLink poses) or by the page's controls on a
+synthetic pelvis. Poses are in the pelvic reference array's frame; the pelvis model sits in it
+at ``model_to_reference`` and the page draws the model frame, placed by the registration once
+it exists. Numerics come from :mod:`thrsim.nav`; this module orchestrates them. No I/O.
 """
 
 from __future__ import annotations

@@ -2,21 +2,12 @@
 
 A real ``thrsim serve`` child with the model, Debian's headless Chromium on ``/reaming`` (the
 flags and helpers of :mod:`thrsim.app.drawing_bench`), and a tracker streaming the reamer's pose
-over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee reams. Reported:
-
-* simulator frames per second delivered to the page (the state's frame counter over the window,
-  counted while the trainee reams: runs from the intact bone until the page pauses where the
-  bone is reamed through, repeated until the window is full),
-  the bone's binary frames received and their mean size against sending every element's α as
-  float32 (the whole array), states per second;
-* frames drawn per second (while reaming the page draws every display frame: the reamer turns),
-  Chromium's CPU per drawn frame and the render scale the page ended at (its canvas's resolution,
-  lowered while frames are slow: thrsim/app/static/render_scale.js). The page starts at full
-  resolution, so the count starts once the scale has settled (no change over 3 s of reaming, at
-  most 30 s of warm-up, reported); the page's later tries of a finer scale are counted;
-* latency from an OpenIGTLink pose to the page while the simulator reams: the reamer is re-aimed
-  by a TRANSFORM message and the page timestamps the state showing the new angle and its first
-  drawing (median, p90).
+over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee reams (from the
+intact bone until the page pauses where it is reamed through, repeated until the window is
+full). Reported: simulator frames per second delivered, the bone's binary frames and their size
+against every element's α as float32, frames drawn per second once the page's render scale has
+settled, Chromium's CPU per drawn frame, and the latency from an OpenIGTLink pose to the state
+that shows it and to its first drawing (median, p90).
 """
 
 from __future__ import annotations
@@ -169,7 +160,7 @@ def time_reaming_page(
     drawn_frames, bone_frames = totals[1], totals[3]
     bytes_per_frame = totals[4] / bone_frames if bone_frames else None
     return {
-        "what": "the reaming page with a tracker streaming the reamer at 60 Hz while reaming at the safe zone's centre",
+        "what": f"the reaming page with a tracker streaming the reamer at {TrackingVolumeConfig().rate_hz:g} Hz while reaming at the safe zone's centre",
         "simulator_frames_per_s": totals[5] / elapsed,
         "states_per_s": totals[2] / elapsed,
         "bone_frames_per_s": bone_frames / elapsed,

@@ -1,41 +1,14 @@
 """The trainer's web app: pages, a WebSocket per page, the OpenIGTLink listener, the ticker.
 
-One process serves everything. One trainee, one session: every page that opens a mode's
-WebSocket gets a seat of its own, with its own live session, unless it joins a live session as
-an observer (``/ws/<mode>?observe=SESSION_ID``, the page's ``?observe=``): an instructor's
-read-only view, whose controls are refused. Every ``1/tick_hz`` s the ticker steps every live
-session on a worker thread (a reaming frame costs tens of milliseconds; the event loop keeps
-serving meanwhile) and hands the state to each of its viewers' senders; a viewer's queue holds
-only the newest state, so a slow viewer skips frames instead of slowing the others or growing
-memory. A mode's binary stream (the reaming bone: what changed since what that viewer last
-received, :mod:`thrsim.app.bone_stream`) follows each state; routes, streams and settings of one
-mode are its :class:`~thrsim.app.modes.Mode` hooks, so nothing here names a mode. Tracker poses
-reach every live session through the OpenIGTLink server's tracker state (its ``tracker=``). While a
-session lives its inputs stream to its journal in ``sessions_dir``; it ends when its trainee
-asks (a fresh one starts at once in the same seat, its observers stay), leaves the page (the
-seat closes; its observers are told), or the server stops: it is written atomically there. A
-session in which nothing assessed was done (:attr:`~thrsim.session.reaming.ReamingRecord.assessable`)
-is not saved: an end asked for it is refused and it goes on, one left or stopped is discarded.
-A session a crash left open is closed, marked interrupted, when the server next starts.
-A session that cannot be written (a full disk) is kept, journal and all, and written again every
-``save_retry_s``; at shutdown, after a few more tries, into the temporary folder instead, and only
-then left to its journal, with a log line that says so.
-
-Access (who may talk):
-
-* Host: on a loopback address only requests naming a loopback host (``localhost``, 127.0.0.0/8,
-  ``[::1]``; any port) are answered, so a web page cannot reach the trainer by DNS rebinding; off
-  loopback, the host served, an IP address where every interface is served, and the names given
-  in ``allowed_hosts``. Others get 403 (a WebSocket is closed before it opens).
-* Token: on a loopback address no token is needed unless one is given; on any other address a
-  token is required, and every HTTP request and WebSocket handshake must carry it (``?token=``,
-  a ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``).
-* Origin: WebSocket handshakes from another site's page (a foreign ``Origin``) are refused.
-* Sessions: at most :class:`~thrsim.config.LiveSessionLimit` live at once (a page beyond is
-  refused and may observe one); viewers may end sessions (each writes a file and starts a fresh
-  session) at the rate of :class:`~thrsim.config.SessionEndLimit`, all modes together.
-* OpenIGTLink: the listener is on loopback unless ``igtl_host`` says otherwise, and serves peers
-  in loopback and the ``igtl_allow`` networks only (:class:`~thrsim.config.IgtlConfig`).
+One process serves everything, one live session per trainee's page (a seat), which instructors
+may join read-only (``?observe=SESSION_ID``). Every ``1/tick_hz`` s the ticker steps every live
+session on a worker thread and offers each viewer only the newest state, so a slow viewer skips
+frames instead of slowing the others; a mode's binary stream follows each state. Routes, streams
+and settings of one mode are its :class:`~thrsim.app.modes.Mode` hooks, so nothing here names a
+mode. Sessions stream their inputs to a journal, are saved atomically when they end (an empty one
+is not saved), are retried on a full disk, and a crash's are closed at the next start (see
+:class:`TrainerHub`). Who may talk (host, token, origin, session limits, OpenIGTLink peers) is
+:class:`_AccessGate`'s and :class:`ServeSettings`'s; the docs' Security page explains why.
 """
 
 from __future__ import annotations
@@ -176,7 +149,7 @@ class ServeSettings:
         return IgtlConfig(host=host, port=self.igtl_port, allowed_peers=LOOPBACK_NETWORKS + tuple(map(str, _networks(self.igtl_allow))))
 
     def host_allowed(self, header: str) -> bool:
-        """Whether a request's ``Host`` header names this trainer (see the module docstring)."""
+        """Whether a request's ``Host`` header names this trainer (see :class:`_AccessGate`)."""
         name = host_of(header)
         if is_loopback(name):
             return True
@@ -198,7 +171,17 @@ def _is_address(name: str) -> bool:
 
 class _AccessGate:
     """ASGI middleware: every HTTP request and WebSocket handshake must name this trainer as its host,
-    and carry the token when there is one; WebSocket handshakes must come from this trainer's page."""
+    and carry the token when there is one; WebSocket handshakes must come from this trainer's page.
+
+    * Host: on a loopback address only requests naming a loopback host (``localhost``, 127.0.0.0/8,
+      ``[::1]``; any port) are answered, so a web page cannot reach the trainer by DNS rebinding; off
+      loopback, the host served, an IP address where every interface is served, and the names given
+      in ``allowed_hosts``. Others get 403 (a WebSocket is closed before it opens).
+    * Token: on a loopback address no token is needed unless one is given; on any other address a
+      token is required, on every HTTP request and WebSocket handshake (``?token=``, a
+      ``thrsim_token`` cookie the page gets on first load, or ``Authorization: Bearer``).
+    * Origin: WebSocket handshakes from another site's page (a foreign ``Origin``) are refused.
+    """
 
     def __init__(self, app, settings: ServeSettings):
         self.app = app
@@ -264,9 +247,7 @@ def _headers(scope) -> dict[str, str]:
 class _Viewer:
     socket: WebSocket
     queue: asyncio.Queue = field(default_factory=lambda: asyncio.Queue(maxsize=1))
-    sent: int = 0
     binary_held: Any = None  # what the mode's binary messages gave this viewer so far (reaming: the bone's levels)
-    binary_bytes: int = 0
 
     def offer(self, text: str) -> None:
         if self.queue.full():
@@ -289,7 +270,15 @@ class Seat:
 
 
 class TrainerHub:
-    """The seats (one per trainee's page), their live sessions and viewers, and the save on end."""
+    """The seats (one per trainee's page), their live sessions and viewers, and the save on end.
+
+    A session ends when its trainee asks (a fresh one starts at once in the same seat, its observers
+    stay), leaves the page (its observers are told), or the server stops. One in which nothing
+    assessed was done is not saved: an end asked for it is refused, one left or stopped is
+    discarded. At most :class:`~thrsim.config.LiveSessionLimit` live at once, ends limited by
+    :class:`~thrsim.config.SessionEndLimit`. A session that cannot be written (a full disk) is kept,
+    journal and all, and tried again every ``save_retry_s``; at shutdown, after a few more tries,
+    into the temporary folder, and only then left to its journal, with a log line that says so."""
 
     def __init__(self, settings: ServeSettings, clock=time.monotonic):
         self.settings = settings
@@ -558,12 +547,12 @@ def create_app(settings: ServeSettings) -> FastAPI:
         await asyncio.to_thread(close_interrupted, settings.sessions_dir)  # before the tracker and the ticker compete with it
         igtl_server = None
         if settings.igtl:
-            from thrsim.io.server import NavigationServer
+            from thrsim.io.server import IgtlServer
 
             first = next(iter(hub.prototypes.values()))  # every mode's pelvis is the same synthetic one
             igtl_tracker = _ForwardingTracker(hub, side=first.side, landmarks=first.targets)
             igtl_config = settings.igtl_config()
-            igtl_server = NavigationServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
+            igtl_server = IgtlServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:
@@ -740,10 +729,8 @@ async def _send_states(viewer: _Viewer, seat: Seat) -> None:
     with contextlib.suppress(Exception):  # the receive loop notices the disconnect and cleans up
         while True:
             await viewer.socket.send_text(await viewer.queue.get())
-            viewer.sent += 1
             binary = seat.session.mode.binary
             found = None if binary is None else binary(seat.session.trainer, viewer.binary_held)
             if found is not None:
                 message, viewer.binary_held = found
                 await viewer.socket.send_bytes(message)
-                viewer.binary_bytes += len(message)

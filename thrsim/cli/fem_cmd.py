@@ -14,7 +14,15 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from thrsim.cli.aim import CUP_ANTEVERSION, CUP_INCLINATION, GAMMA_HELP, THETA_HELP, resolve_aim
 from thrsim.cli.output import err_console, format_validation_error, print_json, print_table
 from thrsim.cli.socket_window import WINDOW_HELP, WINDOW_METAVAR, window_settings
-from thrsim.config import CANCELLOUS_PRESETS, ContactConfig, head_diameter_for_size, load_case_config
+from thrsim.config import (
+    CANCELLOUS_PRESETS,
+    FRAME_RATE_HZ,
+    PUSH_FORCE_N,
+    ContactConfig,
+    ReamingCaseConfig,
+    head_diameter_for_size,
+    load_case_config,
+)
 from thrsim.data.checkpoint import CHECKPOINT_EVERY_S, checkpoint_path
 from thrsim.errors import ThrsimInputError
 
@@ -29,8 +37,12 @@ def fem(
     cup_inclination: float | None = CUP_INCLINATION,
     cup_anteversion: float | None = CUP_ANTEVERSION,
     out: Path = typer.Option(..., "--out", help="case file to write (.h5)", metavar="CASE.h5"),
-    frames: int | None = typer.Option(None, "--frames", help="frames to simulate at 60 per simulated second [default: 120]"),
-    force: float | None = typer.Option(None, "--force", help="axial push force in N [default: 230]"),
+    frames: int | None = typer.Option(
+        None,
+        "--frames",
+        help=f"frames to simulate at {FRAME_RATE_HZ:g} per simulated second [default: {ReamingCaseConfig.model_fields['frames'].default}]",
+    ),
+    force: float | None = typer.Option(None, "--force", help=f"axial push force in N [default: {PUSH_FORCE_N:g}]"),
     feed: float | None = typer.Option(
         None,
         "--feed",

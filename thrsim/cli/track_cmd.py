@@ -43,9 +43,9 @@ def _log_line(event: str, payload: dict, json_log: bool) -> None:
 
 
 async def _serve(config: IgtlConfig, duration: float | None, json_log: bool, interval: float) -> dict:
-    from thrsim.io.server import NavigationServer  # asyncio server: loaded only when tracking
+    from thrsim.io.server import IgtlServer  # asyncio server: loaded only when tracking
 
-    server = NavigationServer(config)
+    server = IgtlServer(config)
     try:
         host, port = await server.start()
     except OSError as error:

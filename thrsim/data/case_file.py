@@ -1,37 +1,14 @@
 """The ground-truth case file: one HDF5 file per reaming case.
 
-Layout::
-
-    attrs   format="thrsim-case", version, inclination_deg, anteversion_deg, force_n,
-            omega_rad_s, frame_dt_s, config (JSON), config_hash, versions (JSON),
-            thrsim_version, frames, elements, plus any extra attrs (end_reason, ...)
-    /mesh/nodes (N,3) float64 m   /mesh/tets (E,4) int32   /mesh/fixed_nodes (K,) int32
-    /mesh/node_sets/<name>
-    /frames/time (T,) float64 s
-    /frames/status (T,E) uint8, 1 active 0 removed
-    /frames/peeq (T,E) float32
-    /frames/von_mises (T,E) float32 Pa
-    /frames/reamer_position (T,3) float64 m
-    /frames/reamer_axis (3,) float64
-    /frames/energy (T,k) float64 J, attr names = kinetic, internal, ...
-    /frames/contact_force (T,3) float64 N, within-frame mean of the contact force on the bone (optional)
-    /frames/reamer_axial (T,3) float64 m, within-frame mean, min and max of the reamer's axial
-        coordinate s along D (optional, solver ≥ 0.3.0)
-    /frames/contact_force_axial (T,) float64 N, within-frame mean of the contact force along D (optional)
-    /frames/reaction_force (T,3) float64 N, within-frame mean of the bone's force on the reamer (optional)
-    /frames/motor_torque (T,) float64 N·m, within-frame mean torque the motor delivers about D (optional)
-    /frames/push_force (T,) float64 N, within-frame mean push along D: the set force, or what a prescribed feed takes (optional)
-    /mesh/material (E,) uint8, per-element material, attribute names: JSON list (optional; none: all cortical)
-    /frames/contact_fraction (T,) float64, fraction of the frame's steps with contact (optional)
-    /frames/damage (T,E) float32, damage D in [0, 1]: Johnson–Cook evolution plus the teeth's
-        cutting; an element is deleted at 1 (optional, thrsim ≥ 0.3.1)
-    /frames/damage_initiation (T,E) float32, Johnson–Cook initiation ω ≥ 0 (D grows once it
-        reaches 1; optional, thrsim ≥ 0.3.1)
-
-Per-element datasets are chunked one frame per chunk and gzip-compressed (level 1), so a
-reader streams frames without loading the whole case. Frame 0 is the intact bone before
-contact. Files are written to a temporary name in the target folder, fsynced and renamed:
-a reader never sees a half-written case.
+Attributes (the case's orientation, force, spin, frame time, configuration and its hash, the
+versions, frame and element counts, how it ended), the mesh (``/mesh``: nodes in m, tets, fixed
+nodes, node sets, materials) and per frame (``/frames``: time, each element's status, PEEQ, von
+Mises stress, damage and its initiation, the reamer's position and axial motion, energies,
+contact, reaction and push forces, motor torque); the full layout, with units and the versions
+that added each dataset, is the docs' Data formats page (case file). Per-element datasets are
+chunked one frame per chunk and gzip-compressed (level 1), so a reader streams frames without
+loading the whole case. Frame 0 is the intact bone before contact. Files are written to a
+temporary name in the target folder, fsynced and renamed: a reader never sees a half-written case.
 """
 
 from __future__ import annotations

@@ -1,27 +1,13 @@
 """One executor interface for a laptop and a cluster: a local process pool or a Dask scheduler.
 
 Both run the same task function (:func:`thrsim.data.generate.run_one_case`) and hand back
-futures with ``.result()``; :meth:`Executor.as_completed` yields them as they finish.
-
-Local (default): ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn`` start method;
-each worker limits its numerical threads to cores ÷ workers and, on Linux, asks the kernel to
-kill it when the parent dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the parent leaves no
-orphan solver running. A worker killed mid-case breaks the pool; the caller restarts it
-(:meth:`LocalExecutor.restart`) and resubmits the cases that were in flight. Workers ignore
-Ctrl-C (the terminal sends it to them too): the caller decides, and :meth:`LocalExecutor.stop`
-ends them at once.
-
-Dask (``--scheduler tcp://HOST:PORT``): start a scheduler and workers, for example::
-
-    dask scheduler --host 10.0.0.1 --port 8786             # the head node's private interface
-    dask worker tcp://10.0.0.1:8786 --nworkers 4 --nthreads 1   # on every compute node
-
-See :data:`DASK_SECURITY` (appended below) before starting a scheduler anywhere but loopback.
-
-Every worker needs the same thrsim installed, and the output directory must be on a file
-system every worker sees at the same path (workers write the case files; the client writes
-the manifest). The client connects with a short timeout and fails fast when the scheduler is
-unreachable. Dask reschedules a task whose worker died.
+futures with ``.result()``; :meth:`Executor.as_completed` yields them as they finish. Local
+(:class:`LocalExecutor`): spawned worker processes that die with their parent, whose pool the
+caller restarts when a worker is killed mid-case. Dask (``--scheduler tcp://HOST:PORT``,
+:class:`DaskExecutor`): every worker needs the same thrsim and sees the output folder at the
+same path; the client fails fast when the scheduler is unreachable, and Dask reschedules a task
+whose worker died. Read :data:`DASK_SECURITY` (appended below) before starting a scheduler
+anywhere but loopback.
 """
 
 from __future__ import annotations
@@ -103,7 +89,12 @@ def _worker_init(threads: int) -> None:
 
 
 class LocalExecutor:
-    """A process pool on this machine."""
+    """A process pool on this machine: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
+    start method. Each worker limits its numerical threads to cores ÷ workers and, on Linux, asks
+    the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the
+    parent leaves no orphan solver running. A worker killed mid-case breaks the pool; the caller
+    restarts it (:meth:`restart`) and resubmits the cases in flight. Workers ignore Ctrl-C (the
+    terminal sends it to them too): the caller decides, and :meth:`stop` ends them at once."""
 
     def __init__(self, workers: int = 1):
         if workers < 1:
@@ -156,7 +147,13 @@ class LocalExecutor:
 
 
 class DaskExecutor:
-    """Tasks on a Dask distributed scheduler (one task per case)."""
+    """Tasks on a Dask distributed scheduler (one task per case). Start a scheduler and workers, e.g.::
+
+        dask scheduler --host 10.0.0.1 --port 8786             # the head node's private interface
+        dask worker tcp://10.0.0.1:8786 --nworkers 4 --nthreads 1   # on every compute node
+
+    Workers write the case files and the client the manifest, so the output folder must be on a
+    file system every worker sees at the same path."""
 
     def __init__(self, address: str, *, connect_timeout_s: float = 5.0, worker_wait_s: float = 60.0):
         if "://" not in address:

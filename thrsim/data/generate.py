@@ -1,24 +1,13 @@
 """Generate a sweep of ground-truth cases into a dataset directory, resumably.
 
-Directory layout::
-
-    DIR/manifest.json        written atomically by the coordinating process after every case
-    DIR/cases/<case_id>.h5   one case file (thrsim.data.case_file) per physical case
-    DIR/.lock                held (flock) while a run is going on
-
-Safety: a worker runs the solver into ``cases/<case_id>.h5.<random>.part``, validates it
-(:func:`validate_case`) and checks its orientation and force, then renames it onto
-``cases/<case_id>.h5``: a file under its final name is always complete. The manifest records
-per case its parameters, split, solver and version, config hash, wall time, status, frame
-count, removed count, file SHA-256 and data digest. Rerunning the same command skips cases
-whose file matches the manifest's checksum, adopts complete files that the manifest missed
-(the coordinator was killed between the rename and the manifest write), and redoes the rest.
-Killing any process at any moment loses at most the cases in flight. Ctrl-C (or SIGTERM, which
-``thrsim dataset`` turns into one) and an output that cannot be written (a full disk) stop the
-sweep at once: the workers are ended and every case finished by then is in the manifest.
-
-A directory made by a different configuration (another solver, frame count or any physics
-setting outside the sweep axes) is refused rather than mixed.
+The directory holds ``manifest.json`` (every case's parameters, split, solver, checksums and how it
+ended; written atomically by the coordinating process after every case), ``cases/<case_id>.h5``
+and a ``.lock`` held while a run goes on (layout: the docs' Data formats page). A worker solves
+into a temporary ``.part`` file, validates it and renames it, so a file under its final name is
+complete. Rerunning the same command skips cases that match the manifest, adopts complete files
+it missed and redoes the rest: killing any process at any moment loses at most the cases in
+flight. Ctrl-C, SIGTERM and a full disk stop the sweep at once, with every finished case in the
+manifest. A directory made by another configuration is refused rather than mixed.
 """
 
 from __future__ import annotations

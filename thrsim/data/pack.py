@@ -1,35 +1,13 @@
 """The learning pack: a dataset reduced to what the learned simulator reads, in one small HDF5 file.
 
 A case file keeps PEEQ and von Mises per element and frame (9–15 MB per case at the default
-mesh, about 450 MB for the default sweep). The learned simulator reads only the label α
-[7.2.1, eq. 47], which elements are removed, and the reamer's path. A pack keeps exactly that for
-every complete case of a dataset, with the mesh once, so that a trained model can ship the data
-it learned from beside its weights, and be re-trained and evaluated from a clone without hours
-of solver runs.
-
-Layout::
-
-    attrs   format="thrsim-learning-pack", version, alpha_levels, damage_levels, labels (JSON LabelConfig),
-            identity (JSON, the dataset's), identity_hash, split_rule (JSON), thrsim_version,
-            versions (JSON), updated
-    /mesh                      the case files' mesh group (the first case's, in a pack of socket windows)
-    /cases/<case_id>           attrs: the case file's attributes, split, aliases, source_file,
-                               source_sha256, source_data_digest, wall_s
-        alpha     (E,T) uint8  floor(α·alpha_levels) of active elements, one element's history
-                               per row (the far field is nearly constant in time, so rows
-                               compress well)
-        removed_frame (E,) int16   first frame the element is removed in (STATUS = 0), −1 never
-        damage, damage_initiation (E,T) uint8   round(D·damage_levels), round(ω·damage_levels),
-                               where the case file records them (thrsim ≥ 0.3.1)
-        time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
-                               as in the case file
-        mesh                   the case's own mesh group where it is not the pack's (version 2: the
-                               socket's windows, one mesh each); version 1 packs hold one mesh
-
-α is stored in levels of 1/50, read back at the level's centre (error ≤ 0.01, half the training
-noise; the removal threshold 0.3 is a level boundary), damage in levels of 1/100 (0 and 1 exact):
-the levels are what makes a pack small (sizes: docs, "Benchmarks and validation"). The labels'
-constants are fixed when the pack is made; reading it with other constants is refused.
+mesh). The learned simulator reads only the label α [7.2.1, eq. 47], which elements are removed,
+and the reamer's path; a pack keeps exactly that for every complete case, with the mesh once, so
+a trained model can ship the data it learned from and be re-trained and evaluated from a clone
+without hours of solver runs (layout: :func:`write_pack`). α is stored in levels of 1/50, read
+back at the level's centre (error ≤ 0.01, half the training noise; the removal threshold 0.3 is
+a level boundary), damage in levels of 1/100 (0 and 1 exact): the levels make a pack small. The
+labels' constants are fixed when the pack is made; reading it with other constants is refused.
 """
 
 from __future__ import annotations
@@ -224,6 +202,25 @@ def write_pack(
     gathered: the pack must come from the same dataset identity, labels and mesh, and a case
     present in both must have the same data digest. Each file is written to a temporary name
     and renamed.
+
+    Layout::
+
+        attrs   format="thrsim-learning-pack", version, alpha_levels, damage_levels, labels (JSON LabelConfig),
+                identity (JSON, the dataset's), identity_hash, split_rule (JSON), thrsim_version,
+                versions (JSON), updated
+        /mesh                      the case files' mesh group (the first case's, in a pack of socket windows)
+        /cases/<case_id>           attrs: the case file's attributes, split, aliases, source_file,
+                                   source_sha256, source_data_digest, wall_s
+            alpha     (E,T) uint8  floor(α·alpha_levels) of active elements, one element's history
+                                   per row (the far field is nearly constant in time, so rows
+                                   compress well)
+            removed_frame (E,) int16   first frame the element is removed in (STATUS = 0), −1 never
+            damage, damage_initiation (E,T) uint8   round(D·damage_levels), round(ω·damage_levels),
+                                   where the case file records them (thrsim ≥ 0.3.1)
+            time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
+                                   as in the case file
+            mesh                   the case's own mesh group where it is not the pack's (version 2: the
+                                   socket's windows, one mesh each); version 1 packs hold one mesh
     """
     from thrsim.data.generate import load_dataset, read_manifest
 

@@ -1,26 +1,12 @@
 """Sweep planning: angle lists, the case grid, γ = 0 deduplication, the push-force axis, splits.
 
-Lists (``--inclinations``, ``--anteversions``, ``--forces``, ...) are comma-separated values
-and ``start:stop:step`` ranges with the stop included (``0:180:15`` is 0, 15, ..., 180), mixed
-freely (``0:30:15,45``). Duplicates are dropped.
-
-γ = 0: the reamer axis D = (sin γ cos θ, sin γ sin θ, −cos γ) is (0, 0, −1) whatever θ, so
-every γ = 0 case of one force and element size is one physical case: it is run once, recorded
-with θ = 0, and the anteversions it stands for are listed in the manifest (``aliases``).
-
-Default sweep (:class:`thrsim.config.SweepConfig`, the one place its numbers are defined):
-inclinations 0, 15, 30, 45 × anteversions 0:180:15 at 230 N (40 physical cases), plus 150 N and
-310 N on the anteversions 0, 90, 180 of every inclination (10 physical cases each): 60 cases.
-
-Default split, by orientation only (all forces and element sizes of one orientation share its
-split, so a test orientation is never seen in training):
-
-* test: θ ∈ {45°, 135°} for γ > 0 (6 orientations of the default grid),
-* validation: θ = 90° for γ > 0 (3 orientations),
-* train: everything else, including the single γ = 0 case (31 orientations).
-
-Orientations off the 15° grid follow the same rule (their θ is simply not in the test or
-validation sets, so they train); :class:`SplitRule` changes the sets.
+Lists are comma-separated values and ``start:stop:step`` ranges, stop included, mixed freely
+(:func:`parse_list`). γ = 0: the reamer axis D = (sin γ cos θ, sin γ sin θ, −cos γ) is (0, 0, −1)
+whatever θ, so every γ = 0 case of one force and element size is one physical case: it is run
+once, recorded with θ = 0, and the anteversions it stands for are listed in the manifest
+(``aliases``). The default sweep's numbers are :class:`thrsim.config.SweepConfig`'s (60 cases).
+The split is by orientation only, so a test orientation is never seen in training
+(:class:`SplitRule`).
 """
 
 from __future__ import annotations
@@ -164,7 +150,12 @@ class CaseSpec:
 
 @dataclass(frozen=True)
 class SplitRule:
-    """Train/validation/test by orientation; γ = 0 (one physical case) trains by default."""
+    """Train/validation/test by orientation; γ = 0 (one physical case) trains by default.
+
+    All forces and element sizes of one orientation share its split. By default, test: θ ∈ {45°,
+    135°} for γ > 0 (6 orientations of the default grid); validation: θ = 90° for γ > 0 (3);
+    train: everything else, the single γ = 0 case included (31). Orientations off the 15° grid
+    follow the same rule (their θ is in neither set, so they train)."""
 
     test_anteversions_deg: tuple[float, ...] = (45.0, 135.0)
     validation_anteversions_deg: tuple[float, ...] = (90.0,)

@@ -1,17 +1,13 @@
 """The default acetabular bone: a spherical-shell patch around the cavity pole, meshed by gmsh.
 
-Bone frame: origin at the centre of the acetabular sphere, +z out of the acetabulum
-toward the surgeon, the patch around −z. The patch is the shell between the inner (articular)
-sphere and the outer sphere, cut by a cone of the given half-angle about −z, so its side faces
-are conical and meet both spheres at right angles.
-
-Node sets: ``inner`` (the articular face that is reamed), ``outer`` (the bottom face, fixed by
-the encastre [5.3.3]: the mesh's fixed nodes) and ``side`` (cuts through bone that continues in
-reality; the solver holds them on an elastic foundation by default, see
-:class:`thrsim.config.BonePatchConfig` and :mod:`thrsim.physics.support`). The left hip is the mirror of the right
-across the bone frame's x = 0 plane, standing in for the sagittal plane.
-
-Deterministic: see :mod:`thrsim.geometry.gmsh_model`.
+Bone frame: origin at the centre of the acetabular sphere, +z out of the acetabulum toward the
+surgeon, the patch around −z: the shell between the inner (articular) and outer spheres, cut by a
+cone of the given half-angle about −z, so its side faces meet both spheres at right angles.
+Node sets: ``inner`` (the articular face that is reamed), ``outer`` (fixed by the encastre
+[5.3.3]: the mesh's fixed nodes) and ``side`` (cuts through bone that continues; held on an
+elastic foundation by default, :mod:`thrsim.physics.support`). The left hip is the mirror of the
+right across x = 0, standing in for the sagittal plane. Deterministic:
+:mod:`thrsim.geometry.gmsh_model`.
 """
 
 from __future__ import annotations

@@ -3,14 +3,9 @@
 For verification problems and tests (patch test, wave in a column, single-element checks, the
 CalculiX cross-check), where a known, regular (or deliberately distorted) mesh is wanted
 without gmsh. Nodes are numbered x fastest, then y, then z; every tet is positively oriented.
-
-* ``six`` (Kuhn / Freudenthal): each cube split along its main diagonal into 6 congruent tets;
-  conforming across cells without any alternation.
-* ``five``: one central tet and four corner tets; the cell pattern alternates in a
-  checkerboard so that face diagonals match between neighbours.
-
-Node sets: ``xmin``, ``xmax``, ``ymin``, ``ymax``, ``zmin``, ``zmax`` (the six faces),
-``boundary`` (their union) and ``interior``.
+``six`` (Kuhn / Freudenthal) splits each cube along its main diagonal into 6 congruent tets;
+``five`` into a central tet and four corner tets, alternating in a checkerboard so that face
+diagonals match. Node sets: ``xmin`` … ``zmax`` (the six faces), ``boundary`` and ``interior``.
 """
 
 from __future__ import annotations

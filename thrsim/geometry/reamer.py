@@ -1,21 +1,13 @@
 """The rigid acetabular reamer: a hemispherical head carrying cutting teeth.
 
-Reamer frame: origin at the centre of the head sphere (the reamer's *position*, as in the case files),
-local +z along the axis D, pointing from the reamer into the bone, so the cutting dome is the
-hemisphere z ≥ 0 with its pole at (0, 0, R).
-
-Tooth layout (56 teeth by default). Each tooth's cutting edge is an arc along a meridian of the
-head, modelled for contact as a ridge: rounded with radius ``edge_radius`` around an arc of
-radius ``edge_axis_radius = R + protrusion − edge_radius``, flat flanks below that arc down to the
-head (:mod:`thrsim.physics.contact`), so the edge stands ``protrusion`` proud of the head. Tooth k sits at polar angle φ_k (from the pole), evenly spaced from
-``tooth_first_polar_deg`` to ``tooth_last_polar_deg``, and at azimuth ψ_k = k × golden angle
-(137.5°), which spreads successive teeth evenly around the axis. Every edge is ``tooth_length``
-long (clipped at the pole and the equator), several times the polar spacing: every point of
-the profile between 10° and 80° from the pole is swept by 5–6 teeth per revolution, the pole
-cap by one, the last 0.2° before the equator by none. Teeth are not counted in the mass.
-
-Mass: the thesis's simplified solid head (steel, 7800 kg/m³) unless a wall thickness is given
-for a hollow one: m = ρ·(2π/3)(R³ − (R − w)³). The default 45 mm solid head weighs 0.186 kg.
+Reamer frame: origin at the centre of the head sphere (the reamer's *position*, as in the case
+files), local +z along the axis D, pointing from the reamer into the bone, so the cutting dome is
+the hemisphere z ≥ 0 with its pole at (0, 0, R). Each tooth's cutting edge is an arc along a
+meridian, modelled for contact as a ridge standing ``protrusion`` proud of the head
+(:mod:`thrsim.physics.contact`); tooth k sits at evenly spaced polar angles φ_k and at azimuth
+ψ_k = k × golden angle (137.5°), so every point of the profile between 10° and 80° from the pole
+is swept by 5–6 teeth per revolution. Mass: the thesis's solid steel head, or a hollow one with a
+wall thickness; teeth are not counted. The layout's numbers: the docs' Physics page (Reamer).
 """
 
 from __future__ import annotations

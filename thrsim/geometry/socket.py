@@ -1,24 +1,14 @@
 """The layered anatomical acetabulum (solver 0.5), meshed by gmsh with conforming layers.
 
 Built with OpenCASCADE in the bone frame of :class:`thrsim.config.SocketConfig` (millimetres
-inside gmsh, metres out):
-
-* the bone block: a ball about the socket centre reaching ``bone_stock_mm`` beyond the largest
-  planned reamer, cut by the opening plane z = rim height (the rim) and by the medial wall's
-  pelvic face (a plane normal to the fossa's axis);
-* the cavity: the articular sphere, plus the acetabular fossa, a recess ``fossa_depth_mm`` deep
-  within ``fossa_half_angle_deg`` of the fossa's axis;
-* the layers, by fragmenting the block: the subchondral plate between the articular sphere and an
-  off-centre sphere (thickness t0 + δ·cos of the angle to the dome), the medial cortex along the
-  pelvic face; both cortical, the rest cancellous.
-
-Node sets: ``articular`` (the whole cavity face, the fossa included), ``medial_wall`` (the pelvic
-face), ``rim`` (the opening plane's bone face) and ``supported`` (the ball's face: cuts through bone
-that continues, held by the solver: the mesh's fixed nodes). The left hip is the mirror across x = 0.
-
-A window (``window_polar_deg`` set) keeps only the bone within a cone about the socket centre: a
-piece of the layered wall the size of the thesis's patch, for cases that ream one region at a
-prescribed feed. Its cone faces form ``window_side``, held like ``supported``.
+inside gmsh, metres out): a ball of bone about the socket centre, cut by the rim's opening plane
+and the medial wall's pelvic face; the cavity (the articular sphere and the fossa's recess); and
+the layers, by fragmenting the block: an off-centre subchondral plate thicker under the dome and
+the medial cortex, both cortical, the rest cancellous. Node sets: ``articular`` (the cavity face),
+``medial_wall``, ``rim`` and ``supported`` (cuts through bone that continues: the mesh's fixed
+nodes). The left hip is the mirror across x = 0. A window (``window_polar_deg``) keeps only the
+bone within a cone about the socket centre, a piece the size of the thesis's patch; its cone
+faces form ``window_side``, held like ``supported``. Dimensions and sources: the docs' Physics page.
 """
 
 from __future__ import annotations

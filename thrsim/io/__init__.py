@@ -1,5 +1,5 @@
 """Input/output at the edge: the OpenIGTLink codec and the asyncio navigation server."""
 
-from thrsim.io.server import NAVIGATION_STATE, NavigationServer
+from thrsim.io.server import NAVIGATION_STATE, IgtlServer
 
-__all__ = ["NAVIGATION_STATE", "NavigationServer"]
+__all__ = ["NAVIGATION_STATE", "IgtlServer"]

@@ -1,18 +1,13 @@
 """OpenIGTLink codec, written by hand.
 
-Why not pyigtl (the PyPI package) on the server side: it does not verify the CRC-64, silently
-drops message types it does not know (STATUS, SENSOR, ...), blocks in ``send_message(wait=True)``
-without a peer, serves one client at a time from a polling thread and installs signal handlers
-(pyigtl 0.3.4). A trainer that must stay up through malformed input needs
-every byte checked and nothing blocking, so the framing lives here and the asyncio server in
-:mod:`thrsim.io.server` uses it; pyigtl stays a test peer.
-
-Wire format (all big-endian): a 58-byte header (u16 version, char[12] type, char[20] device,
-u64 timestamp = seconds << 32 | fraction, u64 body size, u64 CRC-64 ECMA-182 of the body), then
-the body. Header version 2 bodies are: 12-byte extended header (u16 its size, u16 metadata
-header size, u32 metadata body size, u32 message id), content, metadata header (u16 count, then
-count × (u16 key size, u16 encoding, u32 value size)), metadata body (keys and values).
-TRANSFORM translations are in millimetres on the wire, as in 3D Slicer and PLUS.
+pyigtl (the PyPI package, 0.3.4) does not verify the CRC-64, drops message types it does not
+know (STATUS, SENSOR, ...), blocks without a peer, serves one client at a time and installs
+signal handlers; a trainer that must stay up through malformed input needs every byte checked
+and nothing blocking, so the framing lives here (:mod:`thrsim.io.server` uses it; pyigtl stays a
+test peer). Wire format, big-endian: a 58-byte header (u16 version, char[12] type, char[20]
+device, u64 timestamp = seconds << 32 | fraction, u64 body size, u64 CRC-64 ECMA-182 of the
+body), then the body; version 2 bodies wrap the content in an extended header and metadata
+(:func:`decode_body`). TRANSFORM translations are in millimetres, as in 3D Slicer and PLUS.
 """
 
 from __future__ import annotations
@@ -129,7 +124,10 @@ def parse_header(raw: bytes) -> Header:
 
 
 def decode_body(header: Header, body: bytes, crc: int | None = None) -> Message:
-    """Check the CRC (``crc`` may be precomputed off the event loop) and split a v2 body."""
+    """Check the CRC (``crc`` may be precomputed off the event loop) and split a v2 body: a 12-byte
+    extended header (u16 its size, u16 metadata header size, u32 metadata body size, u32 message
+    id), the content, the metadata header (u16 count, then count × (u16 key size, u16 encoding,
+    u32 value size)) and the metadata body (keys and values)."""
     if len(body) != header.body_size:
         raise IgtlProtocolError(f"body is {len(body)} bytes, header says {header.body_size}", fatal=True)
     actual = crc64(body) if crc is None else crc

@@ -2,36 +2,10 @@
 
 Each connection has its own task, so a stalled or hostile peer only ever costs its own
 connection: any error while serving it (ours included) ends at that connection, with a STATUS
-reply where the stream allows one. Per message:
-
-* TRANSFORM (``ReamerToReference``, ``ReferenceToTracker``, ...; translation in mm) and SENSOR
-  (force in N) update the shared :class:`~thrsim.nav.tracker_state.TrackerState`, and the sender
-  gets a STRING message named ``NavigationState`` with the state as JSON;
-* a bad CRC-64 or unusable content gets a STATUS reply (code 9 checksum error, 10
-  configuration error) and the connection goes on: its framing is intact;
-* a well-formed message of a type the trainer does not use is counted and ignored;
-* a TRANSFORM under a device name beyond the known ones and ``max_other_devices`` others gets a
-  STATUS reply (10) and is not stored: the shared tracker state stays bounded;
-* an unsupported header version, a non-ASCII type, a body above ``max_body_bytes`` or a message
-  that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
-  where possible, then that connection (only) is closed.
-
-Every bad message (and a peer that closes mid-message or stalls) costs one warning line in the
-log, naming the peer and why, never a traceback; only a bug of ours logs one.
-
-Peers: a connection from an address outside ``allowed_peers`` (loopback alone by default) is
-closed at once, with one log line and no reply.
-
-Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
-STATUS (7, time out) and is closed. A client earns its slot by sending what the trainer uses: a
-pose of a known device or a force reading. When every slot is taken, a newcomer takes the slot
-of the oldest connection that has earned nothing in the ``reclaim_after_s`` since it connected,
-else of the one whose last useful message is oldest, if older than ``idle_timeout_s`` (that
-one gets STATUS 7); with neither, the newcomer gets STATUS 6 (busy) and is closed. So sockets that
-stay idle, or talk without tracking anything, cannot lock a tracker out, and a tracker keeps
-its slot through a pause (an occluded tool) shorter than the idle timeout.
-
-Large bodies are checksummed in a worker thread, so the event loop never waits on computation.
+reply where the stream allows one, and one warning line in the log naming the peer and why
+(a traceback only for a bug of ours). Large bodies are checksummed in a worker thread, so the
+event loop never waits on computation. What each message gets, and who keeps a slot:
+:class:`IgtlServer`.
 """
 
 from __future__ import annotations
@@ -60,7 +34,7 @@ _CRC_IN_THREAD_BYTES = 64 * 1024
 class _Connection:
     """One peer: its writer and the header version to answer in."""
 
-    def __init__(self, server: NavigationServer, writer: asyncio.StreamWriter):
+    def __init__(self, server: IgtlServer, writer: asyncio.StreamWriter):
         self.server = server
         self.writer = writer
         peer = writer.get_extra_info("peername")
@@ -95,8 +69,35 @@ class _Connection:
         self.close()
 
 
-class NavigationServer:
-    """Serve many OpenIGTLink clients at once; see the module docstring for the protocol."""
+class IgtlServer:
+    """Serve many OpenIGTLink clients at once.
+
+    Per message:
+
+    * TRANSFORM (``ReamerToReference``, ``ReferenceToTracker``, ...; translation in mm) and SENSOR
+      (force in N) update the shared :class:`~thrsim.nav.tracker_state.TrackerState`, and the sender
+      gets a STRING message named ``NavigationState`` with the state as JSON;
+    * a bad CRC-64 or unusable content gets a STATUS reply (code 9 checksum error, 10
+      configuration error) and the connection goes on: its framing is intact;
+    * a well-formed message of a type the trainer does not use is counted and ignored;
+    * a TRANSFORM under a device name beyond the known ones and ``max_other_devices`` others gets a
+      STATUS reply (10) and is not stored: the shared tracker state stays bounded;
+    * an unsupported header version, a non-ASCII type, a body above ``max_body_bytes`` or a message
+      that stalls past ``io_timeout_s`` means the stream cannot be resynchronised: a STATUS reply
+      where possible, then that connection (only) is closed.
+
+    Peers: a connection from an address outside ``allowed_peers`` (loopback alone by default) is
+    closed at once, with one log line and no reply.
+
+    Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
+    STATUS (7, time out) and is closed. A client earns its slot by sending what the trainer uses: a
+    pose of a known device or a force reading. When every slot is taken, a newcomer takes the slot
+    of the oldest connection that has earned nothing in the ``reclaim_after_s`` since it connected,
+    else of the one whose last useful message is oldest, if older than ``idle_timeout_s`` (that
+    one gets STATUS 7); with neither, the newcomer gets STATUS 6 (busy) and is closed. So sockets that
+    stay idle, or talk without tracking anything, cannot lock a tracker out, and a tracker keeps
+    its slot through a pause (an occluded tool) shorter than the idle timeout.
+    """
 
     def __init__(
         self,
@@ -162,7 +163,7 @@ class NavigationServer:
 
     def _take_slot(self, connection: _Connection) -> bool:
         """Admit ``connection``; when full, reclaim the slot of a connection that has not earned it
-        (see the module docstring), or refuse the newcomer."""
+        (see the class docstring), or refuse the newcomer."""
         if len(self._connections) >= self.config.max_clients:
             now = asyncio.get_running_loop().time()
             never_earned = [c for c in self._connections if c.earned_at is None and now - c.connected_at >= self.config.reclaim_after_s]

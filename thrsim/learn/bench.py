@@ -1,24 +1,13 @@
 """Speed of the learned simulator (``thrsim bench --learned``); figures, never unit-test assertions.
 
-* ``production``: median ms per frame of :meth:`ReamingSimulator.step` (region + features +
-  network + threshold) plus the reamer feed's own cost (regressor and resting on the bone,
-  ``feed_ms_median``) on the default mesh, the reamer pushed along γ 15°, θ 30° at a steady
-  feed, so that the region depends on the mesh, not on what the weights learned; the network
-  eager, as ``thrsim ream`` runs it.
-* ``production_compiled``: the same with the network compiled (``torch.compile``, as
-  ``thrsim serve`` runs it; :mod:`thrsim.learn.compiled`), and the seconds compiling took.
-* ``thesis_way``: the thesis's configuration run as its Algorithm 1 does: its layer sizes and
-  features, every element every frame, the graph input rebuilt from the mesh each frame.
-* ``larger_mesh``: the production step on patches of about 4× the elements at the same element
-  size: ``thicker`` (an 8 mm shell: the same articular surface, bone continuing deeper) and
-  ``wider`` (twice the half-angle: 4× the articular area). The reamer (45 mm) nearly conforms
-  to the 44 mm cavity, so at first contact the whole articular surface lies within the teeth's
-  reach: the updated region follows the reamed area, not the element count.
-
-Without a model the networks are built with their initial weights (and a constant advance);
-with a model its own networks are timed on its mesh and, unchanged (they act on local features),
-on the larger meshes. Initial weights are a poor stand-in since the removal head: their hazard
-removes the whole region every frame, which keeps the region thin; time a trained model.
+``production``: median ms per frame of :meth:`ReamingSimulator.step` plus the reamer feed's own
+cost, on the default mesh, the reamer pushed along γ 15°, θ 30° at a steady feed (so the region
+depends on the mesh, not on what the weights learned), the network eager as ``thrsim ream`` runs
+it; ``production_compiled``: the same compiled, as ``thrsim serve`` runs it, with the seconds
+compiling took; ``thesis_way``: the thesis's Algorithm 1 (every element every frame, the graph
+rebuilt each frame); ``larger_mesh``: patches of about 4× the elements, ``thicker`` and
+``wider``. Without a model the networks keep their initial weights, whose removal hazard empties
+the region every frame: time a trained model. Figures: the docs' Benchmarks and validation page.
 """
 
 from __future__ import annotations

@@ -1,17 +1,13 @@
 """The network compiled for interactive use: ``torch.compile`` (TorchInductor's C++ backend).
 
-Eager PyTorch runs each message-passing step as a chain of separate kernels (gathers, a
-matrix product, ReLU, LayerNorm, the residual add, ``index_add_``), each one a pass over the
-region's ~8,000 edges or ~3,000 nodes; at a latent width of 32 those passes, not the arithmetic,
-set the time. Inductor fuses each chain into one C++ loop. On the 2-core CPU of docs/benchmarks.md the
-learned step at γ 15° went from 14.4 to 8.6 ms per frame with the same removed elements.
-
-Shapes are symbolic (``dynamic=True``): the region changes size every frame and must not trigger
-a recompile. Compiling takes seconds (tens on a cold cache, which Inductor keeps on disk) and
-needs a C++ compiler, so it is opt-in, and any failure leaves the eager network in place with
-the reason, never an error: the simulator works either way. Inductor's cache goes to the user's
-cache folder (:func:`thrsim.cache.cache_dir`), not to its default ``/tmp/torchinductor_<user>``,
-a name any other user of the machine can take first; TORCHINDUCTOR_CACHE_DIR still wins.
+Eager PyTorch runs each message-passing step as a chain of separate kernels, each a pass over the
+region's edges or nodes; at a latent width of 32 those passes, not the arithmetic, set the time,
+and Inductor fuses each chain into one C++ loop (speed: the docs' Learned simulator page,
+compiled network). Shapes are symbolic (``dynamic=True``): the region changes size every frame
+and must not trigger a recompile. Compiling takes seconds and needs a C++ compiler, so it is
+opt-in, and any failure leaves the eager network in place with the reason, never an error.
+Inductor's cache goes to the user's cache folder (:func:`thrsim.cache.cache_dir`), not to
+``/tmp/torchinductor_<user>``, a name another user can take first; TORCHINDUCTOR_CACHE_DIR wins.
 """
 
 from __future__ import annotations

@@ -1,19 +1,14 @@
 """Table-10-style evaluation [7.3.5]: precision, recall and F1 of newly removed elements after rollouts.
 
-Windows: from several start frames of every case (every ``start_stride`` frames), the model
-rolls out from the ground truth at the start; at horizons 1, 30 and 60 the elements it has
-removed since the start are compared with those the solver removed. A case that ends
-(perforated, passed through, or simply recorded fewer frames) before a start's longest horizon
-contributes that start's rollout to its last frame under "end" instead. Horizon 1 is scored from
-every ``one_step_stride``-th frame as well (one step each, so cheap): one frame's removal
-varies from frame to frame, and a handful of start frames is too few to judge it by. Counts are
-summed (micro-averaged) over the windows of all cases of one inclination γ.
-
-Modes and baselines: ``autonomous`` (the regressor advances the reamer: the headline),
-``tool_forced`` (recorded reamer positions), ``mlp`` (the node-wise MLP, autonomous) and
-``geometric`` (every element entering the teeth's envelope at the recorded positions). At the
-longest horizon of each window the removed-volume error and the mean / max distance between the
-predicted and true reamed surfaces are reported too.
+From several start frames of every case (every ``start_stride`` frames) the model rolls out from
+the ground truth; at horizons 1, 30 and 60 the elements it removed since the start are compared
+with the solver's. A case that ends before a start's longest horizon scores that rollout at its
+last frame, under "end". Horizon 1 is also scored from every ``one_step_stride``-th frame (one
+frame's removal varies, and a few starts are too few to judge it). Counts are summed over the
+windows of all cases of one γ. Modes: ``autonomous`` (the regressor advances the reamer: the
+headline), ``tool_forced`` (recorded positions), ``mlp`` (the node-wise baseline) and
+``geometric`` (every element entering the teeth's envelope); at the longest horizon, the removed
+volume's error and the distance between predicted and true reamed surfaces too.
 """
 
 from __future__ import annotations

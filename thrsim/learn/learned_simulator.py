@@ -1,31 +1,15 @@
 """The learned simulator around the pure network: input normalisation, logits, α(t+1), the threshold.
 
-Post-processing follows the thesis [7.3.3]: elements removed at t (α < threshold) keep their α;
-halo nodes (context only) keep theirs too; every other node gets α' = sigmoid(logit), with the
-logit optionally added to logit(α_t) so that "nothing changes" is the untrained default.
-
-The removal head (``ArchSettings.removal_head``). α mixes von Mises stress and PEEQ (eq. 47), so
-whether an element goes in the next frame is, seen from α, partly chance: on the rim at γ = 0
-the solver removes ~100 of ~1,000 loaded elements per frame, and which ones depends on the
-reamer's hop. A network that only regresses α(t+1) learns its expectation, which for an element
-under the teeth settles near 0.85 and never crosses 0.3: the tool-forced rollout at γ = 0 removed
-a quarter of the solver's bone by frame 20 although every single step from the solver's state
-was right. The head predicts the probability p that an active element is removed by t + 1; the
-rollout adds its hazard −log(1 − p) = softplus(logit) per element and frame, and removes the
-element once the sum reaches ln 2, the median of its removal time.
-
-Damage (``FeatureSettings.damage``). The network also reads each element's damage D(t) and
-predicts D(t+1) (a third output, its logit added to logit(D_t) as α's is); the prediction never
-falls below D(t), since damage only grows. The loss adds D's cross-entropy on the same nodes.
-
-Reaction (``ArchSettings.reaction_head``). Four more outputs per node give, through softplus,
-its non-negative share of the bone's axial reaction over the next frame, as a part a and a part
-per unit of feed b, and likewise of the motor torque. Summed over the updated nodes they make the
-reaction law R(v) = A + B·v of the next frame, which the feed balances the push against
-(:mod:`thrsim.learn.reaction_feed`). Non-negative shares make R grow with the contact and with
-the feed, so more push never advances the reamer less; without contact R is 0. The loss adds
-the squared error of R and T at the recorded feed, each averaged over the next few frames
-(``thrsim.learn.training.REACTION_FRAMES``), in units of their root mean square in training.
+Post-processing follows the thesis [7.3.3]: removed elements and halo nodes keep their α; every
+other node gets α' = sigmoid(logit), the logit optionally added to logit(α_t) so that "nothing
+changes" is the untrained default. The removal head (``ArchSettings.removal_head``) predicts the
+probability p that an active element goes by t + 1 (α alone learns removal's expectation, which
+never crosses the threshold under the teeth); the rollout adds the hazard −log(1 − p) per frame
+and removes the element once the sum reaches ln 2. With damage the network also predicts D(t+1),
+never below D(t). The reaction head (``ArchSettings.reaction_head``) gives each node a
+non-negative share (softplus) of the next frame's axial reaction and motor torque, a part and a
+part per unit of feed: summed, the law R(v) = A + B·v the feed balances the push against
+(:mod:`thrsim.learn.reaction_feed`), so more push never advances the reamer less (why: the docs).
 """
 
 from __future__ import annotations

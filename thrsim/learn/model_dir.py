@@ -1,19 +1,13 @@
 """A model directory on disk: weights (safetensors), the regressor's arrays, the mesh, and a JSON card.
 
-::
-
-    MODEL_DIR/card.json            format, version, data (source, digest, split), settings,
-                                   metrics, regressor table, code versions, training time
-    MODEL_DIR/network.safetensors  Graph Network ("gn.*") and MLP baseline ("mlp.*"), normalisers included
-    MODEL_DIR/advance.safetensors  the reamer-advance regressor as plain arrays
-    MODEL_DIR/mesh.safetensors     the mesh the model belongs to (nodes m, tets, fixed nodes, node sets)
-
+``card.json`` (format, version, data, settings, metrics, regressor table, code versions),
+``network.safetensors`` (the Graph Network ``gn.*`` and MLP baseline ``mlp.*``, normalisers
+included), ``advance.safetensors`` (the regressor as plain arrays) and ``mesh.safetensors``.
 Nothing is pickled. Every file is written atomically and the card last, so a directory with a
-card is complete. Loading refuses a directory from another format version, files that do not
-match the card's mesh digest, or a mesh other than the one asked for. A folder is used only when
-every part passes its checks (:class:`ModelCard`, :func:`check_network_tensors`, the mesh's
-validation, :class:`ArrayRegressor`'s): a corrupt or tampered folder is refused with one line
-that names the file and the value, never a traceback or an endless loop.
+card is complete. Loading refuses another format version, files that do not match the card's
+mesh digest, or a mesh other than the one asked for; a folder is used only when every part
+passes its checks, so a corrupt or tampered folder is refused with one line that names the file
+and the value, never a traceback or an endless loop.
 """
 
 from __future__ import annotations

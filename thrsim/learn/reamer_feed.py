@@ -1,21 +1,14 @@
 """How the reamer moves when nothing prescribes its position: the regressor's advance, resting on the bone.
 
-The regressor [7.3.4] predicts the advance along D from the depth, γ, θ and the force. It knows
-nothing of the bone, so on its own it cannot see the solver's rim drop: at γ ≈ 0 the solver's
-reamer rests on the patch's rim (depth ≈ 0.1 mm) for about 40 frames while the teeth cut the rim
-ring, then drops 0.5 mm once the ring is gone, and a regressor of the depth predicts almost no
-advance at the resting depth whatever the bone does. A hand-held reamer pushed at 230 N does not
-hover over a cavity, though: it rests on the bone that is left. So the reamer advances by the
-regressor's prediction or, where that would leave it clear of the bone, by as much as brings at
-least ``support_nodes`` nodes of the remaining bone into the teeth's dome (the half-ball of the
-teeth's reach in front of the head's equatorial plane), whichever is more.
-
-``SUPPORT_NODES`` = 20: measured on the training cases of the default dataset, the solver's
-reamer had 55–790 bone nodes inside its dome at the frame ends (5th percentile 55, median 173),
-and for every one of 2,187 frame pairs the advance to the 20th node was within 0.01 mm of, or
-short of, the solver's own advance (99th percentile 0.02 mm short): with the solver's bone the
-rule never moves the reamer further than the solver did. It acts only where the learned bone
-leaves the dome nearly empty.
+The regressor [7.3.4] predicts the advance along D from the depth, γ, θ and the force; it knows
+nothing of the bone, so on its own it cannot see the solver's rim drop (at γ ≈ 0 the reamer rests
+on the rim while the teeth cut it, then drops once it is gone). A hand-held reamer pushed into
+the bone does not hover over a cavity: it rests on the bone that is left. So the reamer advances
+by the regressor's prediction or, where that would leave it clear of the bone, by as much as
+brings at least ``support_nodes`` nodes of the remaining bone into the teeth's dome (the
+half-ball of the teeth's reach in front of the head's equatorial plane), whichever is more.
+``SUPPORT_NODES`` = 20 never moves the reamer further than the solver did on the solver's own
+bone (measured on the training cases: the docs' Learned simulator page).
 """
 
 from __future__ import annotations

@@ -3,14 +3,12 @@
 Loads a model directory (the shipped model by default) and its mesh; each :meth:`step` takes the
 tracked reamer axis and the push force and returns the new bone state. Without a given position
 the reamer advances along its axis by the regressor (autonomous mode); a given position forces
-it (tool-forced mode, e.g. positions recorded by the solver). The left hip is the mirror of the
-right across the bone frame's x = 0 plane: the model runs on the right mesh with mirrored
-vectors, and the element ids are the same on both sides.
-
-A socket model (:func:`~thrsim.learn.model_dir.reads_any_mesh`) runs on any bone mesh given to
-it, with any reamer size in the range it learned, and its reamer advances by the push against
-the bone's reaction (:mod:`thrsim.learn.reaction_feed`); each step returns that reaction and the
-motor torque, and flags what lies outside what the model learned.
+it (tool-forced mode). The left hip is the mirror of the right across the bone frame's x = 0:
+the model runs on the right mesh with mirrored vectors, the element ids the same on both sides.
+A socket model (:func:`~thrsim.learn.model_dir.reads_any_mesh`) runs on any bone mesh, with any
+reamer size in the range it learned, its reamer advancing by the push against the bone's
+reaction (:mod:`thrsim.learn.reaction_feed`); each step returns that reaction and the motor
+torque, and flags what lies outside what the model learned.
 """
 
 from __future__ import annotations

@@ -1,22 +1,14 @@
 """Training: the Graph Network and the MLP baseline on one-step pairs, then the advance regressor.
 
 Each sample is a frame pair (t, t + 1) of a training case, cut to the region near the reamer at
-t + 1 plus its halo (the same subgraph the simulator evaluates), with Gaussian noise on the
-input α of active elements and on the reamer centre (MeshGraphNets-style, for stable rollouts).
-With pushforward (``TrainSettings.pushforward_steps``), a share of the inputs at t are the Graph
-Network's own tool-forced rollout from an earlier ground-truth frame, while the targets stay the
-solver's: single steps from the solver's state were right at γ = 0 while the chained rollout cut
-the rim at half the solver's rate, because the network's own states drift from the ones it was
-trained on. Both networks see the same batches.
-The loss is the sigmoid cross-entropy on α(t+1) over region elements active at t (eq. 49), plus
-the removal head's on whether they are removed at t + 1 and, for models with damage, D(t+1)'s
-(whose input D(t) gets the same kind of noise as α).
-Input normalisers are fitted once on the first samples of a fixed permutation, then frozen.
-
-Determinism: every epoch draws its sample order and noise from ``(seed, epoch)`` alone, so a run
-resumed from its checkpoint (written after every epoch, atomically) gives the same weights as
-one that was never interrupted. After each epoch, tool-forced rollouts on the validation cases
-score F1 of newly removed elements.
+t + 1 plus its halo (the subgraph the simulator evaluates), with Gaussian noise on the input α
+(and D) of active elements and on the reamer centre (MeshGraphNets-style, for stable rollouts).
+With pushforward (``TrainSettings.pushforward_steps``) a share of the inputs are the network's
+own tool-forced rollout from an earlier ground-truth frame, the targets still the solver's, so it
+learns from the states it drifts into. Both networks see the same batches; the loss is eq. 49's
+cross-entropy on α(t+1), plus the removal head's and D(t+1)'s. Every epoch draws its order and
+noise from ``(seed, epoch)`` alone, so a run resumed from its checkpoint gives the same weights
+as one never interrupted; tool-forced validation rollouts score F1 after each epoch.
 """
 
 from __future__ import annotations

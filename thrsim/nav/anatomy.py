@@ -1,23 +1,10 @@
 """Anterior pelvic plane (APP) frame and cup/reamer angles (Murray 1993).
 
-Pure numerics, no I/O. Landmarks and axes may be in any consistent length unit: only
-directions matter. Angles cross this module's public functions in degrees because they are
-clinical quantities read by people; radians stay inside.
-
-The APP frame of one hip has axes (lateral, anterior, inferior):
-
-* lateral: from the contralateral to the operated ASIS (the left hip's frame is the mirror of
-  the right's across the sagittal plane, so one set of formulas serves both sides);
-* inferior: in the APP, perpendicular to the ASIS line, toward the pubic tubercles;
-* anterior: normal of the APP, out of the body.
-
-In that frame the cup axis ``a`` (pointing out of the acetabulum) gives Murray's angles
-(Murray, "The definition and measurement of acetabular orientation", JBJS Br 1993):
-
-* radiographic: RI = atan2(a_lat, a_inf), RA = asin(a_ant)  — the thesis's eq. 1–2 (projected
-  vector normalised; not normalising gives the anatomic inclination instead);
-* operative:    OI = asin(a_lat),         OA = atan2(a_ant, a_inf);
-* anatomic:     AI = acos(a_inf),         AA = atan2(a_ant, a_lat).
+Pure numerics, no I/O. Landmarks and axes may be in any consistent length unit: only directions
+matter. Angles cross this module's public functions in degrees because they are clinical
+quantities read by people; radians stay inside. The APP frame of one hip has axes (lateral,
+anterior, inferior) (:class:`AppFrame`); in it a cup axis gives Murray's radiographic, operative
+and anatomic angles (:func:`angles_from_local`).
 """
 
 from __future__ import annotations
@@ -47,7 +34,13 @@ _COLLINEAR_SINE = 1e-6
 
 @dataclass(frozen=True)
 class AppFrame:
-    """The APP frame of one hip: origin (landmark units) and unit axes as rows of ``axes``."""
+    """The APP frame of one hip: origin (landmark units) and unit axes as rows of ``axes``.
+
+    * lateral: from the contralateral to the operated ASIS (the left hip's frame is the mirror of
+      the right's across the sagittal plane, so one set of formulas serves both sides);
+    * inferior: in the APP, perpendicular to the ASIS line, toward the pubic tubercles;
+    * anterior: normal of the APP, out of the body.
+    """
 
     origin: np.ndarray
     axes: np.ndarray  # rows: lateral, anterior, inferior (world coordinates)
@@ -146,7 +139,14 @@ def _unit_axis(axis: object, what: str = "axis") -> np.ndarray:
 
 
 def angles_from_local(local_axis: np.ndarray, definition: str = "radiographic") -> tuple[float, float]:
-    """(inclination_deg, anteversion_deg) of a unit cup axis given in (lat, ant, inf) components."""
+    """(inclination_deg, anteversion_deg) of a unit cup axis ``a`` (pointing out of the acetabulum)
+    given in (lat, ant, inf) components, in Murray's definitions (JBJS Br 1993):
+
+    * radiographic: RI = atan2(a_lat, a_inf), RA = asin(a_ant): the thesis's eq. 1–2 (projected
+      vector normalised; not normalising gives the anatomic inclination instead);
+    * operative: OI = asin(a_lat), OA = atan2(a_ant, a_inf);
+    * anatomic: AI = acos(a_inf), AA = atan2(a_ant, a_lat).
+    """
     _check_choice(definition, DEFINITIONS, "definition")
     lat, ant, inf = (float(np.clip(c, -1.0, 1.0)) for c in local_axis)
     if lat < 0.0:

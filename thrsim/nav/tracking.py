@@ -1,16 +1,8 @@
 """Optical tracking model: a camera's truncated-pyramid volume, marker visibility, occluders, noise.
 
-The camera frame has +z along the view axis, x to the right, y down (a vision convention);
-poses are ``T_world←camera`` and ``T_world←tool`` in metres. A tool is tracked when
-
-1. every marker lies inside the volume (depth between the near and far faces, lateral extents
-   growing linearly from the near face to the far face),
-2. the angle between the tool's mount normal and the line of sight from the tool to the camera
-   is at most ``max_marker_angle_deg`` (flat passive markers fade beyond ~45°), and
-3. no occluder cuts the line of sight from the camera to any marker.
-
-The line of sight starts at the camera's centre: a real bar camera has two lenses ~0.5 m apart,
-which this model folds into one viewpoint. Pure numerics, no I/O.
+The camera frame has +z along the view axis, x to the right, y down (a vision convention); poses
+are ``T_world←camera`` and ``T_world←tool`` in metres. When a tool counts as tracked:
+:class:`TrackingCamera`. Pure numerics, no I/O.
 """
 
 from __future__ import annotations
@@ -133,7 +125,15 @@ def look_at(position: Sequence[float], target: Sequence[float], up: Sequence[flo
 
 
 class TrackingCamera:
-    """An optical tracker like an NDI Polaris Vega, with an adjustable pose."""
+    """An optical tracker like an NDI Polaris Vega, with an adjustable pose.
+
+    A tool is tracked when every marker lies inside the volume (depth between the near and far
+    faces, lateral extents growing linearly from the near face to the far face), the angle between
+    the tool's mount normal and its line of sight to the camera is at most
+    ``max_marker_angle_deg`` (flat passive markers fade beyond ~45°), and no occluder cuts the line
+    of sight from the camera's centre to any marker (a bar camera's two lenses, ~0.5 m apart,
+    folded into one viewpoint).
+    """
 
     def __init__(self, config: TrackingVolumeConfig = TrackingVolumeConfig(), pose: np.ndarray | None = None, seed: int | None = 0):
         self.config = config

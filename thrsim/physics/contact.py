@@ -1,77 +1,15 @@
 """Penalty contact between bone nodes and the rigid rotating reamer (head sphere + toothed ridges).
 
 Written here: no library offers contact of a mesh against an analytic, spinning, toothed body.
-Every node still attached to an active element is a candidate, interior ones included, so
-every element can be cut [5.3.1]. For a node at p, with the reamer centre c and the reamer
-basis (e1, e2, D) turned to the current spin angle:
-
-* head: penetration g = R − |p − c|, normal (p − c)/|p − c|;
-* tooth k: the edge axis is an arc of radius R_a in the meridian half-plane at azimuth ψ_k,
-  between polar angles φ_start and φ_end; the closest arc point is found by clamping the
-  node's polar angle in that half-plane. The tooth is a ridge standing on the head: above its
-  axis (outward) its cross-section is the edge's circle, g = r_edge − distance; below the axis
-  it has flat flanks down to the head, so there the distance and the normal are taken across
-  the ridge only, sideways. (A round capsule there would push nodes between tooth and head
-  inward, against the head's push: a node in that corner flipped between the two from step to
-  step and rang at the step's frequency.) Of the 56 teeth the deepest acts.
-
-Head and tooth both act when a node touches both (a node in the corner where a flank meets the
-head): each pushes along its own normal with its own spring and damper, and the two are at
-right angles, so the stiffness along any direction stays that of one contact.
-
-Cutting below the mesh's scale (written here; a sub-grid law, not part of the thesis's model).
-A tooth's edge is sharp at the scale of a chip (micrometres per tooth pass at reaming feeds), but
-at 0.45 mm elements its contact is a bearing contact: once the cut surface conforms to the
-teeth, 230 N spread over the several hundred nodes under them stresses the bone below its 50 MPa yield,
-and plasticity and damage alone stop removing bone (without this law the default case seated after 0.24 mm whatever
-u_f). Machining removes material at a rate set by the cutting power: the volume cut equals the
-work of the cutting (tangential) force divided by the material's specific cutting energy u_c
-(J/m³), the law behind mechanistic cutting-force models and Archard-type wear. So the Coulomb
-friction work of a tooth on a node in a step, W = μ·f_n·|v_t|·Δt, damages every active element
-at that node by W/Σ(u_c,e·V_e) over those elements, each with its own material's u_c: the damage
-added, weighted by volume and specific energy, pays exactly for W (W/(u_c·ΣV) where one material meets the node).
-The cut takes Coulomb's μ·f_n, not the friction force applied, which the stick cap below limits:
-relative to μ·f_n the cap shrinks with the step (it binds beyond a penetration ∝ Δt), and cutting
-with it removed 35 % less bone at Δt = 1 µs than at 4 µs. Friction against the smooth head cuts
-nothing. Removal then follows the push (the friction force is
-μ times the normal force) and the cutting speed ω·r, not the penalty's numerics.
-
-Stiffness scaled to the explicit step (as ABAQUS/Explicit's penalty method scales its penalty
-to the underlying element stiffness): node i gets k_i = β·m_i/Δt², with m_i its current
-(scaled) lumped mass. A single node on that spring oscillates at ω_i·Δt = √β whatever the mesh
-size, the time step or how many elements the node has left, so contact can never drive the
-central-difference step past its stability limit (ω·Δt < 2, i.e. β < 4 for the spring alone).
-A fixed stiffness does: 1e7 N/m put intact nodes of the 0.45 mm mesh at ω·Δt ≈ 1.6 and nodes
-left with one element at 2.3–3.3, and made removal depend on k. The default β = 0.8 is a fifth
-of the single-spring bound and leaves room for the element stiffness the node also carries
-(a softer 0.4, the default before solver 0.4.0, made removal 13 % more sensitive to β).
-At 230 N spread over the ~100 nodes under the teeth the penetration is ≈ 0.25 µm, a
-two-thousandth of an element.
-
-Normal force of each contact f_n = k_i·g + 2ξ√(k_i·m_i)·(−v_rel·n), never pulling (f_n ≥ 0), ξ
-the contact damping ratio [5.3.1]. Friction acts once per node, on the resultant N of the normal
-forces (f_n = |N|, n = N/|N|), and opposes the relative sliding velocity v_t with
-f_t = min(μ·f_n, a·m_i·|v_t|/Δt), a = ``STICK_FRACTION``: Coulomb while slipping, and never more
-than the force that takes the node half way to the reamer's surface speed within one step. A
-smooth regularisation instead (viscous below a slip speed) has a viscous coefficient μ·f_n/v_reg
-far above the stable m_i/Δt, so sticking nodes overshoot and ring at the step frequency. The
-relative velocity uses the reamer surface velocity w = ω D × (p − c) + ṡ D.
-
-Stability with the element stiffness: a node whose elements run at ω_e·Δt = 2s (s the Courant
-safety factor) and that also carries the contact spring and the velocity-lagged dampers of
-the explicit step (normal: a_n = c·Δt/m = 2ξ√β; tangential: a) is stable while
-(2s)² + β + 2·a_n < 4 along the normal and (2s)² + 2·a < 4 along the surface; the
-configuration refuses settings outside these bounds with a 10 % reserve for bulk viscosity
-(:class:`thrsim.config.ReamingCaseConfig`). With s = 0.9 the normal bound is broken even at
-β = 0.4 ((1.8)² + 0.4 + 0.5 = 4.14): a node in the rim of the contact grew a period-two
-oscillation to 18 m/s within ten steps. The reaming case therefore runs at s = 0.7, where
-β = 0.8 sums to (1.4)² + 0.8 + 0.72 = 3.48, under the 3.6 the reserve allows.
-
-Energy (for the balance of :mod:`thrsim.physics.reaming`): per node, the kernel also writes the
-reamer surface velocity w, the resultant normal force N and the elastic energy ½ k_i g² stored
-in the penalty springs, so the caller can book the work of each force through the displacement it
-actually acts over. Totals are summed sequentially by :func:`contact_totals`, never across
-threads (a parallel floating-point reduction would make results depend on the thread count).
+Every node still attached to an active element is a candidate, interior ones included, so every
+element can be cut [5.3.1]. The head is a sphere; a tooth is a ridge on it (round above its
+edge's arc, flat flanks below it), of which the deepest acts, and head and tooth both push, at
+right angles, on a node touching both. The stiffness is scaled to the step, k_i = β·m_i/Δt², so
+contact can never drive the explicit step past its stability limit; friction is Coulomb's, capped
+at what stops the slip in one step; and the friction work of a tooth cuts: it damages the node's
+elements by W/Σ(u_c·V) (thrsim's sub-grid cutting law). Why each, and the stability bounds: the
+docs' Physics page (Solver, Cutting law). The kernel also writes what the energy balance needs;
+totals are summed sequentially (:func:`contact_totals`), so results never depend on the threads.
 """
 
 from __future__ import annotations

@@ -1,30 +1,14 @@
 """Explicit central-difference dynamics of a damaging Johnson–Cook solid on linear tets.
 
-Written here because no Python library combines explicit dynamics, JC plasticity with rate
-dependence, ductile damage and element deletion (torch-fem 0.14 is quasi-static without rate or
-deletion, warp.fem and scikit-fem have no plasticity, SfePy has no plasticity in its explicit
-stepping). Kernels are Numba; the two per-step kernels are:
-
-* :func:`element_update`, parallel over elements: strain increment from the reference
-  gradients, elastic trial stress, JC radial return, damage initiation/evolution plus the
-  teeth's cutting damage at the element's nodes (:mod:`thrsim.physics.contact`), deletion at
-  D ≥ 1, linear bulk viscosity (ABAQUS's b1 = 0.06) and the element's nodal forces;
-* :func:`node_update`, parallel over nodes: gathers element forces through a node→element CSR
-  (race-free, no atomics), adds external forces, integrates v and u (central difference),
-  holds fixed nodes.
-
-State is owned by :class:`ExplicitSolid`; contact and loads are the caller's (the reaming case
-adds the reamer's contact forces as external forces every step). Stress is stored undamaged
-(effective, σ̄) in Voigt order xx, yy, zz, xy, yz, zx; the Cauchy stress is (1 − D)·σ̄.
-
-Cost follows the cutting: the kernels integrate only the *zone* (``zone_elements``, their free
-nodes ``zone_nodes``), the elements the reamer can change soon plus a halo, chosen by the caller
-(:meth:`ExplicitSolid.set_zone`); the rest of the bone is held as it is. Nodes of zone elements that
-also belong to held elements are not integrated: they hold the zone like a support. By default the
-zone is the whole mesh.
-
-Each element belongs to one material (a :class:`Tissue`: elastic constants, JC hardening and
-damage), by the mesh's per-element tags: the socket's cortical and cancellous bone.
+Written here: no Python library combines explicit dynamics, rate-dependent JC plasticity,
+ductile damage and element deletion (the docs' Physics page, Solver). Two Numba kernels a step:
+:func:`element_update`, parallel over elements (strain increment, JC radial return, damage plus
+the teeth's cutting damage, deletion at D ≥ 1, bulk viscosity, nodal forces), and
+:func:`node_update`, parallel over nodes (element forces gathered through a node→element CSR,
+race-free, then central differences). :class:`ExplicitSolid` owns the state; contact and loads
+are the caller's. Stress is stored undamaged (σ̄, Voigt order xx, yy, zz, xy, yz, zx; Cauchy is
+(1 − D)·σ̄). Only the zone the caller sets (:meth:`ExplicitSolid.set_zone`, default the whole
+mesh) is integrated; each element has one material (a :class:`Tissue`), by the mesh's tags.
 """
 
 from __future__ import annotations

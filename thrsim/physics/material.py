@@ -1,17 +1,13 @@
 """Johnson–Cook plasticity and ductile damage for cortical bone: pure kernels, no I/O.
 
-Hardening (thermal softening off) [Table 4]:
-    σ_y(εᵖ, ε̇ᵖ) = [A + B εᵖⁿ] · [1 + C ln(ε̇ᵖ/ε̇₀)]   (rate term only for ε̇ᵖ > ε̇₀, as in ABAQUS)
-
-Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with ``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]``.
-With the thesis constants ε_f < 0 for every triaxiality η, which has no meaning as a strain to
-fracture: it is read as "initiate at first yield" (a brittle material), explicitly, and never
-used as a divisor. Evolution is linear in the equivalent plastic displacement accumulated after
-initiation, u = L_e·Δεᵖ:  D = u / u_f, and the element is deleted at D ≥ 1.
-
-The return mapping is written here (Numba) because no library offers a rate-dependent JC radial
-return usable inside an explicit loop; the scalar NumPy functions are the closed forms that the
-verification suite compares against.
+Hardening (thermal softening off) [Table 4]: ``σ_y = [A + B εᵖⁿ]·[1 + C ln(ε̇ᵖ/ε̇₀)]``, the rate
+term only for ε̇ᵖ > ε̇₀, as in ABAQUS. Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with
+``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]``; the thesis constants give ε_f < 0 for every
+triaxiality η, read explicitly as "initiate at first yield" and never used as a divisor.
+Evolution is linear in the plastic displacement after initiation, D = L_e·Δεᵖ / u_f, and the
+element is deleted at D ≥ 1. The return mapping is written here because no library offers a
+rate-dependent JC radial return usable inside an explicit loop; the scalar NumPy functions are
+the closed forms the verification suite compares against.
 """
 
 from __future__ import annotations

@@ -1,48 +1,14 @@
 """The ground-truth reaming case: a rigid spinning reamer pushed into the bone patch.
 
-Set-up [5.3]: the bone patch's fixed nodes are held (encastre); the reamer spins at ω about its
-axis D, has one translational degree of freedom s along D (its centre is c = c₀ + s·D in the bone
-frame, c₀ the point its axis passes through: the origin unless ``reamer_centre_mm`` moves it), and is pushed by the surgeon's force along D plus gravity. Gravity acts along −z of
-the bone frame (patient in lateral decubitus: the acetabulum opens upward) on the head's own
-mass, so only its component m·g·(−z·D) along the axis matters (the surgeon carries the driver's
-weight). The reamer is hand-held (:class:`thrsim.config.ReamerHoldConfig`): the push drives an
-effective mass M with an axial damper c, M·s̈ = F + G − F_contact·D − c·ṡ, integrated with the
-same central-difference step as the bone, so it advances as bone is removed.
-
-Energy balance (ABAQUS's ETOTAL), booked every step and recorded per frame:
-
-    push + gravity + spin = bone kinetic + internal (elastic + plastic + damage) + viscous
-                            + debris (kinetic and elastic energy of deleted elements)
-                            + reamer kinetic + arm damping + contact damping + friction
-                            + penalty (elastic energy in the contact springs) + balance error
-
-"spin" is the motor's work, Σ f·(ω D × (p − c))·Δt over the contact forces f on the bone;
-the contact work on the bone is Σ f·Δu with Δu the step's displacement (v(n+½)·Δt).
-
-Start: the reamer sits on its axis, backed off until its teeth clear every bone node by
-``INITIAL_GAP_M``; frame 0 records the intact bone at t = 0. A case of N frames simulates
-N/frame_rate seconds and records N + 1 frames (fewer if it ends early).
-
-End reasons, checked at the end of every frame after first contact:
-
-* ``perforated``: the teeth's tip (the pole of the dome, c + R_teeth·D) has passed the outer
-  face where there is bone under it, i.e. beyond the outermost outer-face node lying within
-  one mean edge length of the reamer's axis line. The outer face is held, so the reamer can
-  only get there through a hole it has cut, and from there it falls. A tilted reamer whose
-  axis misses the patch (γ above the patch half-angle) has no bone under its tip and never
-  perforates; its teeth passing the outer-face radius beside the patch is not a hole.
-* ``passed_through``: no bone is left in the reamer's path (no attached node in front of the
-  head's equatorial plane within the teeth's reach of the axis): a tilted reamer has swept
-  through the patch and falls freely.
-* ``stalled``: for ``STALL_FRAMES`` frames nothing was removed and the reamer's within-frame
-  mean position moved less than ``STALL_MOTION_M``: it rests on bone it cannot cut, in practice
-  elements pressed against the held (encastre) outer face, which are loaded in near-uniaxial
-  compression and so never yield (von Mises plasticity ignores pressure). Those frames are
-  recorded; nothing later would differ.
-* ``completed``: all requested frames.
-
-The ending frame is not recorded (a reamer falling freely teaches the learned simulator
-nothing), so a case ended at frame k holds frames 0 … k − 1.
+Set-up [5.3]: the bone's fixed nodes are held (encastre); the reamer spins at ω about its axis D
+and has one translational degree of freedom s along D (centre c = c₀ + s·D), hand-held
+(:class:`thrsim.config.ReamerHoldConfig`): the push and gravity drive an effective mass with an
+axial damper, M·s̈ = F + G − F_contact·D − c·ṡ, integrated with the bone's step, so it advances
+as bone is removed. The energy balance (ABAQUS's ETOTAL) is booked every step and recorded per
+frame. The reamer starts ``INITIAL_GAP_M`` clear of the bone; frame 0 is the intact bone. A case
+ends ``perforated``, ``passed_through``, ``stalled`` or ``completed``, checked at every frame end
+after first contact, and the ending frame is not recorded (a reamer falling freely teaches the
+learned simulator nothing). Terms, end rules and why: the docs' Physics page (Solver).
 """
 
 from __future__ import annotations

@@ -1,17 +1,12 @@
-"""GLSL sources of the bone renderer (OpenGL 3.3 core).
+"""GLSL sources of the bone renderer (OpenGL 3.3 core): two ways to draw the same picture.
 
-Two ways to draw the same picture of the remaining bone, each face coloured by its tet's α:
-
-* ``THESIS_*``: the thesis's pipeline [7.4]: α of every tet lives in a 2D texture, each tet is
-  drawn as one four-vertex primitive (lines with adjacency), and a geometry shader reads the
-  texel of its primitive number and emits the tet's four faces when α ≥ the threshold (removed
-  tets emit nothing). The mesh never changes on the GPU; a frame uploads only the α texture.
-* ``FACES_*``: only the faces on the remaining bone's boundary, found on the CPU from the face
-  neighbour table, drawn as plain triangles: a fraction of the thesis's primitives.
-
-Both share the fragment shader: a flat normal from the screen-space derivatives of the
-position (so both paths light a triangle alike, whichever way it was wound), two-sided Lambert
-light from the camera, and the α colour map sampled from a 256-texel lookup texture.
+``THESIS_*``, the thesis's pipeline [7.4]: α of every tet lives in a 2D texture, each tet is one
+four-vertex primitive (lines with adjacency), and a geometry shader emits its four faces when
+α ≥ the threshold; a frame uploads only the α texture. ``FACES_*``: only the faces on the
+remaining bone's boundary, found on the CPU, drawn as plain triangles. Both share the fragment
+shader: a flat normal from screen-space derivatives (so both light a triangle alike, whichever
+way it was wound), two-sided Lambert light from the camera, and the α colour map from a
+256-texel lookup texture.
 """
 
 FRAGMENT = """

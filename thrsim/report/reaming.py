@@ -1,19 +1,10 @@
 """Reaming part of the report: removal, depth and push over time, the final cavity against the
-planned hemisphere (under- and over-reaming, perforation), orientation while cutting, and the
-errors and corrections (every event, undone or not); the criteria and metrics as data.
+planned hemisphere (:func:`cavity_map`), orientation while cutting, and the errors and
+corrections (every event, undone or not); the criteria and metrics as data.
 
 The record is the session, not the final bone: a perforation (or another of the
 :data:`~thrsim.session.reaming.BONE_ERRORS`) counts however it was undone or the bone restored
 after it, and a cavity reamed through is not a cavity prepared to plan.
-
-The planned cavity is the reamer's hemisphere (the teeth's reach) centred at the acetabular
-centre, where the cup is meant to sit. The final cavity is read per cell of a 0.5 mm grid over
-the patch seen along its axis: the cut surface lies between the deepest removed element and the
-nearest kept one beyond it (midway between their centroids' distances from the acetabular
-centre; at the outer surface when none is kept beyond). A cell is on plan when that lies within
-one element (0.45 mm, the mesh's resolution) of the planned radius, under-reamed short of it,
-over-reamed beyond it, and perforated when a removed element had a face on the bone's outer
-surface.
 """
 
 from __future__ import annotations
@@ -40,7 +31,16 @@ _CLASS_COLOURS = ("#e8e8e8", "#f2c14e", "#2ca25f", "#d7301f", "#000000")
 
 
 def cavity_map(record: ReamingRecord) -> dict:
-    """Per grid cell: depth reamed below the articular surface (mm, NaN where intact) and class."""
+    """Per grid cell: depth reamed below the articular surface (mm, NaN where intact) and class.
+
+    The planned cavity is the reamer's hemisphere (the teeth's reach) centred at the acetabular
+    centre, where the cup is meant to sit. The final cavity is read per cell of a 0.5 mm grid over
+    the patch seen along its axis: the cut surface lies between the deepest removed element and the
+    nearest kept one beyond it (midway between their centroids' distances from the acetabular
+    centre; at the outer surface when none is kept beyond). A cell is on plan when that lies within
+    one element (0.45 mm, the mesh's resolution) of the planned radius, under-reamed short of it,
+    over-reamed beyond it, and perforated when a removed element had a face on the bone's outer
+    surface."""
     cavity = record.cavity
     centroids = cavity["centroids_m"]
     removed = record.final_alpha < cavity["threshold"]

@@ -1,17 +1,12 @@
 """The reaming session's measurements, each defined once here (``metrics`` of ``thrsim report --json``).
 
-Every figure comes from the session's record (:class:`~thrsim.session.reaming.ReamingRecord`): the
-trace of every simulated frame and the events. Two readings of that trace are used:
-
-* **the record**: every frame reamed, including frames later undone or wiped by a restore (time
-  with a reamer, time on plan, push, travel, errors): what the trainee did;
-* **the final bone**: only the frames whose cutting the bone kept at the end (an undo drops the
-  frames it went back over, a restore all frames before it): what the cavity is.
-
+Every figure comes from the session's record (:class:`~thrsim.session.reaming.ReamingRecord`),
+read two ways: **the record**, every frame reamed, including frames later undone or wiped by a
+restore (time with a reamer, time on plan, push, travel, errors: what the trainee did), and
+**the final bone**, only the frames whose cutting the bone kept at the end (what the cavity is).
 Angles are radiographic (Murray) in the anterior pelvic plane, as the page shows them; the cavity
 centre's shifts are along the pelvis's medial and superior directions from the native socket's
-centre (the bone frame's origin). The plain-words definitions are in the trainer guide
-(docs/trainer.md, "Reaming measurements").
+centre. The plain-words definitions: the trainer guide, "Reaming measurements".
 """
 
 from __future__ import annotations

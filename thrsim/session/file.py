@@ -1,27 +1,12 @@
 """The session file: a trainer session's inputs (in arrival order) and each mode's outputs.
 
-Layout (HDF5, one file per session; times in seconds from the session's start, poses in metres):
-
-* attrs: ``format`` = "thrsim-session", ``format_version``, ``mode``, ``started_utc``,
-  ``ended_utc``, ``duration_s``, ``settings`` (JSON), ``versions`` (JSON: thrsim, Python,
-  numerical and web libraries, three.js), ``interrupted`` (true when the session never ended: the
-  server stopped without saving it, and the next start closed it from its journal; files written
-  before journals lack it and ended normally), ``trainee`` (the name or ID the page gave, absent
-  when none was);
-* ``/inputs/controls``: ``seq``, ``time``, ``message`` (JSON text of each page control);
-* ``/inputs/poses``: ``seq``, ``time``, ``device`` (name), ``matrix`` (N×4×4) from the tracker;
-* ``/inputs/forces``: ``seq``, ``time``, ``newton``;
-* ``/inputs/ticks``: ``seq``, ``time`` of each trainer step;
-* one group per mode that ran (``/navigation``; reaming adds ``/reaming``), written and read by
-  that mode's record class;
-* ``/questionnaire``, once the trainee answered the post-session questionnaire
-  (:mod:`thrsim.session.questionnaire`).
-
-``seq`` is one counter over all inputs, so a replay applies them in the order they were lived.
-While the session lives its inputs go to its journal (:mod:`thrsim.session.journal`), not to
-memory; the file is written once, when the session ends, streamed from the journal into chunked,
-compressed tables, to a temporary name that is then renamed (:mod:`thrsim.atomic`): a crash
-mid-write leaves no half file, and the journal is removed only once the file is in place.
+One HDF5 file per session (layout: :func:`write_session`): header attributes, the inputs
+(controls, tracker poses, forces, ticks) with one ``seq`` counter over all of them, so a replay
+applies them in the order they were lived, one group per mode that ran, and the questionnaire's
+answers. While the session lives its inputs go to its journal (:mod:`thrsim.session.journal`),
+not to memory; the file is written once, when the session ends, streamed from the journal into
+chunked, compressed tables, to a temporary name that is then renamed (:mod:`thrsim.atomic`): a
+crash mid-write leaves no half file, and the journal is removed only once the file is in place.
 """
 
 from __future__ import annotations
@@ -164,7 +149,25 @@ def write_session(
     mode_writers: dict[str, Callable[[h5py.Group], None]],
 ) -> Path:
     """Write the whole session atomically: ``inputs`` as ``(kind, time_s, payload)`` in lived order
-    (a journal's :meth:`~thrsim.session.journal.Journal.inputs`); ``mode_writers`` fill one group per mode."""
+    (a journal's :meth:`~thrsim.session.journal.Journal.inputs`); ``mode_writers`` fill one group per mode.
+
+    Layout (HDF5, one file per session; times in seconds from the session's start, poses in metres):
+
+    * attrs: ``format`` = "thrsim-session", ``format_version``, ``mode``, ``started_utc``,
+      ``ended_utc``, ``duration_s``, ``settings`` (JSON), ``versions`` (JSON: thrsim, Python,
+      numerical and web libraries, three.js), ``interrupted`` (true when the session never ended: the
+      server stopped without saving it, and the next start closed it from its journal; files written
+      before journals lack it and ended normally), ``trainee`` (the name or ID the page gave, absent
+      when none was);
+    * ``/inputs/controls``: ``seq``, ``time``, ``message`` (JSON text of each page control);
+    * ``/inputs/poses``: ``seq``, ``time``, ``device`` (name), ``matrix`` (N×4×4) from the tracker;
+    * ``/inputs/forces``: ``seq``, ``time``, ``newton``;
+    * ``/inputs/ticks``: ``seq``, ``time`` of each trainer step;
+    * one group per mode that ran (``/navigation``; reaming adds ``/reaming``), written and read by
+      that mode's record class;
+    * ``/questionnaire``, once the trainee answered the post-session questionnaire
+      (:mod:`thrsim.session.questionnaire`).
+    """
     path = Path(path)
     device = h5py.string_dtype("utf-8", DEVICE_BYTES)
     with atomic_path(path) as tmp:

@@ -1,25 +1,10 @@
 """The session journal: every input of a live session on disk as it arrives, so a crash loses at most the last second.
 
-One append-only file per live session, ``<session id>.journal`` in the sessions folder, beside the
-finished session files. Each record is a little-endian ``u32`` body length, the body's ``u32``
-CRC-32, then the body: one kind byte and its fields.
-
-* ``H`` header (first record): JSON object with ``format`` = "thrsim-journal", ``format_version``
-  and ``session``, the session file's header attributes known at the start (``session_id``,
-  ``mode``, ``started_utc``, ``settings``, ``versions``);
-* ``C`` control: f64 time, the control's JSON text;
-* ``P`` pose: f64 time, 16 f64 (the 4×4 matrix, row-major, metres), the device name (UTF-8);
-* ``F`` force: f64 time, f64 newton;
-* ``T`` tick (a trainer step): f64 time.
-
-Times are seconds from the session's start; an input's ``seq`` is its place among the input
-records (from 1), as in the session file. Each record reaches the operating system as it is
-appended, so killing the process loses nothing appended; a background thread fsyncs the file
-every ``sync_interval_s`` (≤ 1 s), so a power cut loses at most that much. Reading stops at the
-first torn record (cut short or failing its CRC): everything before it is intact.
-
-The writer holds an exclusive ``flock`` on the file while it lives and the kernel drops it when
-the process dies, so a journal nobody holds belongs to a session that was interrupted.
+One append-only file per live session, ``<session id>.journal`` beside the finished session
+files, of length- and CRC-32-framed records (format: :class:`JournalWriter`). Killing the process
+loses nothing appended, a power cut at most ``sync_interval_s``; reading stops at the first torn
+record, and everything before it is intact. The writer holds an exclusive ``flock`` on the file
+while it lives, so a journal nobody holds belongs to a session that was interrupted.
 """
 
 from __future__ import annotations
@@ -58,7 +43,29 @@ _FORCE = struct.Struct("<dd")
 
 
 class JournalWriter:
-    """Appends a live session's inputs to its journal file; see the module docstring."""
+    """Appends a live session's inputs to its journal file.
+
+    One append-only file per live session, ``<session id>.journal`` in the sessions folder, beside the
+    finished session files. Each record is a little-endian ``u32`` body length, the body's ``u32``
+    CRC-32, then the body: one kind byte and its fields.
+
+    * ``H`` header (first record): JSON object with ``format`` = "thrsim-journal", ``format_version``
+      and ``session``, the session file's header attributes known at the start (``session_id``,
+      ``mode``, ``started_utc``, ``settings``, ``versions``);
+    * ``C`` control: f64 time, the control's JSON text;
+    * ``P`` pose: f64 time, 16 f64 (the 4×4 matrix, row-major, metres), the device name (UTF-8);
+    * ``F`` force: f64 time, f64 newton;
+    * ``T`` tick (a trainer step): f64 time.
+
+    Times are seconds from the session's start; an input's ``seq`` is its place among the input
+    records (from 1), as in the session file. Each record reaches the operating system as it is
+    appended, so killing the process loses nothing appended; a background thread fsyncs the file
+    every ``sync_interval_s`` (≤ 1 s), so a power cut loses at most that much. Reading stops at the
+    first torn record (cut short or failing its CRC): everything before it is intact.
+
+    The writer holds an exclusive ``flock`` on the file while it lives and the kernel drops it when
+    the process dies, so a journal nobody holds belongs to a session that was interrupted.
+    """
 
     def __init__(self, path: Path, attrs: dict, sync_interval_s: float = 0.5):
         self.path = Path(path)

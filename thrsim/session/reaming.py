@@ -1,28 +1,10 @@
 """The reaming mode's group of a session file: what was reamed, how, and the final cavity.
 
-Group ``/reaming``: attrs ``side``, ``zone`` and ``settings`` (JSON), ``plan`` (JSON: the
-:class:`~thrsim.session.plan.Plan` the session is measured against) and ``plan_source``
-(``trainee`` or ``case file``; both absent from files before the plan), ``mesh_digest`` (the
-model's mesh: a report of this session needs that mesh), ``behind_frames`` (frames the
-simulation could not keep up with); ``patch_to_model`` (4×4, the bone patch in the pelvis
-model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), ``frame``,
-``force_n``, ``axis`` (F×3, reamer axis D in the patch frame), ``position_m`` (F×3, reamer
-centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
-(F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
-the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
-(the size the simulator cut with: its model's, where the model learned one size; both absent
-from files before the reamer sequence); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
-(JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
-``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
-(``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
-``push_out_of_range`` (``force_n``, ``trained_force_n``), ``plan_set`` (``plan``),
-``reamer_changed`` (``from_mm``, ``to_mm``), the simulator's end reasons
-(``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
-``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
-needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
-face on the bone's outer surface), attrs ``inner_radius_m``, ``outer_radius_m`` (the shell),
-``teeth_radius_m`` (the reamer), ``threshold`` (α below it is removed); ``navigation/`` the
-composed navigation trainer's group (:mod:`thrsim.session.navigation`).
+The group (layout: :func:`write_reaming`) keeps the plan the session is measured against, one
+row per simulated frame (push, reamer axis and centre, removed elements and volume, depth,
+angles, the reamer size held and the size cut), every event whatever was undone or restored
+after it, the final α, and what the report's depth map needs without the model (centroids,
+outer-face flags, radii), beside the composed navigation trainer's group.
 """
 
 from __future__ import annotations
@@ -81,6 +63,32 @@ class ReamingRecord:
 
 
 def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> None:
+    """Fill the session file's reaming group.
+
+    Group ``/reaming``: attrs ``side``, ``zone`` and ``settings`` (JSON), ``plan`` (JSON: the
+    :class:`~thrsim.session.plan.Plan` the session is measured against) and ``plan_source``
+    (``trainee`` or ``case file``; both absent from files before the plan), ``mesh_digest`` (the
+    model's mesh: a report of this session needs that mesh), ``behind_frames`` (frames the
+    simulation could not keep up with); ``patch_to_model`` (4×4, the bone patch in the pelvis
+    model frame, m); ``trace/`` one row per simulated frame: ``time`` (session s), ``frame``,
+    ``force_n``, ``axis`` (F×3, reamer axis D in the patch frame), ``position_m`` (F×3, reamer
+    centre, patch frame), ``removed`` (elements), ``removed_volume_mm3``, ``depth_mm``, ``angles``
+    (F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
+    the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
+    (the size the simulator cut with: its model's, where the model learned one size; both absent
+    from files before the reamer sequence); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
+    (JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
+    ``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
+    (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
+    ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``plan_set`` (``plan``),
+    ``reamer_changed`` (``from_mm``, ``to_mm``), the simulator's end reasons
+    (``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
+    ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
+    needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
+    face on the bone's outer surface), attrs ``inner_radius_m``, ``outer_radius_m`` (the shell),
+    ``teeth_radius_m`` (the reamer), ``threshold`` (α below it is removed); ``navigation/`` the
+    composed navigation trainer's group (:mod:`thrsim.session.navigation`).
+    """
     group.attrs.update(
         side=record.side,
         zone=json.dumps(record.zone),

@@ -1,19 +1,12 @@
 """A small elastic-plastic bar impact, run by thrsim and by CalculiX (ccx) for a cross-check.
 
 A square bar (default 2 × 2 × 12 mm, 0.5 mm hex cells split into 6 tets: 2,304 C3D4) moves
-along −x at v0 = 25 m/s and is stopped by a rigid wall at x = 0 (the wall nodes held in all
-three directions, as in ABAQUS's encastre). Cortical-bone elasticity and the thesis's JC
-hardening; the elastic precursor (Hugoniot elastic limit about 108 MPa at 15.9 m/s) is followed
-by a plastic front. The end time (2.5 µs) stops before the precursor reflects from the free end;
-strains stay below about 1 %, so thrsim's small-strain kinematics and ccx's (geometrically
-nonlinear) explicit solution should agree to the order of the strain.
-
-CalculiX gets the same mesh, C3D4 elements, explicit dynamics (*DYNAMIC, EXPLICIT) and the JC
-curve at the reference rate tabulated on a logarithmic grid of εᵖ (ccx's *PLASTIC has no rate
-term and interpolates linearly); thrsim runs with C = 0 and no bulk viscosity, at ccx's own time
-increment (ccx 2.20 picks it from its Courant estimate, about 11 times below thrsim's stable
-step, and its DIRECT option selected a zero increment in our tests), so both do the same number
-of steps and the wall-time ratio compares like with like.
+along −x at v0 = 25 m/s and is stopped by a rigid wall at x = 0 (the wall nodes held, as in
+ABAQUS's encastre). Cortical-bone elasticity and the thesis's JC hardening; the elastic precursor
+(Hugoniot elastic limit about 108 MPa at 15.9 m/s) is followed by a plastic front. The end time
+(2.5 µs) stops before the precursor reflects from the free end; strains stay below about 1 %, so
+thrsim's small-strain kinematics and ccx's (geometrically nonlinear) explicit solution should
+agree to the order of the strain. How ccx is set up alike: :func:`write_ccx_input`.
 """
 
 from __future__ import annotations
@@ -135,6 +128,13 @@ def write_ccx_input(
     path: Path, problem: BarImpact, mesh: TetMesh, material: BoneMaterial, hardening: JohnsonCookHardening, frequency: int
 ) -> None:
     """The CalculiX deck: nodes, C3D4 elements, sets, material, initial velocity, wall, explicit step.
+
+    The same mesh, explicit dynamics (*DYNAMIC, EXPLICIT) and the JC curve at the reference rate
+    tabulated on a logarithmic grid of εᵖ (ccx's *PLASTIC has no rate term and interpolates
+    linearly). ccx 2.20 picks its increment from its Courant estimate, about 11 times below
+    thrsim's stable step (its DIRECT option selected a zero increment in our tests); thrsim runs at
+    that increment, with C = 0 and no bulk viscosity, so both do the same number of steps and the
+    wall-time ratio compares like with like.
 
     Numbers are written with 12 significant digits: ccx rejects longer fields (20 characters).
     """

@@ -1,18 +1,10 @@
 """Energy conservation of an elastic free vibration, and time-step convergence of an
 elastic-plastic impact.
 
-Free vibration: a 2×2×8 mm elastic bar clamped at z = 0 is released with a bending velocity
-field v_x = V·(z/L)²; no damping, no bulk viscosity, no mass scaling. Central differences with
-a lumped mass conserve E_n = U(u_n) + ½·v̄_nᵀ M v̄_n, v̄_n = (v_{n−½} + v_{n+½})/2, up to an
-O((ω·dt)²) oscillation and without drift: the check is max |E_n − E_0| ÷ E_0 over three periods.
-
-Energy balance: in the elastic-plastic bar impact of the CalculiX cross-check, the initial kinetic
-energy = kinetic + elastic + plastic dissipation at every step (the held wall does no work).
-
-Δt convergence: the bar-impact problem of the CalculiX cross-check (a JC bar at 25 m/s against a
-rigid wall, C = 0.03 kept, no damage) run at the stable step, ½ and ¼ of it; the plastic
-dissipation and the displacement of the bar's mid-length axis node at the end time (behind the
-plastic front) must converge.
+:func:`free_vibration`: a clamped elastic bar's discrete energy stays constant, without drift.
+:func:`bar_energy_balance`: in the elastic-plastic bar impact of the CalculiX cross-check, the
+initial kinetic energy = kinetic + elastic + plastic dissipation at every step (the held wall
+does no work). :func:`dt_convergence`: that impact converges as Δt is halved.
 """
 
 from __future__ import annotations
@@ -33,6 +25,10 @@ CONVERGENCE_TOLERANCE = 1e-2
 
 
 def free_vibration() -> list[CheckResult]:
+    """A 2×2×8 mm elastic bar clamped at z = 0 released with a bending velocity field v_x = V·(z/L)²;
+    no damping, no bulk viscosity, no mass scaling. Central differences with a lumped mass conserve
+    E_n = U(u_n) + ½·v̄_nᵀ M v̄_n, v̄_n = (v_{n−½} + v_{n+½})/2, up to an O((ω·dt)²) oscillation and
+    without drift: the check is max |E_n − E_0| ÷ E_0 over three periods."""
     material = BoneMaterial()
     with Stopwatch() as watch, numba_threads(1):
         length, side = 8e-3, 2e-3
@@ -118,6 +114,9 @@ def bar_energy_balance() -> CheckResult:
 
 
 def dt_convergence() -> list[CheckResult]:
+    """The bar impact of the CalculiX cross-check (C = 0.03 kept, no damage) at the stable step, ½ and ¼
+    of it: the plastic dissipation and the displacement of the bar's mid-length axis node at the
+    end time (behind the plastic front) must converge."""
     material = BoneMaterial()
     hardening = JohnsonCookHardening()
     runs = []

@@ -1,31 +1,12 @@
 """Reaming-case checks (slow): the energy balance, and convergence in the numerical parameters.
 
-Both run the default case (default 0.45 mm mesh, γ 15°, θ 30°, 230 N) from first contact on:
-
-* ``reaming-energy-balance``: ABAQUS-style ETOTAL over ``ENERGY_FRAMES`` frames,
-  |push + gravity + spin − (kinetic + internal + viscous + debris + reamer kinetic + arm damping
-  + contact damping + friction + penalty)| ≤ 5 % of the external work (push + gravity + spin).
-  The error is also reported split where it arises (bone, reamer, contact interface).
-* ``reaming-convergence``: removed volume and mean advance over ``CONVERGENCE_FRAMES`` frames
-  against the default settings when the contact penalty factor is halved (≤ 10 %), when Δt is
-  halved (≤ 10 %) and when the reamer's effective mass is halved or doubled (≤ 15 %: the
-  reaming is quasi-static, so the push, not the mass, sets the feed). Mass scaling keeps the
-  contact's ω·Δt fixed when Δt is halved, which is why the penalty factor gets its own study.
-
-* ``reaming-active-zone``: the active zone (integrate only the elements the reamer can reach soon,
-  hold the rest) against integrating everything, on the default patch over ``CONVERGENCE_FRAMES``
-  frames and on a small socket (``ZONE_SOCKET_ELEMENT_MM`` elements, a reamer one size up on the
-  native socket, ``ZONE_SOCKET_FRAMES`` frames): removed volume and mean advance within 5 %, and
-  the zone's energy balance still within 5 % of the external work.
-
-* ``reaming-socket-window``: a window of the socket (30° from the pole, toward the dome) reamed by a
-  48 mm reamer on the native 46 mm socket at 1 mm/s for ``WINDOW_FRAMES`` frames, the 0.5 dataset's
-  kind of case: energy balance within 5 %, and the removed volume and the mean push the feed takes
-  within 10 % when the contact penalty factor or Δt is halved.
-
-Removal is a threshold process (element deletion) driven by a chaotic cut, so both figures are
-taken over many frames: the removed volume at the end and the axial advance averaged over the
-frames after first contact (within-frame means, not frame-end samples).
+:func:`reaming_energy_balance` and :func:`reaming_convergence` run the default case (0.45 mm
+mesh, γ 15°, θ 30°, 230 N) from first contact on; :func:`reaming_active_zone` checks that
+integrating only the zone the reamer can reach changes nothing that matters, and
+:func:`reaming_socket_window` checks the 0.5 dataset's kind of case. Removal is a threshold
+process (element deletion) driven by a chaotic cut, so the figures are taken over many frames:
+the removed volume at the end and the axial advance averaged over the frames after first
+contact (within-frame means, not frame-end samples).
 """
 
 from __future__ import annotations
@@ -89,6 +70,10 @@ def _removal_and_feed(prefix: str, against: str, run: dict, reference: dict, tol
 
 
 def reaming_energy_balance() -> list[CheckResult]:
+    """ABAQUS-style ETOTAL over ``ENERGY_FRAMES`` frames: |push + gravity + spin − (kinetic + internal +
+    viscous + debris + reamer kinetic + arm damping + contact damping + friction + penalty)| ≤ 5 %
+    of the external work (push + gravity + spin), also reported split where it arises (bone,
+    reamer, contact interface)."""
     from thrsim.geometry.bone_patch import generate_bone_patch
 
     case = default_case(ENERGY_FRAMES)
@@ -109,6 +94,11 @@ def reaming_energy_balance() -> list[CheckResult]:
 
 
 def reaming_convergence() -> list[CheckResult]:
+    """Removed volume and mean advance over ``CONVERGENCE_FRAMES`` frames against the default settings
+    when the contact penalty factor is halved (≤ 10 %), when Δt is halved (≤ 10 %) and when the
+    reamer's effective mass is halved or doubled (≤ 15 %: the reaming is quasi-static, so the push,
+    not the mass, sets the feed). Mass scaling keeps the contact's ω·Δt fixed when Δt is halved,
+    which is why the penalty factor gets its own study."""
     from thrsim.geometry.bone_patch import generate_bone_patch
 
     base = default_case(CONVERGENCE_FRAMES)
@@ -147,6 +137,10 @@ def _zone_cases():
 
 
 def reaming_active_zone() -> list[CheckResult]:
+    """The active zone (integrate only the elements the reamer can reach soon, hold the rest) against
+    integrating everything, on the default patch over ``CONVERGENCE_FRAMES`` frames and on a small
+    socket (``ZONE_SOCKET_ELEMENT_MM`` elements, a reamer one size up, ``ZONE_SOCKET_FRAMES``
+    frames): removed volume and mean advance within 5 %, the zone's energy balance within 5 %."""
     from thrsim.physics.reaming import bone_mesh
 
     records = []
@@ -187,6 +181,10 @@ def socket_window_case(frames: int) -> ReamingCaseConfig:
 
 
 def reaming_socket_window() -> list[CheckResult]:
+    """A window of the socket (30° from the pole, toward the dome) reamed by a 48 mm reamer on the
+    native 46 mm socket at 1 mm/s for ``WINDOW_FRAMES`` frames: energy balance within 5 %, and the
+    removed volume and the mean push the feed takes within 10 % when the contact penalty factor or
+    Δt is halved."""
     from thrsim.physics.reaming import bone_mesh
 
     base = socket_window_case(WINDOW_FRAMES)

@@ -522,6 +522,8 @@ class TrackingVolumeConfig(_Frozen):
 
 
 LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+#: OpenIGTLink's registered TCP port (IANA), where the listener and PlusServer's configurations listen by default
+OPENIGTLINK_PORT = 18944
 KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 
@@ -540,7 +542,7 @@ class IgtlConfig(_Frozen):
     """
 
     host: str = "127.0.0.1"
-    port: int = Field(18944, ge=0, le=65535, description="0 = any free port (tests)")
+    port: int = Field(OPENIGTLINK_PORT, ge=0, le=65535, description="0 = any free port (tests)")
     max_body_bytes: int = Field(1 << 20, gt=0)
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")

@@ -66,7 +66,7 @@ from starlette.concurrency import run_in_threadpool
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
 from thrsim.app.sessions_pages import record_routes
-from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
+from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.bone_frame import check_side
 from thrsim.nav.tracker_state import TrackerState
@@ -130,7 +130,7 @@ def _networks(values: tuple[str, ...]) -> tuple[ipaddress.IPv4Network | ipaddres
 class ServeSettings:
     host: str = "127.0.0.1"
     port: int = 8000
-    igtl_port: int = 18944
+    igtl_port: int = OPENIGTLINK_PORT
     token: str | None = None
     sessions_dir: Path = Path("sessions")
     side: str = "right"

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import typer
 
+from thrsim.config import OPENIGTLINK_PORT
 from thrsim.errors import ThrsimInputError
 
 
@@ -55,7 +56,7 @@ def _access_token(token: str | None, token_file: Path | None) -> str | None:
 
 def serve(
     port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
-    igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
+    igtl_port: int = typer.Option(OPENIGTLINK_PORT, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
     token_file: Path | None = typer.Option(
         None, "--token-file", help="file holding the access token every request must carry (or env THRSIM_TOKEN)", metavar="PATH"

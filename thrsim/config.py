@@ -534,7 +534,7 @@ class IgtlConfig(_Frozen):
     from anywhere else is closed at once. Poses are kept per device name: the ``known_devices``
     always, and at most ``max_other_devices`` other names (first come), so no client can grow the
     shared session without bound by inventing names. A connection that sends nothing for
-    ``idle_timeout_s`` is closed. A client earns its slot by sending what the trainer uses (a
+    ``idle_timeout_s`` is closed, unless, with ``feedback``, it reads what the trainer sends it. A client earns its slot by sending what the trainer uses (a
     known device's pose, a force): when every one of the ``max_clients`` slots is taken, a
     newcomer takes the slot of a connection that has earned nothing in the ``reclaim_after_s``
     since it connected, else of the one whose last useful message is oldest and older than
@@ -557,6 +557,9 @@ class IgtlConfig(_Frozen):
     max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")
     allowed_peers: tuple[IPvAnyNetwork, ...] = Field(
         LOOPBACK_NETWORKS, validate_default=True, description="networks whose peers are served"
+    )
+    feedback: bool = Field(
+        False, description="send every peer the trainer's events and simulated reamer (thrsim.io.feedback); one that reads them is not idle"
     )
 
     @field_validator("known_devices")

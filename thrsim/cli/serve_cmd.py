@@ -76,6 +76,11 @@ def serve(
         help="a network or address whose trackers the OpenIGTLink listener serves, beyond loopback (repeatable)",
         metavar="ADDR/NET",
     ),
+    igtl_feedback: bool = typer.Option(
+        False,
+        "--igtl-feedback",
+        help="send every OpenIGTLink peer the sessions' events (STRING thrsimEvent) and the simulated reamer (TRANSFORM SimReamerToBone)",
+    ),
     sessions: Path = typer.Option(
         Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"
     ),
@@ -121,7 +126,7 @@ def serve(
     thresholds = load_thresholds(thresholds_file)
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
-        model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow),
+        model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow), igtl_feedback=igtl_feedback,
         plan=plan, thresholds=thresholds,
     )  # fmt: skip
     # refusals are one line, before the ports are taken, the network compiled or the sessions folder made

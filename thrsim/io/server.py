@@ -144,7 +144,10 @@ class NavigationServer:
         self._server.close()
         tasks = list(self._handlers)
         for connection in list(self._connections):
-            connection.close()  # the handler's next read sees end of stream and returns
+            if connection.writer.transport.get_write_buffer_size() > 0:
+                connection.writer.transport.abort()  # a peer not reading what it was sent would hold the close open
+            else:
+                connection.close()  # the handler's next read sees end of stream and returns
         if tasks:
             _, stuck = await asyncio.wait(tasks, timeout=self.config.io_timeout_s)
             for task in stuck:
@@ -163,15 +166,19 @@ class NavigationServer:
         if not messages:
             return
         now = asyncio.get_running_loop().time()
+        encoded: dict[int, bytes] = {}  # header version → the messages, checksummed once
         for connection in list(self._connections):
-            transport = connection.writer.transport
             if connection.writer.is_closing():
                 continue
-            if transport.get_write_buffer_size() > self.config.max_body_bytes:
+            if connection.writer.transport.get_write_buffer_size() > self.config.max_body_bytes:
                 self.stats["feedback_dropped"] += len(messages)
                 continue
-            for type_name, device, content in messages:
-                connection.writer.write(igtl.encode_message(igtl.Message(type_name, device, content, version=connection.version)))
+            if connection.version not in encoded:
+                encoded[connection.version] = b"".join(
+                    igtl.encode_message(igtl.Message(type_name, device, content, version=connection.version))
+                    for type_name, device, content in messages
+                )
+            connection.writer.write(encoded[connection.version])
             connection.fed_at = now
             self.stats["feedback_sent"] += len(messages)
 

@@ -616,7 +616,11 @@ def create_app(settings: ServeSettings) -> FastAPI:
             igtl_server = NavigationServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
             if igtl_config.feedback:
                 loop, listener = asyncio.get_running_loop(), igtl_server
-                hub.feedback = lambda messages: loop.call_soon_threadsafe(listener.broadcast, messages)
+
+                def hand_over(messages: list[tuple[str, str, bytes]]) -> None:  # from the ticker's worker thread or the loop
+                    loop.call_soon_threadsafe(listener.broadcast, messages)
+
+                hub.feedback = hand_over
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:

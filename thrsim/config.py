@@ -522,6 +522,8 @@ class TrackingVolumeConfig(_Frozen):
 
 
 LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
+#: OpenIGTLink's registered TCP port (IANA), where the listener and PlusServer's configurations listen by default
+OPENIGTLINK_PORT = 18944
 KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 
@@ -532,7 +534,7 @@ class IgtlConfig(_Frozen):
     from anywhere else is closed at once. Poses are kept per device name: the ``known_devices``
     always, and at most ``max_other_devices`` other names (first come), so no client can grow the
     shared tracker state without bound by inventing names. A connection that sends nothing for
-    ``idle_timeout_s`` is closed. A client earns its slot by sending what the trainer uses (a
+    ``idle_timeout_s`` is closed, unless, with ``feedback``, it reads what the trainer sends it. A client earns its slot by sending what the trainer uses (a
     known device's pose, a force): when every one of the ``max_clients`` slots is taken, a
     newcomer takes the slot of a connection that has earned nothing in the ``reclaim_after_s``
     since it connected, else of the one whose last useful message is oldest and older than
@@ -540,7 +542,7 @@ class IgtlConfig(_Frozen):
     """
 
     host: str = "127.0.0.1"
-    port: int = Field(18944, ge=0, le=65535, description="0 = any free port (tests)")
+    port: int = Field(OPENIGTLINK_PORT, ge=0, le=65535, description="0 = any free port (tests)")
     max_body_bytes: int = Field(1 << 20, gt=0)
     max_clients: int = Field(32, ge=1)
     io_timeout_s: float = Field(5.0, gt=0, description="a started message or a reply must finish within this")
@@ -555,6 +557,9 @@ class IgtlConfig(_Frozen):
     max_other_devices: int = Field(8, ge=0, description="further TRANSFORM device names accepted, first come")
     allowed_peers: tuple[IPvAnyNetwork, ...] = Field(
         LOOPBACK_NETWORKS, validate_default=True, description="networks whose peers are served"
+    )
+    feedback: bool = Field(
+        False, description="send every peer the trainer's events and simulated reamer (thrsim.io.feedback); one that reads them is not idle"
     )
 
     @field_validator("known_devices")

@@ -17,6 +17,7 @@ NO_JSON = {
     (): "the root only lists the commands (and --version prints the version)",
     ("nav",): "nav only lists its commands",
     ("sessions",): "sessions only lists its commands",
+    ("trackers",): "trackers only lists its commands",
 }
 
 

@@ -33,6 +33,8 @@ class RunningServer:
         assert started.wait(5), "server did not start"
 
     def stop(self) -> None:
+        if not self.thread.is_alive():
+            return  # stopped already (a test stopped it; the fixture stops it again)
         asyncio.run_coroutine_threadsafe(self.server.close(), self.loop).result(5)
         self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(5)

@@ -25,6 +25,7 @@ import secrets
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -39,8 +40,9 @@ from starlette.concurrency import run_in_threadpool
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
 from thrsim.app.sessions_pages import record_routes
-from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
+from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
+from thrsim.io import feedback
 from thrsim.nav.bone_frame import check_side
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
@@ -103,7 +105,7 @@ def _networks(values: tuple[str, ...]) -> tuple[ipaddress.IPv4Network | ipaddres
 class ServeSettings:
     host: str = "127.0.0.1"
     port: int = 8000
-    igtl_port: int = 18944
+    igtl_port: int = OPENIGTLINK_PORT
     token: str | None = None
     sessions_dir: Path = Path("sessions")
     side: str = "right"
@@ -115,6 +117,7 @@ class ServeSettings:
     allowed_hosts: tuple[str, ...] = ()  # host names the page may be opened by off loopback (besides addresses)
     igtl_host: str | None = None  # the OpenIGTLink listener's address (None: loopback)
     igtl_allow: tuple[str, ...] = ()  # networks beyond loopback whose trackers are served
+    igtl_feedback: bool = False  # send OpenIGTLink peers the sessions' events and simulated reamer (thrsim.io.feedback)
     session_ends: SessionEndLimit = SessionEndLimit()
     live_sessions: LiveSessionLimit = LiveSessionLimit()
     save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
@@ -146,7 +149,12 @@ class ServeSettings:
     def igtl_config(self) -> IgtlConfig:
         """The OpenIGTLink listener: on loopback (this host's, when it is loopback) unless ``igtl_host``."""
         host = self.igtl_host or (self.host if is_loopback(self.host) else "127.0.0.1")
-        return IgtlConfig(host=host, port=self.igtl_port, allowed_peers=LOOPBACK_NETWORKS + tuple(map(str, _networks(self.igtl_allow))))
+        return IgtlConfig(
+            host=host,
+            port=self.igtl_port,
+            allowed_peers=LOOPBACK_NETWORKS + tuple(map(str, _networks(self.igtl_allow))),
+            feedback=self.igtl_feedback,
+        )
 
     def host_allowed(self, header: str) -> bool:
         """Whether a request's ``Host`` header names this trainer (see :class:`_AccessGate`)."""
@@ -293,6 +301,9 @@ class TrainerHub:
         self._saving = threading.Lock()
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
+        #: with feedback on, hands what the peers get (thrsim.io.feedback) to the OpenIGTLink server, from any thread
+        self.feedback: Callable[[list[tuple[str, str, bytes]]], None] | None = None
+        self._ended_events: deque[dict] = deque()  # sessions ended since the last tick (feedback on); appends are atomic
         self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
         self.ends_counted_at = clock()
 
@@ -337,14 +348,17 @@ class TrainerHub:
         session = seat.session
         if not session.trainer.record().assessable:
             session.discard()
+            self._ended(session, None)
             return None
         try:
             path = session.save(self.settings.sessions_dir)
         except (ThrsimInputError, OSError) as error:
             self.unsaved.append(session)
             log.error("session %s kept, not saved yet: %s", session.id, error)
+            self._ended(session, None)
             return None
         self.saved.append(path)
+        self._ended(session, path)
         return path
 
     def on_pose(self, device: str, pose, clock_time: float) -> None:
@@ -362,19 +376,53 @@ class TrainerHub:
         self.ticks += 1
         texts = {}
 
-        def early_for(seat: Seat) -> Callable[[dict], None] | None:
-            if publish_early is None or not seat.viewers:
-                return None
-            return lambda state: publish_early(seat, json.dumps(state, allow_nan=False))
+        def early_for(seat: Seat, heard: list[dict]) -> Callable[[dict], None] | None:
+            publish = None if publish_early is None or not seat.viewers else publish_early
 
+            def early(state: dict) -> None:
+                heard.append(state)  # its events are the peers' too
+                if publish is not None:
+                    publish(seat, json.dumps(state, allow_nan=False))
+
+            return None if publish is None and self.feedback is None else early
+
+        stepped: list[tuple[LiveSession, list[dict]]] = []
         for seat in list(self.seats):
+            heard: list[dict] = []
             try:
-                state = seat.session.tick(early_for(seat))
+                state = seat.session.tick(early_for(seat, heard))
                 if seat.viewers:
                     texts[seat] = json.dumps(state, allow_nan=False)
             except Exception:  # a trainer bug must not stop the other sessions or lose this one
                 log.exception("%s step failed", seat.session.mode.name)
+                continue
+            stepped.append((seat.session, [*heard, state]))
+        self._feed(stepped)
         return texts
+
+    def _feed(self, stepped: list[tuple[LiveSession, list[dict]]]) -> None:
+        """Hand the OpenIGTLink peers this tick's feedback: the sessions ended since the last tick and
+        every event of this one in one message, then each simulated reamer (thrsim.io.feedback)."""
+        if self.feedback is None:
+            return
+        try:
+            events = [self._ended_events.popleft() for _ in range(len(self._ended_events))]
+            reamers = []
+            for session, states in stepped:
+                events += feedback.step_events(session.id, states)
+                reamers.append(feedback.simulated_reamer(states[-1], session.trainer.scene))
+            outgoing = [feedback.events_message(events)] if events else []
+            self.feedback(outgoing + [reamer for reamer in reamers if reamer is not None])
+        except Exception:  # a bug of ours in the feedback must not stop the sessions
+            log.exception("OpenIGTLink feedback failed")
+
+    def _ended(self, session: LiveSession, path: Path | None) -> None:
+        """With feedback on, the end of ``session`` goes to the OpenIGTLink peers at the next tick, with
+        its file's name (None: not saved)."""
+        if self.feedback is not None:
+            self._ended_events.append(
+                feedback.session_ended(session.id, session.mode.name, session.elapsed(), None if path is None else path.name)
+            )
 
     def publish(self, texts: dict[Seat, str]) -> None:
         """Hand the states to the viewers' senders (on the event loop)."""
@@ -415,8 +463,10 @@ class TrainerHub:
             path = session.save(self.settings.sessions_dir)
         except (ThrsimInputError, OSError):
             self.unsaved.append(session)
+            self._ended(session, None)
             raise
         self.saved.append(path)
+        self._ended(session, path)
         return path
 
     def retry_unsaved(self, folder: Path | None = None) -> list[Path]:
@@ -553,6 +603,13 @@ def create_app(settings: ServeSettings) -> FastAPI:
             igtl_tracker = _ForwardingTracker(hub, side=first.side, landmarks=first.targets)
             igtl_config = settings.igtl_config()
             igtl_server = IgtlServer(igtl_config, tracker=igtl_tracker, clock=hub.clock)
+            if igtl_config.feedback:
+                loop, listener = asyncio.get_running_loop(), igtl_server
+
+                def hand_over(messages: list[tuple[str, str, bytes]]) -> None:  # from the ticker's worker thread or the loop
+                    loop.call_soon_threadsafe(listener.broadcast, messages)
+
+                hub.feedback = hand_over
             try:
                 hub.igtl_address = await igtl_server.start()
             except OSError as error:

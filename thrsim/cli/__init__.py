@@ -28,6 +28,7 @@ from thrsim.cli import (
     serve_cmd,
     sessions_cmd,
     track_cmd,
+    trackers_cmd,
     train_cmd,
     verify_cmd,
 )
@@ -66,6 +67,7 @@ app.command("ream")(ream_cmd.ream)
 app.add_typer(nav_cmd.app, name="nav")
 app.add_typer(dataset_cmd.app, name="dataset")
 app.add_typer(sessions_cmd.app, name="sessions")
+app.add_typer(trackers_cmd.app, name="trackers")
 
 
 def main() -> None:

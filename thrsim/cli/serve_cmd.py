@@ -14,6 +14,7 @@ from pathlib import Path
 
 import typer
 
+from thrsim.config import OPENIGTLINK_PORT
 from thrsim.errors import ThrsimInputError
 
 
@@ -55,7 +56,7 @@ def _access_token(token: str | None, token_file: Path | None) -> str | None:
 
 def serve(
     port: int = typer.Option(8000, "--port", help="HTTP port of the trainer page (0: any free port, printed at start)"),
-    igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
+    igtl_port: int = typer.Option(OPENIGTLINK_PORT, "--igtl-port", help="OpenIGTLink port for a tracker (0: any free port)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on; beyond loopback a token is required"),
     token_file: Path | None = typer.Option(
         None, "--token-file", help="file holding the access token every request must carry (or env THRSIM_TOKEN)", metavar="PATH"
@@ -74,6 +75,11 @@ def serve(
         "--igtl-allow",
         help="a network or address whose trackers the OpenIGTLink listener serves, beyond loopback (repeatable)",
         metavar="ADDR/NET",
+    ),
+    igtl_feedback: bool = typer.Option(
+        False,
+        "--igtl-feedback",
+        help="send every OpenIGTLink peer the sessions' events (STRING thrsimEvent) and the simulated reamer (TRANSFORM SimReamerToBone)",
     ),
     sessions: Path = typer.Option(
         Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"
@@ -120,7 +126,7 @@ def serve(
     thresholds = load_thresholds(thresholds_file)
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
-        model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow),
+        model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow), igtl_feedback=igtl_feedback,
         plan=plan, thresholds=thresholds,
     )  # fmt: skip
     # refusals are one line, before the ports are taken, the network compiled or the sessions folder made

@@ -11,7 +11,7 @@ import time
 import typer
 
 from thrsim.cli.output import console
-from thrsim.config import IgtlConfig
+from thrsim.config import OPENIGTLINK_PORT, IgtlConfig
 from thrsim.errors import ThrsimInputError
 
 _DEFAULT = IgtlConfig()
@@ -75,7 +75,7 @@ async def _serve(config: IgtlConfig, duration: float | None, json_log: bool, int
 
 
 def track(
-    igtl_port: int = typer.Option(18944, "--igtl-port", help="OpenIGTLink port (0: any free port, printed at start)"),
+    igtl_port: int = typer.Option(OPENIGTLINK_PORT, "--igtl-port", help="OpenIGTLink port (0: any free port, printed at start)"),
     host: str = typer.Option("127.0.0.1", "--host", help="interface to listen on"),
     duration: float | None = typer.Option(
         None, "--duration", help="stop after this many seconds (default: until SIGINT/SIGTERM)", metavar="S"

@@ -1,4 +1,5 @@
-"""Input/output at the edge: the OpenIGTLink codec and the asyncio navigation server."""
+"""Input/output at the edge: the OpenIGTLink codec, the asyncio navigation server, what the trainer sends
+back to its peers, and the PlusServer device sets that stream the names it reads."""
 
 from thrsim.io.server import NAVIGATION_STATE, IgtlServer
 

@@ -44,6 +44,7 @@ class _Connection:
         self.earned_at: float | None = None  # when it last sent a pose or force the trainer uses (loop time)
         self.version = 1
         self.send_lock = asyncio.Lock()
+        self.fed_at: float | None = None  # when feedback was last written to it (loop time)
 
     def close(self) -> None:
         self.writer.close()
@@ -89,8 +90,14 @@ class IgtlServer:
     Peers: a connection from an address outside ``allowed_peers`` (loopback alone by default) is
     closed at once, with one log line and no reply.
 
+    Feedback (``feedback`` on, :mod:`thrsim.io.feedback`): :meth:`broadcast` writes the trainer's
+    events and simulated reamer to every connection, without waiting on any: a connection with more
+    than ``max_body_bytes`` still unsent (a peer that does not read) misses them, counted.
+
     Slots: at most ``max_clients`` connections. One that sends nothing for ``idle_timeout_s`` gets a
-    STATUS (7, time out) and is closed. A client earns its slot by sending what the trainer uses: a
+    STATUS (7, time out) and is closed, unless feedback is on and it has read all the feedback sent
+    it in that time (a viewer, such as 3D Slicer showing the simulated reamer, need not send). A
+    client earns its slot by sending what the trainer uses: a
     pose of a known device or a force reading. When every slot is taken, a newcomer takes the slot
     of the oldest connection that has earned nothing in the ``reclaim_after_s`` since it connected,
     else of the one whose last useful message is oldest, if older than ``idle_timeout_s`` (that
@@ -116,6 +123,7 @@ class IgtlServer:
         self.stats.update(
             dict.fromkeys(("idle_timeouts", "reclaimed_slots", "unknown_devices", "internal_errors", "refused_peers", "truncated"), 0)
         )
+        self.stats.update(dict.fromkeys(("feedback_sent", "feedback_dropped"), 0))
         self._connections: set[_Connection] = set()
         self._handlers: set[asyncio.Task] = set()  # every connection's task, reclaimed ones included
         self._other_devices: set[str] = set()  # TRANSFORM names beyond config.known_devices, bounded
@@ -138,7 +146,10 @@ class IgtlServer:
         self._server.close()
         tasks = list(self._handlers)
         for connection in list(self._connections):
-            connection.close()  # the handler's next read sees end of stream and returns
+            if connection.writer.transport.get_write_buffer_size() > 0:
+                connection.writer.transport.abort()  # a peer not reading what it was sent would hold the close open
+            else:
+                connection.close()  # the handler's next read sees end of stream and returns
         if tasks:
             _, stuck = await asyncio.wait(tasks, timeout=self.config.io_timeout_s)
             for task in stuck:
@@ -148,6 +159,37 @@ class IgtlServer:
     def snapshot(self) -> dict:
         """Navigation state, client count and counters, for logs."""
         return {"state": self.tracker.state(self.clock()), "clients": self.clients, "stats": dict(self.stats)}
+
+    def broadcast(self, messages: list[tuple[str, str, bytes]]) -> None:
+        """Write ``messages`` (type, device name, content) to every connection, in its header version,
+        without waiting (on the event loop): a connection holding more than ``max_body_bytes`` unsent
+        misses them (``feedback_dropped``), so a peer that does not read neither slows the others nor
+        grows memory. Only admitted peers (``allowed_peers``) have connections."""
+        if not messages:
+            return
+        now = asyncio.get_running_loop().time()
+        encoded: dict[int, bytes] = {}  # header version → the messages, checksummed once
+        for connection in list(self._connections):
+            if connection.writer.is_closing():
+                continue
+            if connection.writer.transport.get_write_buffer_size() > self.config.max_body_bytes:
+                self.stats["feedback_dropped"] += len(messages)
+                continue
+            if connection.version not in encoded:
+                encoded[connection.version] = b"".join(
+                    igtl.encode_message(igtl.Message(type_name, device, content, version=connection.version))
+                    for type_name, device, content in messages
+                )
+            connection.writer.write(encoded[connection.version])
+            connection.fed_at = now
+            self.stats["feedback_sent"] += len(messages)
+
+    def _reads_feedback(self, connection: _Connection) -> bool:
+        """With feedback on: whether the connection was fed within ``idle_timeout_s`` and its peer read it all."""
+        if not self.config.feedback or connection.fed_at is None:
+            return False
+        recent = asyncio.get_running_loop().time() - connection.fed_at < self.config.idle_timeout_s
+        return recent and connection.writer.transport.get_write_buffer_size() == 0
 
     def _peer_allowed(self, writer: asyncio.StreamWriter) -> bool:
         """Whether the peer's address lies in ``allowed_peers``; refused peers are logged, one line each."""
@@ -218,6 +260,8 @@ class IgtlServer:
         try:
             first = await asyncio.wait_for(reader.readexactly(1), self.config.idle_timeout_s)
         except TimeoutError:
+            if self._reads_feedback(connection):
+                return True  # a viewer reading the feedback: not idle
             self.stats["idle_timeouts"] += 1
             connection.say_goodbye(igtl.STATUS_TIMEOUT, "IdleTimeout", f"no message for {self.config.idle_timeout_s:g} s")
             return False

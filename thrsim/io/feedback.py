@@ -1,22 +1,9 @@
 """What the trainer sends back to its OpenIGTLink peers (``thrsim serve --igtl-feedback``).
 
-Two device names, defined here once:
-
-* ``thrsimEvent`` (:data:`EVENT_DEVICE`), a STRING at each trainer step that had events: a JSON
-  object ``{"events": [...]}``, each event as the session file keeps it (``kind``, ``time_s`` from
-  its session's start, ``detail``, its figures) with ``session`` (the session's id) and ``mode``.
-  One message per step, not per event: peers such as pyigtl and 3D Slicer keep only the newest
-  message of a device name, and a step often has two events (a landmark ``acquired``, the next
-  ``target``). The kinds are the trainers' (the navigation trainer's ``target``, ``acquired``,
-  ``completed``, ``tracking_lost``, ...; the reaming trainer's ``start``, ``pause``,
-  ``reamer_changed``, ``perforated``, ``medial_wall_breached``, ...) and :data:`SESSION_ENDED`.
-* ``SimReamerToBone`` (:data:`SIM_REAMER_DEVICE`), a TRANSFORM at every trainer step once the
-  simulator has placed the reamer: the simulated reamer in the bone patch's frame (origin at the
-  acetabular centre, +z out of the acetabulum), rotation whose local +z is the reamer axis D (into
-  the bone), translation the head centre (mm on the wire); at γ = 0 the rotation is diag(1, −1, −1).
-
-Sending is opt-in: a peer written for the reply-per-message protocol (one ``NavigationState``
-per TRANSFORM or SENSOR) would read an unsolicited message as that reply.
+Two device names, defined here once: :data:`EVENT_DEVICE`, a STRING of each trainer step's events,
+and :data:`SIM_REAMER_DEVICE`, a TRANSFORM of the simulated reamer. Sending is opt-in: a peer
+written for the reply-per-message protocol (one ``NavigationState`` per TRANSFORM or SENSOR) would
+read an unsolicited message as that reply.
 """
 
 from __future__ import annotations
@@ -29,7 +16,18 @@ import numpy as np
 
 from thrsim.io import igtl
 
+#: a STRING at each trainer step that had events: ``{"events": [...]}``, each event as the session
+#: file keeps it (``kind``, ``time_s`` from its session's start, ``detail``, its figures) with
+#: ``session`` and ``mode``. One message per step, not per event: pyigtl and 3D Slicer keep only the
+#: newest message of a device name, and a step often has two events (``acquired``, the next
+#: ``target``). The kinds are the trainers' (``target``, ``acquired``, ``completed``,
+#: ``tracking_lost``, ...; ``start``, ``pause``, ``reamer_changed``, ``perforated``,
+#: ``medial_wall_breached``, ...) and :data:`SESSION_ENDED`.
 EVENT_DEVICE = "thrsimEvent"
+#: a TRANSFORM at every trainer step once the simulator has placed the reamer: the simulated reamer
+#: in the bone patch's frame (origin at the acetabular centre, +z out of the acetabulum), rotation
+#: whose local +z is the reamer axis D (into the bone), translation the head centre (mm on the
+#: wire); at γ = 0 the rotation is diag(1, −1, −1)
 SIM_REAMER_DEVICE = "SimReamerToBone"
 #: the event sent when a live session ends (its trainee ended it or left): not one of the trainers' own
 SESSION_ENDED = "session_ended"

@@ -193,3 +193,26 @@ def test_thrsim_ream_reams_the_whole_socket_with_a_sequence_of_reamers(socket_mo
         assert not (tmp_path / "bad").exists()
     patch = run_thrsim("ream", "--bone", "socket", "--out", str(tmp_path / "patch"))  # the shipped model reams the patch
     assert patch.returncode == 2 and "socket feature set" in patch.stderr
+
+
+def test_the_reaction_law_follows_the_area_in_contact_not_the_element_count():
+    import torch
+
+    from thrsim.data.synthetic import block_mesh
+    from thrsim.learn.bench import untrained_model
+    from thrsim.learn.settings import preset
+
+    laws, regions = [], []
+    for n in (4, 8):  # the same block, elements of half the size
+        mesh = block_mesh(n=n)
+        model = untrained_model(mesh, preset("socket"), teeth_radius_m=3e-3)
+        with torch.no_grad():  # every node the same share of reaction
+            model.gn.network.output.weight.zero_()
+            model.gn.network.output.bias.fill_(1.0)
+        step = LearnedStep(model.gn, model.graph, model.settings.features, 3e-3, np.full(mesh.n_tets, 5e8))
+        axis = np.array([0.0, 0.0, -1.0])
+        step(BoneState.start(np.full(mesh.n_tets, 0.58, dtype=np.float32)), np.array([0.0, 0.0, -22e-3 + 2.5e-3]), axis, 230.0, 0.0, 136.0)
+        laws.append(step.reaction_law[0])
+        regions.append(step.last.region)
+    assert regions[1] > 3 * regions[0]  # many more elements in contact on the finer mesh
+    assert 0.5 < laws[1] / laws[0] < 2.0  # about the same reaction

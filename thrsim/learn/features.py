@@ -59,6 +59,17 @@ WIDTHS = {name: (len(NODE_COLUMNS[name]), *widths) for name, widths in EDGE_GLOB
 CORNER_COLUMNS = len(CORNER_NAMES)
 
 
+#: the volume of a regular tetrahedron of the solver's 0.45 mm edge (m³): a contact weight of 1
+REFERENCE_TET_VOLUME_M3 = (0.45e-3) ** 3 / (6.0 * 2.0**0.5)
+
+
+def contact_weights(graph: StaticGraph, sub: Subgraph) -> np.ndarray:
+    """Each node's share of a contact area, (V / V_ref)^(2/3): summed over the nodes in contact it
+    grows with the area touched, not the number of elements, so a reaction law learned on one
+    mesh holds on a coarser or finer one."""
+    return ((graph.volumes[sub.nodes] / REFERENCE_TET_VOLUME_M3) ** (2.0 / 3.0)).astype(np.float32)
+
+
 def input_widths(features: FeatureSettings) -> tuple[int, int, int]:
     """Widths of (node, edge, global) inputs: the feature set's, plus the corner and damage node columns."""
     _, edge, global_ = WIDTHS[features.feature_set]
@@ -93,6 +104,8 @@ class GraphBatch:
     damage: torch.Tensor | None = None
     #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s); NaN where unknown
     reaction: torch.Tensor | None = None
+    #: per node, its share of a contact area (:func:`contact_weights`), which the reaction head's shares scale by
+    contact_weight: torch.Tensor | None = None
 
     def network_args(self) -> tuple:
         return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
@@ -364,10 +377,12 @@ def batch(
     parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]],
     damage: list[np.ndarray] | None = None,
     reaction: list[tuple[float, float, float]] | None = None,
+    contact_weight: list[np.ndarray] | None = None,
 ) -> GraphBatch:
     """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
     ``damage``, for models with damage, D on each part's nodes; ``reaction``, for training a
-    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s)."""
+    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s); ``contact_weight``,
+    for a reaction head, each part's :func:`contact_weights`."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
     for index, (sub, alpha_sub, (n, e, g)) in enumerate(parts):
@@ -399,4 +414,5 @@ def batch(
         update=cat(update, np.bool_),
         damage=None if damage is None else cat(damage, np.float32),
         reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(-1, 3),
+        contact_weight=None if contact_weight is None else cat(contact_weight, np.float32),
     )

@@ -150,7 +150,9 @@ class LearnedSimulator(nn.Module):
 
     def reaction_law(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
         """(subgraphs, 4) reaction laws (see ``REACTION_LAW``) from the nodes' raw shares."""
-        mask = self.trainable_mask(batch).to(shares.dtype)[:, None]
+        if batch.contact_weight is None:
+            raise ValueError("a reaction head needs each node's contact weight")
+        mask = (self.trainable_mask(batch).to(shares.dtype) * batch.contact_weight)[:, None]
         positive = nn.functional.softplus(shares) * mask / _NODES_UNIT
         sums = positive.new_zeros((batch.globals_.shape[0], 4)).index_add_(0, batch.node_graph, positive)
         force, torque = self.reaction_scale[0], self.reaction_scale[1]

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays, select_subgraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, select_subgraph
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.reaction_feed import ReactionFeed
@@ -107,7 +107,8 @@ class LearnedStep:
             self.features.corners,
             self.cutting_energy_j_m3,
         )
-        return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub])
+        weights = [contact_weights(graph, sub)] if self.model.reaction_head else None
+        return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub], None, weights)
 
     def __call__(
         self, state: BoneState, centre: np.ndarray, axis: np.ndarray, force_n: float, advance_m: float, omega_rad_s: float

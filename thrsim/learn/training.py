@@ -30,7 +30,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
-from thrsim.learn.features import ReamerState, batch, frame_arrays, select_subgraph
+from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, select_subgraph
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.metrics import Counts
@@ -179,13 +179,21 @@ class Trainer:
             case.element_cutting_energy_j_m3,
         )
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
-        return (sub, alpha_in, arrays), damage_in, case.alpha[t + 1][sub.nodes], damage_next, next_reaction(case, int(t) + 1)
+        return (
+            (sub, alpha_in, arrays),
+            damage_in,
+            case.alpha[t + 1][sub.nodes],
+            damage_next,
+            next_reaction(case, int(t) + 1),
+            contact_weights(graph, sub),
+        )
 
     def _batch(self, drawn: list) -> tuple:
         """Network inputs, α(t+1) and D(t+1) (None without damage) of drawn samples."""
         with_damage = self.settings.features.damage
-        reaction = [d[4] for d in drawn] if self.settings.arch.reaction_head else None
-        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None, reaction)
+        head = self.settings.arch.reaction_head
+        reaction, weights = ([d[4] for d in drawn], [d[5] for d in drawn]) if head else (None, None)
+        inputs = batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None, reaction, weights)
         alpha_next = torch.from_numpy(np.concatenate([d[2] for d in drawn]).astype(np.float32))
         damage_next = torch.from_numpy(np.concatenate([d[3] for d in drawn]).astype(np.float32)) if with_damage else None
         return inputs, alpha_next, damage_next

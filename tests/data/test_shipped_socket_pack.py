@@ -14,6 +14,7 @@ def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_lea
     splits = {split: sum(case.split == split for case in cases) for split in ("train", "validation", "test")}
     assert splits == {"train": 36, "validation": 6, "test": 9}
     assert all(case.frames == 61 and case.mesh is not None and case.reaction_n is not None for case in cases)
+    assert all(case.alpha.shape[1] == case.mesh.n_tets for case in cases)  # each case on its own mesh, in either file
     assert all(case.motor_torque_n_m is not None and case.element_cutting_energy_j_m3 is not None for case in cases)
     assert {round(2e3 * case.teeth_radius_m) for case in cases} == {46, 48, 50, 52, 54}
     assert len({case.mesh.n_tets for case in cases}) > 5  # windows of the socket, not one mesh

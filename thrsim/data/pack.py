@@ -390,7 +390,9 @@ def _read_pack_file(
         split = None if split in (None, "None") else split
         if splits is not None and split not in splits:
             continue
-        own_mesh = read_mesh_group(group_at(g, "mesh", path)) if version == PACK_VERSION_OWN_MESHES and "mesh" in g else None
+        own_mesh = None
+        if version == PACK_VERSION_OWN_MESHES:  # each case its mesh: its own, or its file's (files of a pack differ)
+            own_mesh = read_mesh_group(group_at(g, "mesh", path)) if "mesh" in g else mesh
         elements = (own_mesh or mesh).n_tets
         quantised = read_dataset(g, "alpha", path, "u", (elements, None))
         frames = quantised.shape[1]

@@ -220,6 +220,9 @@ def case_graphs(graph: StaticGraph, cases: list[CaseArrays], any_mesh: bool) -> 
     by_digest = {graph.digest: graph}
     graphs = {}
     for case in cases:
+        elements = graph.n_nodes if case.mesh is None else case.mesh.n_tets
+        if case.alpha.shape[1] != elements:
+            raise ThrsimInputError(f"{case.path}: case {case.case_id} has {case.alpha.shape[1]} elements, its mesh {elements}")
         digest = graph.digest if case.mesh is None else mesh_digest(case.mesh)
         if digest not in by_digest:
             if not any_mesh or case.mesh is None:

@@ -32,7 +32,7 @@ from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import INNER, OUTER
+from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
@@ -55,6 +55,18 @@ class _Trace:
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
+
+
+def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str | None:
+    """The bone layer the reamer cuts: the material most of a frame's removed elements are made of
+    (``previous`` when the frame removed none); None for a mesh of one material (the patch), where
+    no layer changes."""
+    if mesh.material is None or len(mesh.material_names) < 2:
+        return None
+    if len(newly_removed) == 0:
+        return previous
+    counts = np.bincount(mesh.material[newly_removed], minlength=len(mesh.material_names))
+    return mesh.material_names[int(np.argmax(counts))]
 
 
 class ReamingTrainer:
@@ -93,6 +105,7 @@ class ReamingTrainer:
         self._pending_events: list[dict] = []
         self.page_hidden = False  # the trainee's page is hidden or left: reaming holds (a running reamer resumes when it shows)
         self._push_outside = False  # the last frame's push was outside the range the model learned
+        self._wall_nodes: np.ndarray | None = None  # the medial wall's nodes (patch frame, m), read once
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -106,6 +119,7 @@ class ReamingTrainer:
         self._history: deque[SimulatorSnapshot] = deque(maxlen=self.undo_frames + 1)
         self._last_step_ms = math.nan
         self._reamer_position: np.ndarray | None = None  # patch frame, m
+        self._cutting_layer: str | None = None
         if self.simulator is not None:
             self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
         self._publish()
@@ -192,6 +206,7 @@ class ReamingTrainer:
         back = self._history[0]
         self.simulator.restore(back)
         self._reamer_position = None if back.centre is None else back.centre.copy()
+        self._cutting_layer = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
         self.running_s = self.frames_run / self.frame_rate_hz
@@ -259,6 +274,7 @@ class ReamingTrainer:
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
+        self._cutting_layer = cutting_layer(self.simulator.right_mesh, result.newly_removed, self._cutting_layer)
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)
@@ -337,11 +353,48 @@ class ReamingTrainer:
             "reamer_centre": None
             if self._reamer_position is None
             else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
+            "planned_cup": self.planned_cup(),
+            "medial_wall_remaining_mm": self.medial_wall_remaining_mm(),
+            "cutting_layer": self._cutting_layer,
             "paused": "page hidden" if self.running and self.page_hidden else None,
             "note": note,
             "events": events,
         }
         return {**nav_state, "mode": self.mode, "reaming": reaming}
+
+    # ---- the cavity against the plan, for the page -------------------------------------------
+
+    def planned_cup(self) -> dict | None:
+        """The cup the cavity is reamed for, in the pelvis model frame: its diameter (mm), centre (m),
+        axis (unit, out of the socket) and radiographic angles. Today the default cup: the reamer's
+        hemisphere (its teeth's reach) at the acetabular centre along the safe zone's centre, as the
+        report plans it. None without a simulator."""
+        if self.simulator is None:
+            return None
+        placement = self.patch_to_model
+        return {
+            "diameter_mm": 2e3 * self.simulator.model.teeth_radius_m,
+            "centre_m": placement[:3, 3].tolist(),
+            "axis": placement[:3, 2].tolist(),
+            "inclination_deg": self.zone.inclination_deg,
+            "anteversion_deg": self.zone.anteversion_deg,
+            "source": "default",
+        }
+
+    def medial_wall_remaining_mm(self) -> float | None:
+        """Bone left between the reamer's teeth and the medial wall (mm, 0 once through): the nearest
+        node of the mesh's ``medial_wall`` face (the layered socket's), or of its outer face on the
+        patch (the face a perforation breaks through). None before the reamer has a position."""
+        if self.simulator is None or self._reamer_position is None:
+            return None
+        if self._wall_nodes is None:
+            mesh = self.simulator.right_mesh
+            wall = mesh.node_sets.get(MEDIAL_WALL, mesh.node_sets.get(OUTER))
+            self._wall_nodes = mesh.nodes[wall] if wall is not None and len(wall) else np.zeros((0, 3))
+        if not len(self._wall_nodes):
+            return None
+        nearest = float(np.min(np.linalg.norm(self._wall_nodes - self._reamer_position, axis=1)))
+        return max(0.0, (nearest - self.simulator.model.teeth_radius_m) * 1e3)
 
     # ---- what the page and the session file get -----------------------------------------------
 

@@ -122,37 +122,49 @@ class _Spheres:
         return np.min(gap, axis=1)
 
 
-def _mm(name: str, landmarks: dict[str, np.ndarray]) -> tuple[float, float, float]:
-    return tuple(float(v) for v in landmarks[name] * 1e3)  # type: ignore[return-value]
-
-
 class _PelvisDistance:
     """The signed distance (mm) of the whole pelvis at points (…, 3) in mm, model frame."""
 
     def __init__(self):
         lm = synthetic_pelvis_landmarks("right")
-        g = lambda name: _mm(name, lm)  # noqa: E731
+
+        def under(name: str, outward: tuple[float, float, float], depth: float) -> tuple[float, float, float]:
+            """A part's centre line ``depth`` (its radius there) beneath a landmark, so its surface
+            passes through the landmark facing ``outward``."""
+            direction = np.asarray(outward) / np.linalg.norm(outward)
+            return tuple(float(c) for c in lm[name] * 1e3 - depth * direction)  # type: ignore[return-value]
+
         centre = ACETABULUM_CENTRE_RIGHT * 1e3
         self.centre = centre
         self.axis = native_axis_right()
         lateral_bulge = np.array([9.0, 2.0, 0.0])
-        crest = _spline([g("asis_right"), g("iliac_tubercle_right"), g("iliac_crest_posterior_right"), g("psis_right")], 60)
-        lower = _spline(
-            [g("aiis_right"), (94.0, -50.0, -30.0), (74.0, -96.0, -24.0), (56.0, -136.0, -8.0), (46.0, -158.0, 8.0)],
-            60,
+        crest = _spline(
+            [
+                under("asis_right", (0.0, 1.0, 0.1), 7.0),
+                under("iliac_tubercle_right", (0.6, 0.0, 0.8), 8.0),
+                under("iliac_crest_posterior_right", (0.0, -0.3, 0.95), 7.0),
+                under("psis_right", (0.0, -0.9, 0.4), 7.0),
+            ],
+            120,
         )
+        lower = _spline(
+            [under("aiis_right", (0.3, 0.95, 0.0), 7.5), (94.0, -50.0, -30.0), (74.0, -96.0, -24.0), (56.0, -136.0, -8.0), (46.0, -158.0, 8.0)],
+            120,
+        )
+        spine_from = np.array([74.0, -80.0, -70.0])
+        tuberosity = under("ischial_tuberosity", (0.0, -0.3, -0.95), 12.0)
         wing = _sheet(lower, crest, lateral_bulge, lambda u, v: 4.5 + 2.5 * v**4 + 3.0 * (1 - v) ** 3 + 1.5 * np.exp(-(((u - 0.25) / 0.12) ** 2)) * v**6)
         self.parts = [
             _Spheres(*wing),
             # the acetabular body and the ilium's thick body above it, to the sciatic notch
             _Spheres(*_strand([tuple(centre - 6.0 * self.axis), (88.0, -62.0, -28.0), (70.0, -110.0, -14.0)], [31.0, 14.0, 10.0])),
             # ischium: posterior column, tuberosity, ramus forward to the inferior pubic ramus
-            _Spheres(*_strand([(82.0, -66.0, -62.0), (72.0, -82.0, -92.0), (70.0, -76.0, -116.0), g("ischial_tuberosity")], [12.0, 10.0, 11.0, 12.0])),
-            _Spheres(*_strand([(74.0, -80.0, -70.0), g("ischial_spine")], [6.0, 2.5])),
-            _Spheres(*_strand([g("ischial_tuberosity"), (52.0, -48.0, -126.0), (30.0, -22.0, -118.0), (10.0, -10.0, -108.0)], [10.0, 6.5, 6.5, 9.0])),
+            _Spheres(*_strand([(82.0, -66.0, -62.0), (72.0, -82.0, -92.0), (70.0, -74.0, -110.0), tuberosity], [12.0, 10.0, 11.0, 12.0])),
+            _Spheres(*_strand([tuple(spine_from), under("ischial_spine", tuple(lm["ischial_spine"] * 1e3 - spine_from), 2.5)], [6.0, 2.5])),
+            _Spheres(*_strand([tuberosity, (52.0, -48.0, -122.0), (30.0, -22.0, -116.0), (10.0, -12.0, -106.0)], [10.0, 6.5, 6.5, 9.0])),
             # pubis: superior ramus from the acetabulum to the tubercle, the body at the symphysis
-            _Spheres(*_strand([(82.0, -14.0, -70.0), (52.0, -4.0, -82.0), g("pubic_right"), (6.0, -6.0, -94.0)], [11.0, 8.0, 8.0, 10.0])),
-            _Spheres(*_strand([(13.0, -8.0, -90.0), (10.0, -9.0, -104.0)], [9.0, 9.0])),
+            _Spheres(*_strand([(82.0, -14.0, -70.0), (52.0, -8.0, -82.0), under("pubic_right", (0.0, 1.0, 0.0), 8.0), (6.0, -11.0, -94.0)], [11.0, 8.0, 8.0, 9.0])),
+            _Spheres(*_strand([(13.0, -12.0, -92.0), (10.0, -13.0, -104.0)], [9.0, 9.0])),
             # sacrum: a plate concave forward between the wings, narrowing to the coccyx
             _Spheres(*self._sacrum()),
         ]
@@ -244,10 +256,10 @@ def _surface_nets(distance, lower: np.ndarray, upper: np.ndarray, step: float):
 
 
 def _value_and_gradient(distance, points: np.ndarray, h: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-    """The distance at the points and its central-difference gradient, in one evaluation."""
-    steps = np.vstack([np.zeros(3), np.eye(3) * h, -np.eye(3) * h])
-    values = distance((points[None] + steps[:, None]).reshape(-1, 3)).reshape(7, -1)
-    return values[0], ((values[1:4] - values[4:7]) / (2 * h)).T
+    """The distance at the points and its forward-difference gradient, in one evaluation."""
+    steps = np.vstack([np.zeros(3), np.eye(3) * h])
+    values = distance((points[None] + steps[:, None]).reshape(-1, 3)).reshape(4, -1)
+    return values[0], ((values[1:] - values[0]) / h).T
 
 
 @cache
@@ -256,11 +268,10 @@ def pelvis_surface(grid_mm: float = GRID_MM) -> PelvisSurface:
     distance = _PelvisDistance()
     inflated = lambda points: distance(points) - INFLATE_MM  # noqa: E731
     vertices, quads = _surface_nets(inflated, np.array([-150.0, -200.0, -145.0]), np.array([150.0, 35.0, 100.0]), grid_mm)
-    for _ in range(2):  # onto the bone along the gradient
+    for _ in range(2):  # onto the bone along the gradient (the second step's gradient: the normals)
         value, gradient = _value_and_gradient(distance, vertices)
         vertices = vertices - (value / np.maximum(np.sum(gradient**2, axis=1), 1e-9))[:, None] * gradient
-    _, normals = _value_and_gradient(distance, vertices)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1), 1e-12)[:, None]
+    normals = gradient / np.maximum(np.linalg.norm(gradient, axis=1), 1e-12)[:, None]
     # each quad as two triangles across its shorter diagonal
     a, b, c, d = (vertices[quads[:, k]] for k in range(4))
     short = np.linalg.norm(a - c, axis=1) <= np.linalg.norm(b - d, axis=1)

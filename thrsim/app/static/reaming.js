@@ -19,9 +19,9 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 let bone = null;
-const cavity = new CavityView(view, stats);
-window.trainer = { stats, view, cavity, send: (message) => send(message), bone: () => bone };
-view.onLoaded = cavity.onChange = () => { dirty = inset.stale = true; };
+const cavityView = new CavityView(view, stats);
+window.trainer = { stats, view, cavityView, send: (message) => send(message), bone: () => bone };
+view.onLoaded = cavityView.onChange = () => { dirty = inset.stale = true; };
 view.onError = (error) => { stats.errors.push(String(error)); toast(error.message, "error"); };
 // The surgeon looks down the planned cup's axis (the safe zone's centre until a plan says otherwise).
 cameraViews(view, orbit, () => {
@@ -79,7 +79,7 @@ async function loadBone(scene) {
   const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model);
   patch.object.layers.enable(1); // also in the cavity inset
   view.openSocket(patch.mesh.positions, patch.object); // the pelvis gives way to the bone being reamed
-  cavity.setBone(patch);
+  cavityView.setBone(patch);
   view.scene.traverse((object) => { if (object.isLight) object.layers.enable(1); });
   // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
   // other hip, a new session) starts from the levels this page holds once the frames before it are applied.
@@ -119,7 +119,7 @@ function receive(message) {
     if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);
     placeReamer(message.reaming);
-    cavity.apply(message);
+    cavityView.apply(message);
     if (!stats.framed && bone) frameView();
     running = message.reaming.running;
     hudStale = true; // the panel's text follows at the next drawn frame: states come up to twice a tick
@@ -196,7 +196,7 @@ function frameView() {
   const p = view.sceneInfo.reaming.patch_to_model;
   opening.set(p[2], p[6], p[10]).normalize();
   const aside = new THREE.Vector3().crossVectors(opening, new THREE.Vector3(0, 0, 1)).cross(opening).normalize().negate();
-  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.35);
+  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.27);
   view.camera.position.copy(view.focus).add(eye);
   orbit.target.copy(view.focus);
   orbit.update();

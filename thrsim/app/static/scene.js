@@ -296,10 +296,10 @@ export class NavigationScene {
     orbit.update();
   }
 
-  surgeonView(orbit, centre, axis, distance = 0.2) {
+  surgeonView(orbit, centre, axis, distance = 0.22) {
     const out = v(axis).normalize();
     const up = new THREE.Vector3(0, 0, 1).addScaledVector(out, -out.z).normalize(); // superior, across the axis
-    const eye = out.clone().multiplyScalar(Math.cos(0.2)).addScaledVector(up, Math.sin(0.2)).multiplyScalar(distance);
+    const eye = out.clone().multiplyScalar(Math.cos(0.3)).addScaledVector(up, Math.sin(0.3)).multiplyScalar(distance);
     this.camera.up.copy(up);
     this.camera.position.copy(v(centre)).add(eye);
     orbit.target.copy(v(centre));

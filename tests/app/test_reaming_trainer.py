@@ -314,3 +314,39 @@ def test_reaming_pauses_where_the_shipped_model_reams_through_the_bone(shipped_s
     assert 60 <= trainer.frames_run <= 150 and ends[0]["frame"] == trainer.frames_run
     assert clock.run(0.5)["reaming"]["frame"] == trainer.frames_run  # holds there
     assert clock.control({"type": "run", "action": "undo"}).startswith("undid 60")
+
+
+def test_the_state_carries_the_planned_cup_and_the_medial_wall_left(clock):
+    """The default cup is the reamer's hemisphere at the acetabular centre along the zone's centre;
+    the bone left before the wall (the patch's outer face) shrinks as the reamer goes in."""
+    trainer = clock.trainer
+    state = clock.run(0.1)["reaming"]
+    plan = state["planned_cup"]
+    assert plan["diameter_mm"] == pytest.approx(2e3 * trainer.simulator.model.teeth_radius_m) and plan["source"] == "default"
+    assert np.allclose(plan["centre_m"], trainer.navigation.acetabulum_model)
+    # its axis, out of the socket, is the cup at the safe zone's centre in the pelvis's APP
+    assert np.allclose(trainer.navigation.true_app_model.to_local(plan["axis"]), local_axis_from_angles(40, 15))
+    assert (plan["inclination_deg"], plan["anteversion_deg"]) == (40, 15)
+    assert state["medial_wall_remaining_mm"] is None  # the reamer has no position until it reams
+    assert state["cutting_layer"] is None  # the patch is one layer
+    clock.control({"type": "run", "action": "start"})
+    left = [clock.run(0.25)["reaming"]["medial_wall_remaining_mm"] for _ in range(4)]
+    shell_mm = 2.0  # the patch's thickness: its outer face is the wall a perforation breaks through
+    assert all(value is not None and 0 <= value < shell_mm for value in left)
+    assert left[-1] < left[0] and all(b <= a + 1e-9 for a, b in zip(left, left[1:]))
+    assert clock.state["reaming"]["cutting_layer"] is None
+
+
+def test_the_cutting_layer_is_what_most_of_a_frames_removed_bone_is_made_of(shipped_simulator):
+    from dataclasses import replace
+
+    from thrsim.app.reaming import cutting_layer
+
+    mesh = shipped_simulator.right_mesh
+    assert cutting_layer(mesh, np.array([0, 1, 2]), None) is None  # one material: no layer to tell
+    material = np.zeros(mesh.n_tets, dtype=np.uint8)
+    material[100:] = 1
+    layered = replace(mesh, material=material, material_names=("cortical", "cancellous"))
+    assert cutting_layer(layered, np.array([0, 1, 2, 150]), None) == "cortical"
+    assert cutting_layer(layered, np.array([50, 150, 160]), "cortical") == "cancellous"
+    assert cutting_layer(layered, np.array([], dtype=np.int64), "cancellous") == "cancellous"  # nothing removed: as before

@@ -39,6 +39,8 @@ from thrsim.nav.pelvis import ACETABULUM_CENTRE_RIGHT, native_axis_right, synthe
 
 #: radius of the drawn acetabular socket (a 46 mm native socket, the layered socket's default)
 SOCKET_RADIUS_MM = 23.0
+#: the rim's flat face reaches at least this far from the socket's axis (the rim landmarks: 26 mm)
+RIM_MM = 28.0
 #: grid step of the surface extraction: sets the triangle count (about 3 × area / step²)
 GRID_MM = 8.0
 #: the surface is extracted this far outside the bone, then moved onto it: a plate thinner than
@@ -163,8 +165,8 @@ class _PelvisDistance:
             _Spheres(*_strand([tuple(spine_from), under("ischial_spine", tuple(lm["ischial_spine"] * 1e3 - spine_from), 2.5)], [6.0, 2.5])),
             _Spheres(*_strand([tuberosity, (52.0, -48.0, -122.0), (30.0, -22.0, -116.0), (10.0, -12.0, -106.0)], [10.0, 6.5, 6.5, 9.0])),
             # pubis: superior ramus from the acetabulum to the tubercle, the body at the symphysis
-            _Spheres(*_strand([(82.0, -14.0, -70.0), (52.0, -8.0, -82.0), under("pubic_right", (0.0, 1.0, 0.0), 8.0), (6.0, -11.0, -94.0)], [11.0, 8.0, 8.0, 9.0])),
-            _Spheres(*_strand([(13.0, -12.0, -92.0), (10.0, -13.0, -104.0)], [9.0, 9.0])),
+            _Spheres(*_strand([(82.0, -14.0, -70.0), (52.0, -8.0, -82.0), under("pubic_right", (0.0, 1.0, 0.0), 8.0), (5.0, -14.0, -94.0)], [11.0, 8.0, 8.0, 9.0])),
+            _Spheres(*_strand([(5.0, -14.0, -92.0), (5.0, -14.0, -104.0)], [9.0, 9.0])),
             # sacrum: a plate concave forward between the wings, narrowing to the coccyx
             _Spheres(*self._sacrum()),
         ]
@@ -183,11 +185,14 @@ class _PelvisDistance:
         return centres[keep], radius[keep]
 
     def socket(self, points: np.ndarray) -> np.ndarray:
-        """Distance to the open socket: the hemisphere below the rim plane, a cylinder beyond it."""
+        """Distance to the open socket: the hemisphere below the rim plane, a cylinder beyond it,
+        and the rim's flat face (out to :data:`RIM_MM`) clear of any other bone."""
         offset = points - self.centre
         along = offset @ self.axis
         radial = np.linalg.norm(offset - along[:, None] * self.axis, axis=1)
-        return np.where(along > 0.0, radial, np.linalg.norm(offset, axis=1)) - SOCKET_RADIUS_MM
+        hemisphere = np.where(along > 0.0, radial, np.linalg.norm(offset, axis=1)) - SOCKET_RADIUS_MM
+        above_rim = np.maximum(radial - RIM_MM, -along)
+        return np.minimum(hemisphere, above_rim)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         right = np.abs(points[:, 0])

@@ -333,7 +333,7 @@ def test_the_state_carries_the_planned_cup_and_the_medial_wall_left(clock):
     left = [clock.run(0.25)["reaming"]["medial_wall_remaining_mm"] for _ in range(4)]
     shell_mm = 2.0  # the patch's thickness: its outer face is the wall a perforation breaks through
     assert all(value is not None and 0 <= value < shell_mm for value in left)
-    assert left[-1] < left[0] and all(b <= a + 1e-9 for a, b in zip(left, left[1:]))
+    assert left[-1] < left[0] and np.all(np.diff(left) <= 1e-9)
     assert clock.state["reaming"]["cutting_layer"] is None
 
 

@@ -150,12 +150,23 @@ class _PelvisDistance:
             120,
         )
         lower = _spline(
-            [under("aiis_right", (0.3, 0.95, 0.0), 7.5), (94.0, -50.0, -30.0), (74.0, -96.0, -24.0), (56.0, -136.0, -8.0), (46.0, -158.0, 8.0)],
+            [
+                under("aiis_right", (0.3, 0.95, 0.0), 7.5),
+                (94.0, -50.0, -30.0),
+                (74.0, -96.0, -24.0),
+                (56.0, -136.0, -8.0),
+                (46.0, -158.0, 8.0),
+            ],
             120,
         )
         spine_from = np.array([74.0, -80.0, -70.0])
         tuberosity = under("ischial_tuberosity", (0.0, -0.3, -0.95), 12.0)
-        wing = _sheet(lower, crest, lateral_bulge, lambda u, v: 4.5 + 2.5 * v**4 + 3.0 * (1 - v) ** 3 + 1.5 * np.exp(-(((u - 0.25) / 0.12) ** 2)) * v**6)
+        wing = _sheet(
+            lower,
+            crest,
+            lateral_bulge,
+            lambda u, v: 4.5 + 2.5 * v**4 + 3.0 * (1 - v) ** 3 + 1.5 * np.exp(-(((u - 0.25) / 0.12) ** 2)) * v**6,
+        )
         self.parts = [
             _Spheres(*wing),
             # the acetabular body and the ilium's thick body above it, to the sciatic notch
@@ -165,7 +176,12 @@ class _PelvisDistance:
             _Spheres(*_strand([tuple(spine_from), under("ischial_spine", tuple(lm["ischial_spine"] * 1e3 - spine_from), 2.5)], [6.0, 2.5])),
             _Spheres(*_strand([tuberosity, (52.0, -48.0, -122.0), (30.0, -22.0, -116.0), (10.0, -12.0, -106.0)], [10.0, 6.5, 6.5, 9.0])),
             # pubis: superior ramus from the acetabulum to the tubercle, the body at the symphysis
-            _Spheres(*_strand([(82.0, -14.0, -70.0), (52.0, -8.0, -82.0), under("pubic_right", (0.0, 1.0, 0.0), 8.0), (5.0, -14.0, -94.0)], [11.0, 8.0, 8.0, 9.0])),
+            _Spheres(
+                *_strand(
+                    [(82.0, -14.0, -70.0), (52.0, -8.0, -82.0), under("pubic_right", (0.0, 1.0, 0.0), 8.0), (5.0, -14.0, -94.0)],
+                    [11.0, 8.0, 8.0, 9.0],
+                )
+            ),
             _Spheres(*_strand([(5.0, -14.0, -92.0), (5.0, -14.0, -104.0)], [9.0, 9.0])),
             # sacrum: a plate concave forward between the wings, narrowing to the coccyx
             _Spheres(*self._sacrum()),
@@ -296,5 +312,3 @@ def surface_payload(surface: PelvisSurface) -> bytes:
         + np.ascontiguousarray(surface.normals, dtype="<f4").tobytes()
         + np.ascontiguousarray(surface.triangles, dtype="<u4").tobytes()
     )
-
-

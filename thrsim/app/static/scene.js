@@ -279,8 +279,9 @@ export class NavigationScene {
     }
     const served = this.pelvis.material.userData.served;
     served.boneFromModel.value.copy(object.matrix).invert();
-    // a margin of the pelvis's own facets (its grid is 8 mm: its socket lies within about 1 mm of a sphere)
-    served.boneExtent.value.set(inner - 1.5, outer + 1.5, Math.cos(Math.min(Math.PI, Math.acos(cosine) + 0.02)), 1);
+    // radially, a margin of the pelvis's own facets (its grid is 8 mm: its socket lies within about 1 mm
+    // of a sphere); around, a little inside the bone's edge, so that the pelvis's socket meets it with no gap
+    served.boneExtent.value.set(inner - 1.5, outer + 1.5, Math.cos(Math.max(0, Math.acos(cosine) - 0.01)), 1);
   }
 
   // Camera views: the page's home view (set when it frames the scene), and looking down an axis

@@ -90,10 +90,14 @@ def test_the_pelvis_is_drawn_and_the_socket_is_seen_from_the_default_view(reamin
     reaming.evaluate("trainer.bone().object.visible = true; trainer.cavityView.onChange()")
     reaming.wait_for_timeout(400)
     assert sum(changed_fraction(shot[b], without[b]) > 0.9 for b in blocks) >= 5  # some lie under the reamer's ray and shaft
-    # the pelvis around it too: a ring 30 mm out from the socket's axis, across the rim, is bone
-    ring = [reaming.evaluate(_PROJECT, [30.0 * np.cos(a), 30.0 * np.sin(a), 2.0]) for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)]
+    # the pelvis's socket around it too: its wall, 45° from the pole on the 23 mm sphere, is drawn bone
+    polar = math.radians(45.0)
+    ring = [
+        reaming.evaluate(_PROJECT, [23.0 * math.sin(polar) * np.cos(a), 23.0 * math.sin(polar) * np.sin(a), -23.0 * math.cos(polar)])
+        for a in angles
+    ]
     drawn = [np.abs(shot[int(py), int(px)] - BACKGROUND).sum() > 60 for px, py in ring if 0 <= px < 1100 and 0 <= py < 720]
-    assert len(drawn) >= 6 and all(drawn)
+    assert len(drawn) == 8 and all(drawn)
     assert reaming.problems == []
 
 

@@ -506,6 +506,7 @@ class NavigationTrainer:
         return {
             "side": self.side,
             "landmarks": {name: p.tolist() for name, p in self.model_landmarks.items()},
+            "pelvis": "/api/pelvis",  # the bone surface (model frame), both hips
             "acetabulum": {self.side: self.acetabulum_model.tolist(), other: acetabulum_centre(other).tolist()},
             "rim_radius_m": ACETABULUM_RIM_RADIUS,
             "calibration_target": _CALIBRATION_TARGET_MODEL.tolist(),

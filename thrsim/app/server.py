@@ -69,6 +69,7 @@ from thrsim.app.sessions_pages import record_routes
 from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.bone_frame import check_side
+from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import is_interrupted
@@ -602,6 +603,11 @@ def create_app(settings: ServeSettings) -> FastAPI:
     @app.get("/favicon.ico", include_in_schema=False)
     def favicon() -> Response:
         return Response(status_code=204)
+
+    @app.get("/api/pelvis", include_in_schema=False)
+    def pelvis() -> Response:
+        """The pelvis's bone surface both pages draw (:mod:`thrsim.nav.pelvis_surface`, built on first use)."""
+        return Response(surface_payload(pelvis_surface()), media_type="application/octet-stream")
 
     @app.get("/api/modes")
     def modes() -> dict:

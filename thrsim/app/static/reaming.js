@@ -4,8 +4,9 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
+import { CavityView } from "./cavity.js";
 import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
-import { NavigationScene } from "./scene.js";
+import { NavigationScene, cameraViews } from "./scene.js";
 
 const canvas = $("view");
 const view = new NavigationScene(canvas);
@@ -18,7 +19,15 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 let bone = null;
-window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
+const cavityView = new CavityView(view, stats);
+window.trainer = { stats, view, cavityView, send: (message) => send(message), bone: () => bone };
+view.onLoaded = cavityView.onChange = () => { dirty = inset.stale = true; };
+view.onError = (error) => { stats.errors.push(String(error)); toast(error.message, "error"); };
+// The surgeon looks down the planned cup's axis (the safe zone's centre until a plan says otherwise).
+cameraViews(view, orbit, () => {
+  const plan = stats.last?.reaming.plan;
+  return plan ? { centre: plan.centre_m, axis: plan.axis } : { centre: view.sceneInfo.acetabulum[view.sceneInfo.side], axis: view.socketAxis() };
+});
 
 // The aim and the push: the server's (the hello's defaults) when a session starts, then the trainee's.
 let steer = null;
@@ -67,8 +76,10 @@ async function loadBone(scene) {
   const previous = bone;
   const response = await fetch(info.mesh);
   if (!response.ok) { toast(`bone mesh: ${response.status}`, "error"); return; }
-  const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
+  const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model);
   patch.object.layers.enable(1); // also in the cavity inset
+  view.openSocket(patch.mesh.positions, patch.object); // the pelvis gives way to the bone being reamed
+  cavityView.setBone(patch);
   view.scene.traverse((object) => { if (object.isLight) object.layers.enable(1); });
   // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
   // other hip, a new session) starts from the levels this page holds once the frames before it are applied.
@@ -108,6 +119,7 @@ function receive(message) {
     if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);
     placeReamer(message.reaming);
+    cavityView.apply(message);
     if (!stats.framed && bone) frameView();
     running = message.reaming.running;
     hudStale = true; // the panel's text follows at the next drawn frame: states come up to twice a tick
@@ -128,7 +140,6 @@ function receive(message) {
     translucentReamer();
     // No registration here: the landmark points would only clutter the rim.
     view.landmarks.visible = false;
-    view.content.getObjectByName("sockets").visible = false;
     view.nextLandmark.visible = false;
     view.pulsing = () => false;
     $("side").value = message.scene.side;
@@ -226,10 +237,11 @@ function frameView() {
   const p = view.sceneInfo.reaming.patch_to_model;
   opening.set(p[2], p[6], p[10]).normalize();
   const aside = new THREE.Vector3().crossVectors(opening, new THREE.Vector3(0, 0, 1)).cross(opening).normalize().negate();
-  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.35);
+  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.27);
   view.camera.position.copy(view.focus).add(eye);
   orbit.target.copy(view.focus);
   orbit.update();
+  view.setHome(view.camera.position, orbit.target);
   // The inset: the cavity seen along the opening, the bone patch alone (layer 1). The patch lies
   // in the socket's floor, an inner radius (22 mm) in from the acetabular centre.
   const floor = view.focus.clone().addScaledVector(opening, -0.022);

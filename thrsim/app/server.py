@@ -638,7 +638,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
             ]
         }
 
-    for path, handler, methods in record_routes(settings.sessions_dir):  # /sessions, /trainee/<id>, the exports
+    for path, handler, methods in record_routes(settings.sessions_dir, settings.thresholds):  # /sessions, /trainee/<id>, the exports
         app.add_api_route(path, handler, methods=methods, include_in_schema=False)
 
     def _session_file(session_id: str) -> Path:

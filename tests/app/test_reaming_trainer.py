@@ -354,6 +354,27 @@ def test_the_state_carries_the_plans_cup_and_the_bone_left_before_breaking_throu
     assert clock.state["reaming"]["cutting_layer"] is None
 
 
+def test_a_bone_with_a_medial_wall_reports_what_is_left_of_it_and_records_it(clock, monkeypatch):
+    """A mesh with a ``medial_wall`` face (here the patch's outer face named so): the state gives the
+    bone left before it as the medial wall's, and the record keeps it per frame for the report."""
+    from dataclasses import replace
+
+    from thrsim.geometry.mesh import MEDIAL_WALL, OUTER
+    from thrsim.learn.simulator import ReamingSimulator
+    from thrsim.report.reaming_metrics import metrics
+
+    mesh = clock.trainer.simulator.right_mesh
+    walled = replace(mesh, node_sets={**mesh.node_sets, MEDIAL_WALL: mesh.node_sets[OUTER]})
+    monkeypatch.setattr(ReamingSimulator, "right_mesh", property(lambda self: walled))
+    clock.control({"type": "run", "action": "start"})
+    state = clock.run(0.5)["reaming"]
+    assert state["medial_wall_modelled"] and state["medial_wall_remaining_mm"] == state["bone_left_mm"] is not None
+    record = clock.trainer.record()
+    assert record.medial_wall_mm is not None and len(record.medial_wall_mm) == len(record.frame)
+    assert record.medial_wall_mm[-1] == pytest.approx(state["bone_left_mm"])
+    assert metrics(record)["medial_wall_remaining_mm"] == pytest.approx(record.medial_wall_mm.min())
+
+
 def test_the_cutting_layer_is_what_most_of_a_frames_removed_bone_is_made_of(shipped_simulator):
     from dataclasses import replace
 

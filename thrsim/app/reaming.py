@@ -63,6 +63,7 @@ class _Trace:
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
+    medial_wall_mm: list[float] = field(default_factory=list)  # bone left before the medial wall (a bone with one)
 
 
 def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str | None:
@@ -195,6 +196,8 @@ class ReamingTrainer:
             return self._plan_control(control, time_s)
         if isinstance(control, c.ReamerSizeControl):
             return self._swap_reamer(control.size_mm, time_s)
+        if isinstance(control, c.ConfirmControl):
+            return self._confirm_cup(time_s)
         if isinstance(control, c.SideControl):
             ack = self.navigation.apply_control(control, time_s)
             self._reset_run()
@@ -263,6 +266,17 @@ class ReamingTrainer:
         before, self.reamer_mm = self.reamer_mm, size_mm
         self._event(time_s, "reamer_changed", f"{before} → {size_mm} mm", from_mm=before, to_mm=size_mm)
         return f"reamer {size_mm} mm"
+
+    def _confirm_cup(self, time_s: float) -> str:
+        """The trainee confirms the cup's orientation: the reamer's radiographic angles now, on the
+        pelvis the page shows (the report measures them against the plan; the last one counts)."""
+        angles = self.navigation.reamer_angles_now(time_s)
+        if angles is None:
+            raise ThrsimInputError("the reamer cannot be measured: cannot confirm the cup's orientation")
+        inclination, anteversion = angles["radiographic"]
+        words = f"{inclination:.1f}° / {anteversion:.1f}°"
+        self._event(time_s, "cup_confirmed", words, inclination_deg=inclination, anteversion_deg=anteversion)
+        return f"cup orientation confirmed at {words}"
 
     def _page_control(self, visible: bool, time_s: float) -> str:
         """The trainee's page shown or hidden: a hidden page holds reaming (see :meth:`step`), never the record."""
@@ -337,6 +351,8 @@ class ReamingTrainer:
         trace.angles.append(
             (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"])
         )
+        if self.medial_wall_modelled():
+            trace.medial_wall_mm.append(self.bone_left_mm() or 0.0)
         self._check_push(simulator, time_s, force)
         if result.end_reason is not None:
             self.running = False
@@ -525,6 +541,7 @@ class ReamingTrainer:
             removed_volume_mm3=np.array(t.removed_volume_mm3, dtype=float),
             depth_mm=np.array(t.depth_mm, dtype=float),
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
+            medial_wall_mm=np.array(t.medial_wall_mm, dtype=float) if self.medial_wall_modelled() else None,
             events=list(self.events),
             trained_force_n=None if sim is None else sim.model.trained_force_n,
             frame_dt_s=1.0 / self.frame_rate_hz,

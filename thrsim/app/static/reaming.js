@@ -171,6 +171,7 @@ function feedback(event) {
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
     push_out_of_range: `push ${event.detail}`,
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
+    cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
@@ -325,6 +326,7 @@ $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number
 $("force").addEventListener("input", (e) => { force = Number(e.target.value); sendForce(); });
 $("run").addEventListener("click", () => send({ type: "run", action: running ? "pause" : "start" }));
 $("undo").addEventListener("click", () => send({ type: "run", action: "undo" }));
+$("confirm-cup").addEventListener("click", () => send({ type: "confirm_cup" }));
 // Restoring the bone loses the cavity: the page asks first.
 $("reset").addEventListener("click", () => $("confirm-restore").showModal());
 $("confirm-restore").addEventListener("close", () => { if ($("confirm-restore").returnValue === "restore") send({ type: "run", action: "reset" }); });
@@ -359,6 +361,7 @@ document.addEventListener("keydown", (e) => {
     ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
     ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
     ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    Enter: () => $("confirm-cup").click(),
     "[": () => swapReamer(-1),
     "]": () => swapReamer(1),
     h: () => $("help").classList.toggle("hidden"),

@@ -335,7 +335,7 @@ class ReamingTrainer:
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
-        self._cutting_layer = cutting_layer(self.simulator.right_mesh, result.newly_removed, self._cutting_layer)
+        self._cutting_layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)

@@ -254,10 +254,10 @@ def _surface_nets(distance, lower: np.ndarray, upper: np.ndarray, step: float):
     quads = []
     for axis in range(3):
         # grid edges along ``axis`` that cross, away from the box's faces: four cells around each
-        a, b = [slice(None)] * 3, [slice(None)] * 3
-        a[axis], b[axis] = slice(0, -1), slice(1, None)
-        crosses = inside[tuple(a)] != inside[tuple(b)]
-        outward = inside[tuple(a)]  # the bone on the low side: the face looks toward +axis
+        low, high = [slice(None)] * 3, [slice(None)] * 3
+        low[axis], high[axis] = slice(0, -1), slice(1, None)
+        crosses = inside[tuple(low)] != inside[tuple(high)]
+        outward = inside[tuple(low)]  # the bone on the low side: the face looks toward +axis
         others = [(axis + 1) % 3, (axis + 2) % 3]  # (u, w, axis) right-handed: the quad turns about +axis
         edge = np.argwhere(crosses)
         ok = np.all([(edge[:, d] >= 1) & (edge[:, d] < cells[d]) for d in others], axis=0)

@@ -16,7 +16,13 @@ over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee re
   most 30 s of warm-up, reported); the page's later tries of a finer scale are counted;
 * latency from an OpenIGTLink pose to the page while the simulator reams: the reamer is re-aimed
   by a TRANSFORM message and the page timestamps the state showing the new angle and its first
-  drawing (median, p90).
+  drawing (median, p90);
+* the worst server tick of the session (``worst_tick_ms``: inputs applied and the trainer stepped,
+  wall-clock, over every tick of the session: each run reams the intact bone until it is reamed
+  through; the server and the model's compilation have started before the session opens);
+* the drawn bone's lag (``drawn_bone_lag_s``): at each drawing while reaming in the counted
+  window, how far the bone drawn trails the latest state's simulator frame, in reaming time
+  (the model's frame time a frame; worst and mean).
 """
 
 from __future__ import annotations
@@ -142,7 +148,9 @@ def time_reaming_page(
                 if scale_changes == before:
                     break
             scale_at_start = page.evaluate("trainer.view.renderScale.scale")
+            page.evaluate("trainer.stats.boneLag = { worst: 0, sum: 0, count: 0 }")
             totals, cpu_seconds = _ream(page, seconds)
+            lag = page.evaluate("trainer.stats.boneLag")
             scale_changes = page.evaluate(_SCALE_CHANGES) - scale_changes
             reaming = page.evaluate("trainer.stats.last.reaming")
             render_scale = page.evaluate("trainer.view.renderScale.scale")  # the canvas's resolution (render_scale.js)
@@ -164,6 +172,8 @@ def time_reaming_page(
             streaming["on"] = False
             thread.join(2)
             tracker.close()
+        session = page.evaluate("trainer.stats.last.session")
+        frame_dt_s = 1.0 / float(page.evaluate("trainer.stats.hello.defaults.frame_rate_hz"))
         chromium_version = browser.version
     elapsed = totals[0] / 1000
     drawn_frames, bone_frames = totals[1], totals[3]
@@ -184,6 +194,12 @@ def time_reaming_page(
         "pose_to_drawn_ms": {"median": statistics.median(drawn), "p90": float(np.percentile(drawn, 90))},
         "latency_trials": latency_trials,
         "step_ms_last": reaming.get("step_ms"),
+        "worst_tick_ms": session["worst_tick_ms"],
+        "drawn_bone_lag_s": {
+            "worst": lag["worst"] * frame_dt_s,
+            "mean": lag["sum"] / lag["count"] * frame_dt_s if lag["count"] else None,
+            "drawings": lag["count"],
+        },
         "behind_frames": reaming.get("behind_frames"),
         "removed_at_end": reaming.get("removed"),
         "elements": elements,

@@ -18,6 +18,9 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // Latency probe (`thrsim bench --reaming-page`): when the measured inclination changes, when that
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
+// Drawn-bone lag (`thrsim bench --reaming-page`): at each drawing while reaming, how many simulator
+// frames the drawn bone trails the latest state's frame (the worst, their sum and count).
+stats.boneLag = { worst: 0, sum: 0, count: 0 };
 let bone = null;
 const cavityView = new CavityView(view, stats);
 window.trainer = { stats, view, cavityView, send: (message) => send(message), bone: () => bone };
@@ -384,6 +387,12 @@ function frame(now) {
       placeReamer(stats.last.reaming);
     }
     render();
+    if (running && bone && bone.frame >= 0 && stats.last) {
+      const lag = Math.max(0, stats.last.reaming.frame - bone.frame);
+      stats.boneLag.worst = Math.max(stats.boneLag.worst, lag);
+      stats.boneLag.sum += lag;
+      stats.boneLag.count += 1;
+    }
     if (hudStale) { hudStale = false; showState(stats.last); }
     if (stats.probe.arrived && !stats.probe.drawn) stats.probe.drawn = performance.now();
   }

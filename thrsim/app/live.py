@@ -141,7 +141,9 @@ class LiveSession:
             now = self.elapsed()
             self.journal.tick(now)
             session = {"id": self.id, "elapsed_s": now}
-            state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
+            # an early state goes before this tick is timed: it carries the worst tick so far, not its own
+            early_session = {**session, "tick_ms": None, "worst_tick_ms": self.worst_tick_ms}
+            state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": early_session})))
             tick_ms = (time.perf_counter() - started) * 1e3
             self.worst_tick_ms = max(self.worst_tick_ms, tick_ms)
             state["session"] = {**session, "tick_ms": tick_ms, "worst_tick_ms": self.worst_tick_ms}

@@ -35,6 +35,7 @@ from functools import cache
 import numpy as np
 from scipy.spatial import cKDTree
 
+from thrsim.nav.bone_frame import on_side
 from thrsim.nav.pelvis import ACETABULUM_CENTRE_RIGHT, native_axis_right, synthetic_pelvis_landmarks
 
 #: radius of the drawn acetabular socket (a 46 mm native socket, the layered socket's default)
@@ -112,7 +113,7 @@ class _Spheres:
 
     def __init__(self, centres: np.ndarray, radii: np.ndarray):
         near_midline = centres[:, 0] < radii + _FAR_MM  # their mirrors reach the right half
-        self.tree = cKDTree(np.vstack([centres, centres[near_midline] * [-1.0, 1.0, 1.0]]))
+        self.tree = cKDTree(np.vstack([centres, on_side(centres[near_midline], "left")]))
         self.radii = np.concatenate([radii, radii[near_midline]])
         self.reach = float(radii.max()) + _FAR_MM
 

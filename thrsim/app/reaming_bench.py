@@ -21,8 +21,8 @@ over OpenIGTLink at 60 Hz, aimed at the safe zone's centre, while the trainee re
   wall-clock, over every tick of the session: each run reams the intact bone until it is reamed
   through; the server and the model's compilation have started before the session opens);
 * the drawn bone's lag (``drawn_bone_lag_s``): at each drawing while reaming in the counted
-  window, how far the bone drawn trails the latest state's simulator frame, in reaming time
-  (the model's frame time a frame; worst and mean).
+  window, how long (wall-clock) the page has known of a simulator frame newer than the bone it
+  draws, 0 when the bone drawn is the latest (worst and mean).
 """
 
 from __future__ import annotations
@@ -173,7 +173,6 @@ def time_reaming_page(
             thread.join(2)
             tracker.close()
         session = page.evaluate("trainer.stats.last.session")
-        frame_dt_s = 1.0 / float(page.evaluate("trainer.stats.hello.defaults.frame_rate_hz"))
         chromium_version = browser.version
     elapsed = totals[0] / 1000
     drawn_frames, bone_frames = totals[1], totals[3]
@@ -196,8 +195,8 @@ def time_reaming_page(
         "step_ms_last": reaming.get("step_ms"),
         "worst_tick_ms": session["worst_tick_ms"],
         "drawn_bone_lag_s": {
-            "worst": lag["worst"] * frame_dt_s,
-            "mean": lag["sum"] / lag["count"] * frame_dt_s if lag["count"] else None,
+            "worst": lag["worst"] / 1000,
+            "mean": lag["sum"] / lag["count"] / 1000 if lag["count"] else None,
             "drawings": lag["count"],
         },
         "behind_frames": reaming.get("behind_frames"),

@@ -18,9 +18,12 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // Latency probe (`thrsim bench --reaming-page`): when the measured inclination changes, when that
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
-// Drawn-bone lag (`thrsim bench --reaming-page`): at each drawing while reaming, how many simulator
-// frames the drawn bone trails the latest state's frame (the worst, their sum and count).
+// Drawn-bone lag (`thrsim bench --reaming-page`): at each drawing while reaming, how long (ms,
+// wall-clock) the page has known of a simulator frame newer than the bone it draws: since the
+// first state past the drawn bone's frame arrived, 0 when the bone drawn is the latest (the worst,
+// their sum and count). newerFrames: [frame, arrival] of states not yet drawn, oldest first.
 stats.boneLag = { worst: 0, sum: 0, count: 0 };
+const newerFrames = [];
 let bone = null;
 const cavityView = new CavityView(view, stats);
 window.trainer = { stats, view, cavityView, send: (message) => send(message), bone: () => bone };
@@ -118,6 +121,9 @@ function receive(message) {
   if (message.type === "state") {
     stats.states += 1;
     stats.last = message;
+    const lastSeen = newerFrames.length ? newerFrames[newerFrames.length - 1][0] : -1;
+    if (message.reaming.frame > lastSeen) newerFrames.push([message.reaming.frame, performance.now()]);
+    else if (message.reaming.frame < lastSeen) newerFrames.length = 0; // an undo or a restore: the frames start again
     const inclination = message.angles ? message.angles.radiographic[0] : null;
     if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);
@@ -387,8 +393,9 @@ function frame(now) {
       placeReamer(stats.last.reaming);
     }
     render();
-    if (running && bone && bone.frame >= 0 && stats.last) {
-      const lag = Math.max(0, stats.last.reaming.frame - bone.frame);
+    if (running && bone && bone.frame >= 0) {
+      while (newerFrames.length && newerFrames[0][0] <= bone.frame) newerFrames.shift();
+      const lag = newerFrames.length ? performance.now() - newerFrames[0][1] : 0;
       stats.boneLag.worst = Math.max(stats.boneLag.worst, lag);
       stats.boneLag.sum += lag;
       stats.boneLag.count += 1;

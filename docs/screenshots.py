@@ -1,8 +1,11 @@
-"""Makes the README's reaming screenshots from this checkout:
+"""Makes the README's trainer screenshots from this checkout:
 
-* docs/reaming.png: the reaming trainer (`/reaming`, the shipped model, 1280x720) after a few
-  simulated seconds of reaming at the safe zone's centre (the page's default aim and push);
-* docs/report_reaming.png: the reaming sections of that session's assessment report.
+* docs/reaming.png: the reaming trainer (`/reaming`, the shipped model, 1280x720) of a named
+  trainee who planned a 46 mm cup, after a simulated second of reaming at the safe zone's centre
+  (the page's default aim and push), the cup's orientation confirmed;
+* docs/report_reaming.png: the reaming sections of that session's assessment report;
+* docs/sessions.png and docs/trainee.png: the session list and the trainee's page after a second
+  session of the same trainee, aimed 5° off the plan.
 
     python3 docs/screenshots.py
 
@@ -17,7 +20,7 @@ import io
 import os
 import sys
 from pathlib import Path
-from urllib.parse import urljoin
+from urllib.parse import quote, urljoin
 
 DOCS = Path(__file__).resolve().parent
 sys.path.insert(0, str(DOCS.parent))  # this checkout's thrsim (the server child inherits it), whatever is installed
@@ -25,6 +28,8 @@ sys.path.insert(0, str(DOCS.parent))  # this checkout's thrsim (the server child
 from thrsim.app.drawing_bench import served_page  # noqa: E402
 
 WIDTH, HEIGHT = 1280, 720
+TRAINEE = "Trainee A"
+PLAN = {"plan-cup": 46, "plan-inc": 40, "plan-ant": 15, "plan-med": 0, "plan-sup": 0}
 REAMING_S = 1.0  # simulated seconds (60 frames): about the planned depth; near 1.8 s the reamer perforates the patch
 MIN_REMOVED = 100  # elements; fewer means the simulator did not ream
 WAIT_MS = 600_000  # the simulation may run far behind real time on a busy machine
@@ -64,19 +69,38 @@ def save_png(screenshot: bytes, path: Path) -> int:
     return data.tell()
 
 
+def ream_a_session(page, aim: dict | None = None) -> dict:
+    """Name the trainee (the page remembers), plan, ream a simulated second, confirm the cup; the
+    reaming state once paused and settled."""
+    page.wait_for_function(READY, timeout=WAIT_MS)
+    unavailable = page.text_content("#unavailable")
+    if unavailable:
+        raise RuntimeError(unavailable)
+    if page.get_attribute("#trainee", "class") == "asking":
+        page.fill("#trainee-id", TRAINEE)
+        page.click("#trainee-save")
+    for field, value in PLAN.items():
+        page.fill(f"#{field}", str(value))
+    page.click("#plan-set")
+    page.wait_for_function(f"trainer.stats.last.reaming.plan.cup_diameter_mm === {PLAN['plan-cup']}", timeout=WAIT_MS)
+    if aim is not None:
+        page.evaluate(
+            f"trainer.send({{type: 'reamer', inclination_deg: {aim['inclination_deg']}, anteversion_deg: {aim['anteversion_deg']}}})"
+        )
+    page.click("#run")  # the aim (default: the safe zone's centre, 40°, 15°) and the default push, 230 N
+    page.wait_for_function("trainer.stats.last.reaming.running", timeout=WAIT_MS)
+    page.wait_for_function(REAMED, timeout=WAIT_MS)
+    page.evaluate("trainer.send({type: 'run', action: 'pause'})")  # not the toggle: a run that stopped by itself stays stopped
+    page.click("#confirm-cup")
+    page.wait_for_function("trainer.stats.events.includes('cup_confirmed')", timeout=WAIT_MS)
+    page.wait_for_function(SETTLED, timeout=WAIT_MS)
+    return page.evaluate("trainer.stats.last.reaming")
+
+
 def main() -> None:
     # render-scale=1: full resolution (the page lowers it while it draws slower than the display).
     with served_page("/reaming?render-scale=1", WIDTH, HEIGHT) as (_, page):
-        page.wait_for_function(READY, timeout=WAIT_MS)
-        unavailable = page.text_content("#unavailable")
-        if unavailable:
-            raise RuntimeError(unavailable)
-        page.click("#run")  # default aim, the safe zone's centre (40°, 15°), and push, 230 N
-        page.wait_for_function("trainer.stats.last.reaming.running", timeout=WAIT_MS)
-        page.wait_for_function(REAMED, timeout=WAIT_MS)
-        page.evaluate("trainer.send({type: 'run', action: 'pause'})")  # not the toggle: a run that stopped by itself stays stopped
-        page.wait_for_function(SETTLED, timeout=WAIT_MS)
-        reaming = page.evaluate("trainer.stats.last.reaming")
+        reaming = ream_a_session(page)
         if reaming["removed"] < MIN_REMOVED:
             raise RuntimeError(f"only {reaming['removed']} elements removed in {reaming['time_s']:.1f} s of reaming")
         page.wait_for_timeout(500)  # the last state drawn
@@ -93,6 +117,15 @@ def main() -> None:
             raise RuntimeError("the report has no reaming section")
         size = save_png(page.screenshot(clip=clip, full_page=True), DOCS / "report_reaming.png")
         print(f"docs/report_reaming.png: {size} bytes")
+
+        page.goto(urljoin(page.url, "/reaming?render-scale=1"), timeout=WAIT_MS)
+        ream_a_session(page, {"inclination_deg": 45, "anteversion_deg": 20})
+        page.click("#end")
+        page.wait_for_function("trainer.stats.saved", timeout=WAIT_MS)
+        page.goto(urljoin(page.url, "/sessions"), timeout=WAIT_MS)
+        print(f"docs/sessions.png: {save_png(page.screenshot(), DOCS / 'sessions.png')} bytes")
+        page.goto(urljoin(page.url, "/trainee/" + quote(TRAINEE.casefold())), timeout=WAIT_MS)
+        print(f"docs/trainee.png: {save_png(page.screenshot(), DOCS / 'trainee.png')} bytes")
 
 
 if __name__ == "__main__":

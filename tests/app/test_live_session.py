@@ -56,3 +56,15 @@ def test_a_control_applies_the_queued_readings_first_and_a_refused_pose_is_logge
     assert [kind for kind, _, _ in _logged(session)] == ["tick", "pose", "force", "control"]
     assert session.trainer.force_n == 90.0  # the reading after the refused pose still landed
     assert not np.isnan(session.trainer.tools["Reamer"].pose).any() and not np.array_equal(session.trainer.tools["Reamer"].pose, before)
+
+
+def test_each_state_carries_its_ticks_duration_and_the_sessions_worst(tmp_path):
+    session, now = _session(tmp_path)
+    ticks = []
+    for k in range(5):
+        now[0] = k / 60
+        ticks.append(session.tick()["session"])
+    assert all(tick["tick_ms"] > 0 for tick in ticks)
+    worst = [tick["worst_tick_ms"] for tick in ticks]
+    assert worst == list(np.maximum.accumulate([tick["tick_ms"] for tick in ticks]))  # the longest so far, never forgotten
+    assert session.worst_tick_ms == worst[-1]

@@ -25,7 +25,7 @@ from thrsim.learn.simulator import ReamingSimulator
 from thrsim.nav.anatomy import local_axis_from_angles
 from thrsim.nav.bone_frame import patch_in_app, reamer_axis_from_cup
 from thrsim.report import build_assessment, build_report
-from thrsim.report.reaming import criteria
+from thrsim.report.reaming import _against_plan, criteria
 from thrsim.report.reaming_metrics import final_rows, metrics
 from thrsim.report.thresholds import default_thresholds, load_thresholds
 from thrsim.session.plan import Plan, load_plan
@@ -131,6 +131,47 @@ def test_the_plan_metric_and_the_keys_a_file_before_the_plan_lacks():
     for key in ("plan", "inclination_error_deg", "within_10deg_fraction", "cavity_diameter_error_mm", "reamer_sequence_mm"):
         assert key not in older
     assert older["perforations"] == 0 and older["push_mean_n"] == 230.0
+
+
+def test_the_confirmed_cup_and_the_cavity_are_measured_against_the_plan():
+    """A hand-built final bone around a 46 mm plan at the native centre, axis +z (the patch frame's
+    at the zone's centre): its floor, the bone removed beyond the plan and the bone left inside it,
+    at the elements' centres; the last confirmed cup against the plan's angles."""
+    plan = Plan(cup_diameter_mm=46, inclination_deg=40, anteversion_deg=15)
+    centroids = np.array([
+        [0.0, 0.0, -0.0235],  # removed, 0.5 mm beyond the planned floor (23 mm)
+        [0.012, 0.0, -0.019],  # removed, inside the plan
+        [0.0, 0.010, -0.019],  # kept inside the plan: sqrt(461) mm from its centre
+        [0.0, 0.0, -0.0245],  # kept, beyond the plan
+        [0.0, 0.0, 0.010],  # kept, inside the sphere but above the cup's rim: not the cup's bone
+    ])  # fmt: skip
+    record = _record([1, 2, 3, 2], [1, 2, 3, 2.0], plan=plan)
+    record.cavity = {"centroids_m": centroids, "outer": np.zeros(5, dtype=bool), "inner_radius_m": 0.022, "outer_radius_m": 0.024,
+                     "teeth_radius_m": 0.0229, "threshold": 0.5}  # fmt: skip
+    record.final_alpha = np.array([0.0, 0.1, 1.0, 1.0, 1.0], dtype=np.float32)
+    record.events = [
+        {"time_s": 1.0, "kind": "cup_confirmed", "detail": "", "frame": 2, "inclination_deg": 50.0, "anteversion_deg": 30.0},
+        {"time_s": 2.0, "kind": "cup_confirmed", "detail": "", "frame": 2, "inclination_deg": 43.0, "anteversion_deg": 11.0},
+    ]
+    found = metrics(record)
+    assert found["confirmed_inclination_error_deg"] == pytest.approx(3.0) and found["confirmed_anteversion_error_deg"] == pytest.approx(4.0)
+    assert found["cavity_depth_error_mm"] == pytest.approx(0.5)
+    assert found["over_reaming_mm"] == pytest.approx(0.5)
+    assert found["under_reaming_mm"] == pytest.approx(23.0 - np.sqrt(461.0))
+    assert found["medial_wall_remaining_mm"] is None  # the patch: no medial wall, no number
+    body = _against_plan(record).body
+    for row in ("43.0°</td><td>3.0°", "11.0°</td><td>4.0°", "<td>0.5 mm</td>", f"<td>{23.0 - np.sqrt(461.0):.1f} mm</td>"):
+        assert row in body
+    assert "not modelled (the bone patch has no medial wall)" in body
+    # a bone with a medial wall: the least bone left over the final bone's frames (the undone frame 3 is not the bone's)
+    record.medial_wall_mm = np.array([3.0, 2.0, 0.5, 1.5])
+    assert metrics(record)["medial_wall_remaining_mm"] == pytest.approx(1.5)
+    assert "<td>1.5 mm</td>" in _against_plan(record).body
+    # nothing confirmed, nothing removed: said, not invented
+    record.events, record.final_alpha = [], np.ones(5, dtype=np.float32)
+    found = metrics(record)
+    assert found["confirmed_inclination_error_deg"] is None and found["cavity_depth_error_mm"] is None and found["over_reaming_mm"] is None
+    assert "No cup orientation was confirmed" in _against_plan(record).body
 
 
 def test_plan_criteria_score_against_the_thresholds_file(tmp_path):
@@ -284,18 +325,62 @@ def test_an_instructors_case_fixes_the_plan_and_the_session_file_keeps_it(tmp_pa
     assert replayed.reproduced and replayed.refused_controls == 1
 
 
+def test_a_scripted_session_reports_its_confirmed_cup_and_cavity_against_the_plan(tmp_path):
+    """Plan a 46 mm cup at the zone's centre, ream at 45°/20° for 40 frames, confirm the cup, end:
+    the saved file's report gives the confirmed cup 5° off in both angles and the cavity's floor,
+    over- and under-reaming as the final bone (the trainer's, read directly) has them."""
+    now = [0.0]
+    session = LiveSession(MODES["reaming"], {"side": "right", "seed": 1}, lambda: now[0], tmp_path)
+
+    def send(**message) -> str:
+        return session.control(json.dumps(message))[1]
+
+    send(type="plan", cup_diameter_mm=46, medialisation_mm=0, superior_shift_mm=0, inclination_deg=40, anteversion_deg=15)
+    send(type="reamer", inclination_deg=45, anteversion_deg=20)
+    send(type="run", action="start")
+    while session.trainer.frames_run < 40 and now[0] < 10.0:
+        now[0] += DT
+        session.tick()
+    send(type="run", action="pause")
+    assert send(type="confirm_cup").startswith("cup orientation confirmed at 45.0° / 20.0°")
+    sim = session.trainer.simulator
+    removed = sim.alpha < sim.model.threshold
+    centroids = sim.right_mesh.centroids * 1e3  # the plan's centre is the patch frame's origin, its axis +z
+    distance = np.linalg.norm(centroids, axis=1)
+    inside = ~removed & (distance < 23.0) & (centroids[:, 2] < 0.0)
+    expected = {
+        "cavity_depth_error_mm": float(np.max(-centroids[removed, 2])) - 23.0,
+        "over_reaming_mm": max(0.0, float(np.max(distance[removed])) - 23.0),
+        "under_reaming_mm": float(np.max(23.0 - distance[inside])),
+    }
+    path = session.save(tmp_path)
+    found = build_assessment(path).metrics
+    assert found["confirmed_inclination_error_deg"] == pytest.approx(5.0, abs=1e-6)
+    assert found["confirmed_anteversion_error_deg"] == pytest.approx(5.0, abs=1e-6)
+    for name, value in expected.items():
+        assert found[name] == pytest.approx(value, abs=1e-4), name
+    assert found["medial_wall_remaining_mm"] is None
+    page = build_report(path)
+    assert "45.0°</td><td>5.0°" in page and "20.0°</td><td>5.0°" in page
+    assert f"<td>{expected['cavity_depth_error_mm']:.1f} mm</td>" in page and f"<td>{expected['under_reaming_mm']:.1f} mm</td>" in page
+    assert "not modelled (the bone patch has no medial wall)" in page
+
+
 def test_serve_takes_the_case_and_scores_its_reports_against_the_thresholds(tmp_path):
     case = tmp_path / "case.json"
     case.write_text(json.dumps({"cup_diameter_mm": 56, "inclination_deg": 45}))
     assert MODES["reaming"].session_settings(ServeSettings(plan=load_plan(case)))["plan"]["cup_diameter_mm"] == 56
     thresholds = tmp_path / "thresholds.yaml"
-    thresholds.write_text("within_10deg_fraction: {full: 0.95, partial: 0.85, source: our experts}\n")
+    thresholds.write_text(
+        "within_10deg_fraction: {full: 0.95, partial: 0.85, source: our experts}\norientation_error_deg: {full: 1, partial: 2}\n"
+    )
     sessions = tmp_path / "sessions"
     sessions.mkdir()
     served = ServedTrainer(sessions, "--plan", str(case), "--thresholds", str(thresholds), timeout=180.0)  # a loaded machine starts slowly
     try:
         with connect(f"ws://127.0.0.1:{served.port}/ws/reaming", open_timeout=10) as ws:
             next_of_type(ws, "hello")
+            ws.send(json.dumps({"type": "trainee", "id": "Resident 3"}))
             state = next_of_type(ws, "state")["reaming"]
             assert state["plan"]["cup_diameter_mm"] == 56 and state["plan"]["source"] == "case file" and state["plan"]["fixed"]
             assert state["reamer"]["size_mm"] == 52
@@ -305,7 +390,22 @@ def test_serve_takes_the_case_and_scores_its_reports_against_the_thresholds(tmp_
             saved = next_of_type(ws, "session_saved")
         with urllib.request.urlopen(served.url + saved["report"], timeout=60) as response:
             page = response.read().decode()
+        record = {
+            path: urllib.request.urlopen(served.url + path, timeout=60).read().decode() for path in ("/sessions", "/trainee/resident%203")
+        }
+        exported = json.loads(urllib.request.urlopen(served.url + "/api/sessions.json", timeout=60).read())
     finally:
         served.stop()
+    # the session list and the trainee's page judge with the thresholds the server loaded, not the shipped ones
+    path = sessions / f"{saved['session']}.h5"
+    instructors, shipped = build_assessment(path, load_thresholds(thresholds)), build_assessment(path)
+    assert instructors.score != shipped.score  # the cavity's axis is 5° off the case's 45°: within 5°, not within 1°
+    (row,) = exported["sessions"]
+    assert row["score"] == instructors.score and f"<td>{instructors.score:g} / {instructors.max_score:g}</td>" in record["/sessions"]
+    assert exported["competency"]["within_10deg_fraction"] == [0.95, "min"] and exported["competency"]["inclination_error_deg"] == [
+        1,
+        "max",
+    ]
+    assert "competent: ≥ 0.95" in record["/trainee/resident%203"] and "competent: ≤ 1<" in record["/trainee/resident%203"]
     assert "≥ 95 %: 1; ≥ 85 %: 0.5" in page  # the served report scored against the instructor's thresholds
     assert "Plan set by the case file" in page

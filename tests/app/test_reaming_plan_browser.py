@@ -1,7 +1,8 @@
 """The plan and the reamer sequence end to end, in a real headless Chromium against a real
 ``thrsim serve`` with the shipped model: the trainee sets a plan on the page, reams with one
-reamer, swaps to the next with the key and to a third with the select, ends the session, and
-``thrsim report --json`` measures it against the plan with the sequence and its times."""
+reamer, swaps to the next with the key and to a third with the select, confirms the cup with
+Enter, ends the session, and ``thrsim report --json`` measures it against the plan with the
+sequence and its times."""
 
 from __future__ import annotations
 
@@ -65,6 +66,8 @@ def test_a_planned_session_with_three_reamers_is_measured_against_its_plan(tmp_p
             page.wait_for_function("trainer.stats.last.reaming.reamer.size_mm === 48", timeout=10_000)
             _ream(page, 20)
             shown = page.evaluate("[document.getElementById('reamer').textContent, document.getElementById('reamer-note').textContent]")
+            keys(page, "Enter")  # confirm the cup along the reamer
+            page.wait_for_function("trainer.stats.events.includes('cup_confirmed')", timeout=10_000)
             page.click("#end")
             page.wait_for_function("trainer.stats.saved", timeout=30_000)
             saved = page.evaluate("trainer.stats.saved")
@@ -98,6 +101,9 @@ def test_a_planned_session_with_three_reamers_is_measured_against_its_plan(tmp_p
     assert found["inclination_error_deg"] == pytest.approx(abs(aimed[0] - 42.0), abs=0.3)
     assert found["anteversion_error_deg"] == pytest.approx(abs(aimed[1] - 18.0), abs=0.3)
     assert found["within_5deg_fraction"] == 1.0 and found["within_10deg_fraction"] == 1.0
+    # the cup confirmed with Enter, the reamer still at the zone's centre: 2° and 3° off the plan
+    assert found["confirmed_inclination_error_deg"] == pytest.approx(2.0, abs=1e-3)
+    assert found["confirmed_anteversion_error_deg"] == pytest.approx(3.0, abs=1e-3)
     # the shipped model cut with its one reamer whatever was chosen: the cavity is 45.8 mm, 4.2 mm under the cup
     assert np.allclose(record.cut_mm, 45.8)
     assert found["cavity_diameter_mm"] == 45.8 and found["cavity_diameter_error_mm"] == pytest.approx(-4.2)

@@ -71,7 +71,11 @@ def test_the_page_and_the_mesh_are_served(served):
     assert payload[:4] == MESH_MAGIC
     nodes, tets = np.frombuffer(payload[8:16], dtype="<u4")
     assert (nodes, tets) == (model.mesh.n_nodes, model.mesh.n_tets)
-    assert len(payload) == 16 + 12 * nodes + 32 * tets
+    materials_end = 16 + 12 * nodes + 33 * tets  # nodes, tets, neighbours, one material byte each
+    (names_length,) = np.frombuffer(payload[materials_end : materials_end + 4], dtype="<u4")
+    assert len(payload) == materials_end + 4 + names_length
+    assert json.loads(payload[materials_end + 4 :]) == list(model.mesh.material_names) == ["cortical"]  # the patch: one layer
+    assert not payload[16 + 12 * nodes + 32 * tets : materials_end].strip(b"\0")  # every element the first material
 
 
 def test_reaming_streams_what_changed_and_every_viewer_ends_up_exact(served):

@@ -315,3 +315,76 @@ def test_reaming_pauses_where_the_shipped_model_reams_through_the_bone(shipped_s
     assert 60 <= trainer.frames_run <= 150 and ends[0]["frame"] == trainer.frames_run
     assert clock.run(0.5)["reaming"]["frame"] == trainer.frames_run  # holds there
     assert clock.control({"type": "run", "action": "undo"}).startswith("undid 60")
+
+
+def test_the_state_carries_the_plans_cup_and_the_bone_left_before_breaking_through(clock):
+    """The plan's cup in the model frame: at the native centre shifted by the plan, its axis the
+    plan's angles in the pelvis's APP; the bone left before the patch's far face shrinks as the
+    reamer goes in, and the patch has no medial wall to measure."""
+    trainer = clock.trainer
+    state = clock.run(0.1)["reaming"]
+    plan = state["plan"]
+    assert plan["cup_diameter_mm"] == 48.0 and plan["source"] == "trainee"
+    assert np.allclose(plan["centre_m"], trainer.navigation.acetabulum_model)
+    assert np.allclose(trainer.navigation.true_app_model.to_local(plan["axis"]), local_axis_from_angles(40, 15))
+    clock.control(
+        {
+            "type": "plan",
+            "cup_diameter_mm": 50,
+            "medialisation_mm": 3,
+            "superior_shift_mm": -2,
+            "inclination_deg": 45,
+            "anteversion_deg": 20,
+        }
+    )
+    plan = clock.run(0.1)["reaming"]["plan"]
+    app = trainer.navigation.true_app_model
+    shift = app.to_local(np.array(plan["centre_m"]) - trainer.navigation.acetabulum_model) * 1e3  # lateral, anterior, inferior (mm)
+    assert np.allclose(shift, [-3.0, 0.0, 2.0], atol=1e-9)
+    assert np.allclose(app.to_local(plan["axis"]), local_axis_from_angles(45, 20))
+    assert state["bone_left_mm"] is None  # the reamer has no position until it reams
+    assert state["medial_wall_modelled"] is False and state["medial_wall_remaining_mm"] is None
+    assert state["cutting_layer"] is None  # the patch is one layer
+    clock.control({"type": "run", "action": "start"})
+    left = [clock.run(0.25)["reaming"]["bone_left_mm"] for _ in range(4)]
+    shell_mm = 2.0  # the patch's thickness: its outer face is the one a perforation breaks through
+    assert all(value is not None and 0 <= value < shell_mm for value in left)
+    assert left[-1] < left[0] and np.all(np.diff(left) <= 1e-9)
+    assert clock.state["reaming"]["medial_wall_remaining_mm"] is None  # never a number for a wall the patch lacks
+    assert clock.state["reaming"]["cutting_layer"] is None
+
+
+def test_a_bone_with_a_medial_wall_reports_what_is_left_of_it_and_records_it(clock, monkeypatch):
+    """A mesh with a ``medial_wall`` face (here the patch's outer face named so): the state gives the
+    bone left before it as the medial wall's, and the record keeps it per frame for the report."""
+    from dataclasses import replace
+
+    from thrsim.geometry.mesh import MEDIAL_WALL, OUTER
+    from thrsim.learn.simulator import ReamingSimulator
+    from thrsim.report.reaming_metrics import metrics
+
+    mesh = clock.trainer.simulator.right_mesh
+    walled = replace(mesh, node_sets={**mesh.node_sets, MEDIAL_WALL: mesh.node_sets[OUTER]})
+    monkeypatch.setattr(ReamingSimulator, "right_mesh", property(lambda self: walled))
+    clock.control({"type": "run", "action": "start"})
+    state = clock.run(0.5)["reaming"]
+    assert state["medial_wall_modelled"] and state["medial_wall_remaining_mm"] == state["bone_left_mm"] is not None
+    record = clock.trainer.record()
+    assert record.medial_wall_mm is not None and len(record.medial_wall_mm) == len(record.frame)
+    assert record.medial_wall_mm[-1] == pytest.approx(state["bone_left_mm"])
+    assert metrics(record)["medial_wall_remaining_mm"] == pytest.approx(record.medial_wall_mm.min())
+
+
+def test_the_cutting_layer_is_what_most_of_a_frames_removed_bone_is_made_of(shipped_simulator):
+    from dataclasses import replace
+
+    from thrsim.app.reaming import cutting_layer
+
+    mesh = shipped_simulator.right_mesh
+    assert cutting_layer(mesh, np.array([0, 1, 2]), None) is None  # one material: no layer to tell
+    material = np.zeros(mesh.n_tets, dtype=np.uint8)
+    material[100:] = 1
+    layered = replace(mesh, material=material, material_names=("cortical", "cancellous"))
+    assert cutting_layer(layered, np.array([0, 1, 2, 150]), None) == "cortical"
+    assert cutting_layer(layered, np.array([50, 150, 160]), "cortical") == "cancellous"
+    assert cutting_layer(layered, np.array([], dtype=np.int64), "cancellous") == "cancellous"  # nothing removed: as before

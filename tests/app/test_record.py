@@ -137,6 +137,7 @@ def test_sessions_export_command_writes_csv_and_json_and_refuses_bad_input(folde
         (("--csv", "--json", str(folder)), "one of them"),
         (("--csv", str(tmp_path / "none")), "no such session file or folder"),
         (("--json", str(target)), "unreadable session file"),
+        (("--csv", "--thresholds", str(tmp_path / "none.yaml"), str(folder)), "cannot read the thresholds file"),
     ):
         code, out, err = run_main(monkeypatch, capsys, "sessions", "export", *args)
         assert code == 2 and out == "" and len(err.strip().splitlines()) == 1 and said in err and "Traceback" not in err

@@ -12,6 +12,7 @@ and the reaming page under load). The mesh's bytes: :func:`mesh_payload`.
 
 from __future__ import annotations
 
+import json
 import struct
 import zlib
 
@@ -21,7 +22,7 @@ from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 
 MESH_MAGIC = b"THRM"
-MESH_VERSION = 1
+MESH_VERSION = 2
 _HEADER = struct.Struct("<cII")
 #: above this fraction of changed elements a keyframe is smaller than a delta
 _KEYFRAME_FRACTION = 0.3
@@ -32,12 +33,16 @@ _ZLIB_LEVEL = 1
 def mesh_payload(mesh: TetMesh) -> bytes:
     """The bytes of ``GET /api/reaming/mesh``: ``b"THRM"``, u32 version, u32 nodes, u32 elements, then
     nodes (N×3 f32, mm, the patch frame), tets (E×4 u32) and face neighbours (E×4 i32, −1 on the
-    boundary, local face i opposite vertex i)."""
+    boundary, local face i opposite vertex i); from version 2, each element's material (E×u8, an
+    index into the names) and the material names (u32 byte length, then a UTF-8 JSON list), so the
+    page draws the bone's layers."""
     nodes = np.ascontiguousarray(mesh.nodes * 1e3, dtype="<f4")
     tets = np.ascontiguousarray(mesh.tets, dtype="<u4")
     neighbours = np.ascontiguousarray(mesh.adjacency.neighbours, dtype="<i4")
+    material = np.ascontiguousarray(mesh.element_material, dtype="u1")
+    names = json.dumps(list(mesh.material_names)).encode()
     header = MESH_MAGIC + struct.pack("<III", MESH_VERSION, mesh.n_nodes, mesh.n_tets)
-    return header + nodes.tobytes() + tets.tobytes() + neighbours.tobytes()
+    return header + nodes.tobytes() + tets.tobytes() + neighbours.tobytes() + material.tobytes() + struct.pack("<I", len(names)) + names
 
 
 def _varints(values: np.ndarray) -> bytes:

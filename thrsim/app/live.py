@@ -16,6 +16,7 @@ import json
 import logging
 import secrets
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from importlib import metadata
@@ -77,6 +78,7 @@ class LiveSession:
             "versions": json.dumps(versions()),
         }
         self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
+        self.worst_tick_ms = 0.0  # the longest tick of this session (inputs applied, trainer stepped), wall-clock
         self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
@@ -129,12 +131,17 @@ class LiveSession:
         """Step the trainer to now; ``early`` gets the state of the new poses ahead of a slow step's
         rest (see :class:`thrsim.app.modes.Trainer`)."""
         with self.lock:
+            started = time.perf_counter()
             self._apply_arrived()
             now = self.elapsed()
             self.journal.tick(now)
             session = {"id": self.id, "elapsed_s": now}
-            state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": session})))
-            state["session"] = session
+            # an early state goes before this tick is timed: it carries the worst tick so far, not its own
+            early_session = {**session, "tick_ms": None, "worst_tick_ms": self.worst_tick_ms}
+            state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": early_session})))
+            tick_ms = (time.perf_counter() - started) * 1e3
+            self.worst_tick_ms = max(self.worst_tick_ms, tick_ms)
+            state["session"] = {**session, "tick_ms": tick_ms, "worst_tick_ms": self.worst_tick_ms}
             return state
 
     def save(self, folder: Path | None = None) -> Path:

@@ -351,7 +351,7 @@ class NavigationTrainer:
         return f"retake {name}"
 
     def _confirm(self, time_s: float) -> str:
-        angles = self._reamer_angles_now(time_s)
+        angles = self.reamer_angles_now(time_s)
         if self.result is None:
             raise ThrsimInputError("complete the landmark registration before confirming the cup orientation")
         if angles is None:
@@ -391,7 +391,7 @@ class NavigationTrainer:
                 out[tool] = (visibility.reason, visibility)
         return out
 
-    def _reamer_angles_now(self, time_s: float, visibility: dict | None = None) -> dict | None:
+    def reamer_angles_now(self, time_s: float, visibility: dict | None = None) -> dict | None:
         visibility = visibility or self._visibility(time_s)
         if visibility["Reamer"][0] != "tracked" or visibility["Reference"][0] != "tracked":
             return None
@@ -409,7 +409,7 @@ class NavigationTrainer:
         visibility = self._visibility(time_s)
         if not self.registration.done:
             self._step_registration(time_s, visibility)
-        angles = self._reamer_angles_now(time_s, visibility)
+        angles = self.reamer_angles_now(time_s, visibility)
         zone = None if angles is None else safe_zone_status(angles["radiographic"][0], angles["radiographic"][1], self.zone)
         if self._calibration["state"] == "sampling":
             self._step_calibration(time_s)
@@ -501,6 +501,7 @@ class NavigationTrainer:
         return {
             "side": self.side,
             "landmarks": {name: p.tolist() for name, p in self.model_landmarks.items()},
+            "pelvis": "/api/pelvis",  # the bone surface (model frame), both hips
             "acetabulum": {self.side: self.acetabulum_model.tolist(), other: acetabulum_centre(other).tolist()},
             "rim_radius_m": ACETABULUM_RIM_RADIUS,
             "calibration_target": _CALIBRATION_TARGET_MODEL.tolist(),

@@ -37,7 +37,7 @@ from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import INNER, OUTER
+from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
@@ -63,6 +63,19 @@ class _Trace:
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
+    medial_wall_mm: list[float] = field(default_factory=list)  # bone left before the medial wall (a bone with one)
+
+
+def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str | None:
+    """The bone layer the reamer cuts: the material most of a frame's removed elements are made of
+    (``previous`` when the frame removed none); None for a mesh of one material (the patch), where
+    no layer changes."""
+    if mesh.material is None or len(mesh.material_names) < 2:
+        return None
+    if len(newly_removed) == 0:
+        return previous
+    counts = np.bincount(mesh.material[newly_removed], minlength=len(mesh.material_names))
+    return mesh.material_names[int(np.argmax(counts))]
 
 
 class ReamingTrainer:
@@ -106,6 +119,8 @@ class ReamingTrainer:
         self.plan = plan or Plan()
         self.plan_source = "trainee" if plan is None else "case file"
         self.reamer_mm = self.plan.first_reamer_mm()
+        self._wall_nodes: np.ndarray | None = None  # the nodes of the face the reamer breaks through (_wall)
+        self._medial_wall = False
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -119,6 +134,7 @@ class ReamingTrainer:
         self._history: deque[SimulatorSnapshot] = deque(maxlen=self.undo_frames + 1)
         self._last_step_ms = math.nan
         self._reamer_position: np.ndarray | None = None  # patch frame, m
+        self._cutting_layer: str | None = None
         if self.simulator is not None:
             self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
         self._publish()
@@ -180,6 +196,8 @@ class ReamingTrainer:
             return self._plan_control(control, time_s)
         if isinstance(control, c.ReamerSizeControl):
             return self._swap_reamer(control.size_mm, time_s)
+        if isinstance(control, c.ConfirmControl):
+            return self._confirm_cup(time_s)
         if isinstance(control, c.SideControl):
             ack = self.navigation.apply_control(control, time_s)
             self._reset_run()
@@ -209,6 +227,7 @@ class ReamingTrainer:
         back = self._history[0]
         self.simulator.restore(back)
         self._reamer_position = None if back.centre is None else back.centre.copy()
+        self._cutting_layer = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
         self.running_s = self.frames_run / self.frame_rate_hz
@@ -247,6 +266,17 @@ class ReamingTrainer:
         before, self.reamer_mm = self.reamer_mm, size_mm
         self._event(time_s, "reamer_changed", f"{before} → {size_mm} mm", from_mm=before, to_mm=size_mm)
         return f"reamer {size_mm} mm"
+
+    def _confirm_cup(self, time_s: float) -> str:
+        """The trainee confirms the cup's orientation: the reamer's radiographic angles now, on the
+        pelvis the page shows (the report measures them against the plan; the last one counts)."""
+        angles = self.navigation.reamer_angles_now(time_s)
+        if angles is None:
+            raise ThrsimInputError("the reamer cannot be measured: cannot confirm the cup's orientation")
+        inclination, anteversion = angles["radiographic"]
+        words = f"{inclination:.1f}° / {anteversion:.1f}°"
+        self._event(time_s, "cup_confirmed", words, inclination_deg=inclination, anteversion_deg=anteversion)
+        return f"cup orientation confirmed at {words}"
 
     def _page_control(self, visible: bool, time_s: float) -> str:
         """The trainee's page shown or hidden: a hidden page holds reaming (see :meth:`step`), never the record."""
@@ -305,6 +335,7 @@ class ReamingTrainer:
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
+        self._cutting_layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)
@@ -320,6 +351,8 @@ class ReamingTrainer:
         trace.angles.append(
             (math.nan, math.nan, math.nan) if angles is None or zone is None else (*angles["radiographic"], zone["distance_deg"])
         )
+        if self.medial_wall_modelled():
+            trace.medial_wall_mm.append(self.bone_left_mm() or 0.0)
         self._check_push(simulator, time_s, force)
         if result.end_reason is not None:
             self.running = False
@@ -367,6 +400,7 @@ class ReamingTrainer:
             if trained is not None and gamma > trained[1]:
                 note = note or f"reamer {gamma:.0f}° off the acetabular axis: beyond what the model learned ({trained[1]:g}°)"
         events, self._pending_events = self._pending_events, []
+        bone_left, medial_wall = self.bone_left_mm(), self.medial_wall_modelled()
         reaming = {
             "available": sim is not None,
             "unavailable": self.unavailable,
@@ -385,9 +419,14 @@ class ReamingTrainer:
             "reamer_centre": None
             if self._reamer_position is None
             else (self.patch_to_model[:3, :3] @ self._reamer_position + self.patch_to_model[:3, 3]).tolist(),
+            "bone_left_mm": bone_left,
+            "medial_wall_modelled": medial_wall,
+            "medial_wall_remaining_mm": bone_left if medial_wall else None,
+            "cutting_layer": self._cutting_layer,
             "paused": "page hidden" if self.running and self.page_hidden else None,
             "plan": {
                 **self.plan.model_dump(),
+                **self._plan_in_model(),
                 "source": self.plan_source,
                 "fixed": self.plan_source == "case file" or bool(self.trace.frame),
             },
@@ -407,6 +446,42 @@ class ReamingTrainer:
             sizes = ", ".join(f"{size:g}" for size in learned or [])
             note = f"the model was trained on {sizes} mm only: it cuts {cuts:g} mm whatever reamer is chosen"
         return {"size_mm": self.reamer_mm, "sizes_mm": list(REAMER_SIZES_MM), "cuts_mm": cuts, "trained_mm": learned, "note": note}
+
+    # ---- the cavity against the plan, for the page -------------------------------------------
+
+    def _plan_in_model(self) -> dict:
+        """Where the page draws the planned cup: its centre (m) and axis (unit, out of the socket) in the pelvis model frame."""
+        centre, axis = self.plan.cup_in_patch(self.zone)
+        placement = self.patch_to_model
+        return {"centre_m": (placement[:3, :3] @ centre + placement[:3, 3]).tolist(), "axis": (placement[:3, :3] @ axis).tolist()}
+
+    def _wall(self) -> tuple[np.ndarray, bool]:
+        """The nodes (patch frame, m) of the face the reamer breaks through, read once: the mesh's
+        ``medial_wall`` face where the bone has one (the layered socket), else its outer face (the
+        patch's far face); and whether it is the medial wall."""
+        if self._wall_nodes is None:
+            assert self.simulator is not None
+            mesh = self.simulator.right_mesh
+            self._medial_wall = MEDIAL_WALL in mesh.node_sets and len(mesh.node_sets[MEDIAL_WALL]) > 0
+            wall = mesh.node_sets.get(MEDIAL_WALL if self._medial_wall else OUTER)
+            self._wall_nodes = mesh.nodes[wall] if wall is not None and len(wall) else np.zeros((0, 3))
+        return self._wall_nodes, self._medial_wall
+
+    def bone_left_mm(self) -> float | None:
+        """Bone left between the reamer's teeth and the face it would break through (mm, 0 once
+        through): the nearest node of the medial wall, or of the patch's far face. None before the
+        reamer has a position."""
+        if self.simulator is None or self._reamer_position is None:
+            return None
+        nodes, _ = self._wall()
+        if not len(nodes):
+            return None
+        nearest = float(np.min(np.linalg.norm(nodes - self._reamer_position, axis=1)))
+        return max(0.0, (nearest - self.simulator.model.teeth_radius_m) * 1e3)
+
+    def medial_wall_modelled(self) -> bool:
+        """Whether the bone has a medial wall (the layered socket does; the bone patch does not)."""
+        return self.simulator is not None and self._wall()[1]
 
     # ---- what the page and the session file get -----------------------------------------------
 
@@ -466,6 +541,7 @@ class ReamingTrainer:
             removed_volume_mm3=np.array(t.removed_volume_mm3, dtype=float),
             depth_mm=np.array(t.depth_mm, dtype=float),
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
+            medial_wall_mm=np.array(t.medial_wall_mm, dtype=float) if self.medial_wall_modelled() else None,
             events=list(self.events),
             trained_force_n=None if sim is None else sim.model.trained_force_n,
             frame_dt_s=1.0 / self.frame_rate_hz,

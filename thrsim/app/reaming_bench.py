@@ -7,7 +7,8 @@ intact bone until the page pauses where it is reamed through, repeated until the
 full). Reported: simulator frames per second delivered, the bone's binary frames and their size
 against every element's α as float32, frames drawn per second once the page's render scale has
 settled, Chromium's CPU per drawn frame, and the latency from an OpenIGTLink pose to the state
-that shows it and to its first drawing (median, p90).
+that shows it and to its first drawing (median, p90), the session's worst server tick and how far the drawn
+bone trailed the simulation (wall-clock).
 """
 
 from __future__ import annotations
@@ -133,7 +134,9 @@ def time_reaming_page(
                 if scale_changes == before:
                     break
             scale_at_start = page.evaluate("trainer.view.renderScale.scale")
+            page.evaluate("trainer.stats.boneLag = { worst: 0, sum: 0, count: 0 }")
             totals, cpu_seconds = _ream(page, seconds)
+            lag = page.evaluate("trainer.stats.boneLag")
             scale_changes = page.evaluate(_SCALE_CHANGES) - scale_changes
             reaming = page.evaluate("trainer.stats.last.reaming")
             render_scale = page.evaluate("trainer.view.renderScale.scale")  # the canvas's resolution (render_scale.js)
@@ -155,6 +158,7 @@ def time_reaming_page(
             streaming["on"] = False
             thread.join(2)
             tracker.close()
+        session = page.evaluate("trainer.stats.last.session")
         chromium_version = browser.version
     elapsed = totals[0] / 1000
     drawn_frames, bone_frames = totals[1], totals[3]
@@ -175,6 +179,12 @@ def time_reaming_page(
         "pose_to_drawn_ms": {"median": statistics.median(drawn), "p90": float(np.percentile(drawn, 90))},
         "latency_trials": latency_trials,
         "step_ms_last": reaming.get("step_ms"),
+        "worst_tick_ms": session["worst_tick_ms"],
+        "drawn_bone_lag_s": {
+            "worst": lag["worst"] / 1000,
+            "mean": lag["sum"] / lag["count"] / 1000 if lag["count"] else None,
+            "drawings": lag["count"],
+        },
         "behind_frames": reaming.get("behind_frames"),
         "removed_at_end": reaming.get("removed"),
         "elements": elements,

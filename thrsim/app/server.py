@@ -44,6 +44,7 @@ from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, Ig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import feedback
 from thrsim.nav.bone_frame import check_side
+from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import is_interrupted
@@ -649,6 +650,11 @@ def create_app(settings: ServeSettings) -> FastAPI:
     def favicon() -> Response:
         return Response(status_code=204)
 
+    @app.get("/api/pelvis", include_in_schema=False)
+    def pelvis() -> Response:
+        """The pelvis's bone surface both pages draw (:mod:`thrsim.nav.pelvis_surface`, built on first use)."""
+        return Response(surface_payload(pelvis_surface()), media_type="application/octet-stream")
+
     @app.get("/api/modes")
     def modes() -> dict:
         return {"modes": [{"name": m.name, "path": m.path, "title": m.title} for m in MODES.values()]}
@@ -678,7 +684,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
             ]
         }
 
-    for path, handler, methods in record_routes(settings.sessions_dir):  # /sessions, /trainee/<id>, the exports
+    for path, handler, methods in record_routes(settings.sessions_dir, settings.thresholds):  # /sessions, /trainee/<id>, the exports
         app.add_api_route(path, handler, methods=methods, include_in_schema=False)
 
     def _session_file(session_id: str) -> Path:

@@ -28,6 +28,7 @@ from starlette.concurrency import run_in_threadpool
 from thrsim.app.controls import TRAINEE_PATTERN
 from thrsim.errors import ThrsimInputError
 from thrsim.report.record import competency, metric_names, of_trainee, session_files, summaries, to_csv, to_json
+from thrsim.report.thresholds import Thresholds
 from thrsim.session.questionnaire import ITEMS, SCALE, write_questionnaire
 
 _SESSION_ID = re.compile(r"^[0-9]{8}T[0-9]{6}Z-[0-9a-f]{6}$")
@@ -56,6 +57,17 @@ LABELS = {
     "push_mean_n": "Mean push (N)",
     "reamer_path_length_mm": "Reamer path length (mm)",
     "push_out_of_range_fraction": "Share of time pushing outside the trained range",
+    "inclination_error_deg": "Cavity axis: inclination off the plan (°)",
+    "anteversion_error_deg": "Cavity axis: anteversion off the plan (°)",
+    "confirmed_inclination_error_deg": "Confirmed cup: inclination off the plan (°)",
+    "confirmed_anteversion_error_deg": "Confirmed cup: anteversion off the plan (°)",
+    "within_5deg_fraction": "Share of reaming time within 5° of the plan",
+    "within_10deg_fraction": "Share of reaming time within 10° of the plan",
+    "cavity_diameter_error_mm": "Cavity diameter against the cup (mm)",
+    "cavity_depth_error_mm": "Cavity floor beyond (+) or short of (−) the plan (mm)",
+    "over_reaming_mm": "Over-reaming: bone removed beyond the planned cup (mm)",
+    "under_reaming_mm": "Under-reaming: bone left inside the planned cup (mm)",
+    "medial_wall_remaining_mm": "Medial wall left (mm)",
 }
 
 
@@ -202,11 +214,12 @@ def _same_site(request: Request) -> bool:
     return origin is None or urlsplit(origin).netloc == request.headers.get("host")
 
 
-def record_routes(sessions_dir: Path) -> list[tuple[str, Callable, list[str]]]:
-    """(path, handler, methods) of the record's routes over the sessions folder."""
+def record_routes(sessions_dir: Path, thresholds: Thresholds | None = None) -> list[tuple[str, Callable, list[str]]]:
+    """(path, handler, methods) of the record's routes over the sessions folder, scores and competency
+    levels judged against ``thresholds`` (the server's, as its reports are; None: the shipped defaults)."""
 
     def rows() -> list[dict]:
-        return summaries(session_files([sessions_dir]), skip_unreadable=True)
+        return summaries(session_files([sessions_dir]), skip_unreadable=True, thresholds=thresholds)
 
     def sessions() -> HTMLResponse:
         return sessions_page(rows())

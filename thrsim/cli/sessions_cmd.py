@@ -25,13 +25,17 @@ def export(
         False, "--json", help="one JSON object: every session's summary, the competency levels, the questionnaire items"
     ),
     out: Path | None = typer.Option(None, "--out", help="file to write (default: print)", metavar="FILE"),
+    thresholds_file: Path | None = typer.Option(
+        None, "--thresholds", help="competency thresholds to score against (JSON or YAML; default: the shipped ones)", metavar="FILE"
+    ),
 ) -> None:
     """Export every session's metrics (and questionnaire answers) as CSV or JSON, oldest first."""
     if as_csv == as_json:
         raise ThrsimInputError("give --csv or --json (one of them)")
     from thrsim.report.record import session_files, summaries, to_csv, to_json
+    from thrsim.report.thresholds import load_thresholds
 
-    rows = summaries(session_files(sources))
+    rows = summaries(session_files(sources), thresholds=load_thresholds(thresholds_file))
     text = to_csv(rows) if as_csv else json.dumps(to_json(rows), indent=1, allow_nan=False) + "\n"
     if out is None:
         typer.echo(text, nl=False)

@@ -42,11 +42,16 @@ _BILATERAL_RIGHT = {
 }
 
 
-def _rim_right() -> dict[str, np.ndarray]:
+def native_axis_right() -> np.ndarray:
+    """Unit axis out of the right native acetabulum (model frame): the rim lies across it."""
     inclination = math.radians(_NATIVE_INCLINATION_DEG)
     anteversion = math.radians(_NATIVE_ANTEVERSION_DEG)
     # (lat, ant, inf) = (+x, +y, −z) for the right hip.
-    axis = np.array([math.cos(anteversion) * math.sin(inclination), math.sin(anteversion), -math.cos(anteversion) * math.cos(inclination)])
+    return np.array([math.cos(anteversion) * math.sin(inclination), math.sin(anteversion), -math.cos(anteversion) * math.cos(inclination)])
+
+
+def _rim_right() -> dict[str, np.ndarray]:
+    axis = native_axis_right()
     first = np.cross(axis, [0.0, 1.0, 0.0])
     first /= np.linalg.norm(first)
     second = np.cross(axis, first)

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from thrsim.report.parts import Criterion, Part, Section, figure_png, table
-from thrsim.report.reaming_metrics import cavity_axis_angles, cut_sizes_mm, in_range, metrics
+from thrsim.report.reaming_metrics import cavity_axis_angles, confirmed_cup_angles, cut_sizes_mm, in_range, metrics
 from thrsim.report.thresholds import AtLeast, AtMost, Thresholds, default_thresholds
 from thrsim.session.file import SessionFile
 from thrsim.session.plan import Plan
@@ -388,8 +388,28 @@ def _against_plan(record: ReamingRecord) -> Section:
             shown(None if superior is None else superior - plan.superior_shift_mm, " mm"),
         ],
     ]
+    confirmed = confirmed_cup_angles(record) or (None, None)
+    rows += [
+        ["confirmed cup inclination", f"{plan.inclination_deg:g}°", shown(confirmed[0], "°"), shown(found["confirmed_inclination_error_deg"], "°")],
+        ["confirmed cup anteversion", f"{plan.anteversion_deg:g}°", shown(confirmed[1], "°"), shown(found["confirmed_anteversion_error_deg"], "°")],
+        ["cavity floor, along the cup's axis", "the planned cup's floor", "", shown(found["cavity_depth_error_mm"], " mm")],
+        ["over-reaming: bone removed beyond the planned cup", "0 mm", shown(found["over_reaming_mm"], " mm"), ""],
+        ["under-reaming: bone left inside the planned cup", "0 mm", shown(found["under_reaming_mm"], " mm"), ""],
+        [
+            "medial wall left",
+            "",
+            "not modelled (the bone patch has no medial wall)" if record.medial_wall_mm is None else shown(found["medial_wall_remaining_mm"], " mm"),
+            "",
+        ],
+    ]  # fmt: skip
     five, ten = found["within_5deg_fraction"], found["within_10deg_fraction"]
     body = f"<p>Plan set by the {html.escape(record.plan_source)}.</p>" + table(["", "plan", "reamed", "error"], rows)
+    if confirmed[0] is None:
+        body += "<p>No cup orientation was confirmed (Enter on the reaming page).</p>"
+    body += (
+        "<p>The cavity floor's error is positive where the cavity goes deeper than the planned cup, negative where it stops short; "
+        "over- and under-reaming are measured at the final bone's elements (to within half an element, 0.45 mm).</p>"
+    )
     if five is not None:
         body += f"<p>Reaming time with both angles within 5° of the plan: {100 * five:.0f} %; within 10°: {100 * ten:.0f} %.</p>"
     if "reamer_sequence_mm" in found:
@@ -427,8 +447,25 @@ def _sections(record: ReamingRecord) -> list[Section]:
     return sections
 
 
+def competency(thresholds: Thresholds) -> dict[str, tuple[float, str]]:
+    """The competency level of each reaming metric that has one: the full-points tier of its
+    criterion in ``thresholds`` (the file the report scores against), so a trainee's learning
+    curve draws the level the instructor set."""
+    t = thresholds
+    angle = (t.orientation_error_deg.full, "max")
+    return {
+        "inclination_error_deg": angle,
+        "anteversion_error_deg": angle,
+        "confirmed_inclination_error_deg": angle,
+        "confirmed_anteversion_error_deg": angle,
+        "within_10deg_fraction": (t.within_10deg_fraction.full, "min"),
+        "push_out_of_range_fraction": (1.0 - t.push_in_range_fraction.full, "max"),
+    }
+
+
 def reaming_part(session: SessionFile, thresholds: Thresholds) -> Part | None:
     if "reaming" not in session.groups:
         return None
     record = read_reaming(session.groups["reaming"])
-    return Part(criteria(record, thresholds), record.events, metrics(record) if record.assessable else {}, lambda: _sections(record))
+    found = metrics(record) if record.assessable else {}
+    return Part(criteria(record, thresholds), record.events, found, lambda: _sections(record), competency(thresholds))

@@ -119,6 +119,47 @@ def path_length_mm(record: ReamingRecord) -> float:
     return float(steps[consecutive].sum())
 
 
+def confirmed_cup_angles(record: ReamingRecord) -> tuple[float, float] | None:
+    """The cup the trainee confirmed last (a ``cup_confirmed`` event: the reamer's radiographic
+    inclination and anteversion when confirmed), None when none was."""
+    confirmed = [e for e in record.events if e["kind"] == "cup_confirmed"]
+    return None if not confirmed else (float(confirmed[-1]["inclination_deg"]), float(confirmed[-1]["anteversion_deg"]))
+
+
+def cavity_against_plan_mm(record: ReamingRecord, plan: Plan) -> dict | None:
+    """The final cavity against the planned cup, from the final bone's elements (their centres: to
+    within half an element, the mesh's 0.45 mm): ``cavity_depth_error_mm``, the cavity's floor
+    along the plan's axis beyond (+) or short of (−) the planned cup's floor; ``over_reaming_mm``,
+    the furthest bone removed beyond the planned hemisphere; ``under_reaming_mm``, the thickest
+    bone left inside it, below its rim. None without the cavity's geometry or when no bone was removed."""
+    cavity = record.cavity
+    if not cavity or len(record.final_alpha) != len(cavity["centroids_m"]):
+        return None
+    removed = record.final_alpha < cavity["threshold"]
+    if not removed.any():
+        return None
+    centre, axis = plan.cup_in_patch(SafeZone(**record.zone))
+    offset = cavity["centroids_m"] - centre
+    distance = np.linalg.norm(offset, axis=1)
+    radius = plan.cup_diameter_mm / 2e3
+    floor = float(np.max(-(offset[removed] @ axis)))
+    inside = ~removed & (distance < radius) & (offset @ axis < 0.0)
+    return {
+        "cavity_depth_error_mm": (floor - radius) * 1e3,
+        "over_reaming_mm": max(0.0, float(np.max(distance[removed])) - radius) * 1e3,
+        "under_reaming_mm": float(np.max(radius - distance[inside])) * 1e3 if inside.any() else 0.0,
+    }
+
+
+def medial_wall_remaining_mm(record: ReamingRecord) -> float | None:
+    """The least bone left between the reamer's teeth and the medial wall over the final bone's
+    frames; None where the bone has no medial wall (the bone patch) or no frame was kept."""
+    if record.medial_wall_mm is None:
+        return None
+    rows = final_rows(record)
+    return None if len(rows) == 0 else float(np.min(record.medial_wall_mm[rows]))
+
+
 def metrics(record: ReamingRecord) -> dict:
     """The session's measurements by name (mm, degrees, seconds, fractions); a figure the session
     cannot give is None, a figure a file before it does not hold is left out."""
@@ -129,8 +170,7 @@ def metrics(record: ReamingRecord) -> dict:
         "restores": kinds.count("restore"),
         "push_mean_n": float(np.mean(record.force_n)),
         "reamer_path_length_mm": path_length_mm(record),
-        # the bone patch has no medial wall: measured once a bone with one records it
-        "medial_wall_remaining_mm": None,
+        "medial_wall_remaining_mm": medial_wall_remaining_mm(record),
     }
     pushed = in_range(record)
     if pushed is not None:
@@ -154,4 +194,8 @@ def metrics(record: ReamingRecord) -> dict:
         "within_10deg_fraction": within_plan_fraction(record, plan, 10.0),
         "cavity_diameter_error_mm": None if diameter is None else diameter - plan.cup_diameter_mm,
     }
+    confirmed = confirmed_cup_angles(record)
+    found["confirmed_inclination_error_deg"] = None if confirmed is None else abs(confirmed[0] - plan.inclination_deg)
+    found["confirmed_anteversion_error_deg"] = None if confirmed is None else abs(confirmed[1] - plan.anteversion_deg)
+    found |= cavity_against_plan_mm(record, plan) or dict.fromkeys(("cavity_depth_error_mm", "over_reaming_mm", "under_reaming_mm"))
     return found

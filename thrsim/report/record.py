@@ -1,8 +1,10 @@
 """The trainees' record: every saved session summarised (who, mode, when, how long, score, metrics,
 questionnaire), for the session list, a trainee's learning curve and study exports (CSV, JSON).
 
-A summary is computed from the session file once and kept while the file is unchanged (its size
-and modification time), so listing a sessions folder again costs a glance at each file.
+Scores and competency levels are judged against the thresholds given (an instructor's file, as
+``thrsim serve --thresholds`` loaded it; None: the shipped defaults). A summary is computed from the
+session file once and kept while the file and the thresholds are unchanged (its size and
+modification time), so listing a sessions folder again costs a glance at each file.
 """
 
 from __future__ import annotations
@@ -15,31 +17,32 @@ from pathlib import Path
 
 from thrsim.errors import ThrsimInputError
 from thrsim.report.document import build_assessment
+from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import read_session
 from thrsim.session.questionnaire import ITEMS, read_questionnaire
 
 #: the columns every exported row has, before its metrics and questionnaire answers
 COLUMNS = ("session", "trainee", "mode", "started_utc", "duration_s", "interrupted", "score", "max_score")
 
-_CACHE: dict[Path, tuple[tuple[int, int], dict]] = {}
+_CACHE: dict[Path, tuple[tuple[int, int, str], dict]] = {}
 _CACHE_LOCK = threading.Lock()
 
 
-def summarise(path: str | Path) -> dict:
+def summarise(path: str | Path, thresholds: Thresholds | None = None) -> dict:
     """One session's summary: the :data:`COLUMNS`, ``metrics``, ``competency`` and ``questionnaire``
-    (None when not answered); ThrsimInputError when the file cannot be read."""
+    (None when not answered), scored against ``thresholds``; ThrsimInputError when the file cannot be read."""
     path = Path(path)
     try:
         stat = path.stat()
     except OSError:
         raise ThrsimInputError(f"{path}: no such session file") from None
-    key = (stat.st_mtime_ns, stat.st_size)
+    key = (stat.st_mtime_ns, stat.st_size, "" if thresholds is None else thresholds.model_dump_json())
     with _CACHE_LOCK:
         cached = _CACHE.get(path.resolve())
     if cached is not None and cached[0] == key:
         return cached[1]
     session = read_session(path)
-    assessment = build_assessment(path, session=session)
+    assessment = build_assessment(path, thresholds, session=session)
     attrs = session.attrs
     summary = {
         "session": str(attrs.get("session_id", path.stem)),
@@ -72,13 +75,13 @@ def session_files(sources: list[Path]) -> list[Path]:
     return sorted(dict.fromkeys(files), key=lambda p: p.name)
 
 
-def summaries(files: list[Path], skip_unreadable: bool = False) -> list[dict]:
-    """Every file's summary, oldest first; an unreadable file raises, or with ``skip_unreadable`` is
-    listed as ``{"session": stem, "error": why}``."""
+def summaries(files: list[Path], skip_unreadable: bool = False, thresholds: Thresholds | None = None) -> list[dict]:
+    """Every file's summary scored against ``thresholds``, oldest first; an unreadable file raises, or
+    with ``skip_unreadable`` is listed as ``{"session": stem, "error": why}``."""
     rows = []
     for path in files:
         try:
-            rows.append(summarise(path))
+            rows.append(summarise(path, thresholds))
         except ThrsimInputError as error:
             if not skip_unreadable:
                 raise

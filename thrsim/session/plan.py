@@ -13,10 +13,13 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from thrsim.config import SafeZone
 from thrsim.errors import ThrsimInputError
+from thrsim.nav.anatomy import local_axis_from_angles
+from thrsim.nav.bone_frame import patch_in_app
 
 #: the reamer and cup sizes the trainer offers (mm, whole millimetres: the diameter the teeth cut)
 REAMER_SIZES_MM = tuple(range(40, 65))
@@ -47,6 +50,14 @@ class Plan(BaseModel):
             "anteversion_deg": self.anteversion_deg,
             "source": source,
         }
+
+    def cup_in_patch(self, zone: SafeZone) -> tuple[np.ndarray, np.ndarray]:
+        """The planned cup in the bone patch's frame (placed at ``zone``'s centre): its centre (m), the
+        native centre (the frame's origin) shifted medially and superiorly, and its axis (unit, out of
+        the socket). The page draws it and the report measures the cavity against it."""
+        to_patch = patch_in_app(zone).T  # APP components (lateral, anterior, inferior) to the patch's
+        shift_app = np.array([-self.medialisation_mm, 0.0, -self.superior_shift_mm]) * 1e-3
+        return to_patch @ shift_app, to_patch @ local_axis_from_angles(self.inclination_deg, self.anteversion_deg)
 
     def first_reamer_mm(self) -> int:
         """The reamer a session starts with: the offered size a few millimetres under the cup."""

@@ -26,7 +26,7 @@ _EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
 BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
-_SEQUENCE = ("reamer_mm", "cut_mm")  # trace columns files before the reamer sequence lack
+_SEQUENCE = ("reamer_mm", "cut_mm", "medial_wall_mm")  # trace columns files before the reamer sequence lack
 
 
 @dataclass
@@ -53,6 +53,7 @@ class ReamingRecord:
     frame_dt_s: float = 1.0 / FRAME_RATE_HZ  # seconds of reaming per frame: the model's (settings' model; files before it: 1/60 s)
     reamer_mm: np.ndarray | None = None  # per frame, the size held (None: a file before the reamer sequence)
     cut_mm: np.ndarray | None = None  # per frame, the size the simulator cut with
+    medial_wall_mm: np.ndarray | None = None  # per frame, bone left before the medial wall (None: the bone has none)
     plan: dict | None = None  # the Plan's fields (None: a file before the plan)
     plan_source: str = "trainee"
 
@@ -76,12 +77,16 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     (F×3: radiographic inclination, anteversion and distance to the safe zone in degrees, NaN when
     the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
     (the size the simulator cut with: its model's, where the model learned one size; both absent
-    from files before the reamer sequence); ``events/`` ``time``, ``kind``, ``detail``, ``frame`` and ``data``
+    from files before the reamer sequence), ``medial_wall_mm`` (bone left between the reamer's teeth
+    and the medial wall; only where the bone has one: the bone patch has none); ``events/`` ``time``,
+    ``kind``, ``detail``, ``frame`` and ``data``
     (JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
     ``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
     (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
     ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``plan_set`` (``plan``),
-    ``reamer_changed`` (``from_mm``, ``to_mm``), the simulator's end reasons
+    ``reamer_changed`` (``from_mm``, ``to_mm``), ``cup_confirmed`` (``inclination_deg``,
+    ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the
+    simulator's end reasons
     (``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
     ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
     needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a

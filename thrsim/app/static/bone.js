@@ -1,26 +1,57 @@
-// The acetabular bone patch being reamed: the remaining bone's boundary faces, coloured by α.
-// The mesh arrives once (GET /api/reaming/mesh: nodes in mm in the patch frame, tets, face
-// neighbours); after that each element is one byte (0 removed, 1..levels α from the removal
-// threshold to 1), kept up to date by the compressed keyframes and deltas the server streams
-// (thrsim/app/bone_stream.py). A face is drawn when its tet remains and the tet across it does
-// not (or there is none): the same boundary the offscreen renderer draws.
+// The acetabular bone being reamed (the thesis's patch of the socket's floor, or the whole layered
+// socket): the remaining bone's boundary faces. The mesh arrives once (GET /api/reaming/mesh:
+// nodes in mm in the bone's frame, tets, face neighbours, and from version 2 each element's
+// material with the materials' names); after that each element is one byte (0 removed, 1..levels
+// α from the removal threshold to 1), kept up to date by the compressed keyframes and deltas the
+// server streams (thrsim/app/bone_stream.py). A face is drawn when its tet remains and the tet
+// across it does not (or there is none): the same boundary the offscreen renderer draws.
+// Colours: by depth against the planned hemisphere (DEPTH_STOPS, computed per pixel from the
+// plan's centre and radius, so a new plan recolours nothing on the CPU), or by the bone's layer
+// (its elements' materials, LAYER_COLOURS).
 import * as THREE from "three";
 
 // Outward faces of a positively oriented tet, opposite vertex 0, 1, 2, 3 (thrsim.geometry.tet_metrics).
 const FACES = [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]];
 
-// viridis at 8 stops, from the removal threshold (dark) to α = 1 (light), as the offscreen renderer.
-const VIRIDIS = [[0.267, 0.005, 0.329], [0.275, 0.194, 0.497], [0.213, 0.359, 0.552], [0.153, 0.498, 0.558],
-  [0.122, 0.632, 0.531], [0.29, 0.758, 0.428], [0.626, 0.854, 0.223], [0.993, 0.906, 0.144]];
+// Depth of the cut surface against the planned hemisphere (mm: its distance from the plan's centre
+// less the plan's radius), as the report's cavity map: bone short of the plan amber, within
+// 0.45 mm (the mesh's resolution) green, beyond it red, darkening toward 2 mm beyond.
+export const DEPTH_STOPS = [[-2, "#e3dccb"], [-1, "#f2c14e"], [-0.45, "#2ca25f"], [0.45, "#2ca25f"], [1, "#d7301f"], [2, "#5a0d0d"]];
+// The bone's layers (thrsim.geometry.mesh's material names): cortical ivory, cancellous the red of
+// bleeding cancellous bone; a name not listed is grey.
+export const LAYER_COLOURS = { cortical: "#efe6cf", cancellous: "#c8645a" };
+const OTHER_LAYER = "#9a9a9a";
 
-function palette(levels) {
-  const colours = [[0, 0, 0]];
-  for (let k = 1; k <= levels; k++) {
-    const x = ((k - 0.5) / levels) * (VIRIDIS.length - 1);
-    const i = Math.min(VIRIDIS.length - 2, Math.floor(x)), t = x - i;
-    colours.push(VIRIDIS[i].map((c, j) => c + t * (VIRIDIS[i + 1][j] - c)));
+// GLSL: the depth colour of a distance beyond the plan (mm), piecewise linear between the stops
+// (the stops are sRGB; three.js shades in linear, as THREE.Color holds them).
+function depthColourGlsl() {
+  const rgb = (hex) => `vec3(${new THREE.Color(hex).toArray().map((x) => x.toFixed(4)).join(", ")})`;
+  const lines = ["vec3 depthColour(float d) {", `  vec3 c = ${rgb(DEPTH_STOPS[0][1])};`];
+  for (let i = 1; i < DEPTH_STOPS.length; i++) {
+    const [x0, a] = DEPTH_STOPS[i - 1], [x1, b] = DEPTH_STOPS[i];
+    lines.push(`  if (d > ${x0.toFixed(3)}) c = mix(${rgb(a)}, ${rgb(b)}, clamp((d - (${x0.toFixed(3)})) / ${(x1 - x0).toFixed(3)}, 0.0, 1.0));`);
   }
-  return colours;
+  lines.push("  return c;", "}");
+  return lines.join("\n");
+}
+
+// The bone's material: vertex colours (the layers) or, with depth colours on, each pixel's depth
+// against the plan. Its userData.plan holds the uniforms: the plan's centre and radius (mm, the
+// bone's frame) and whether depth colours are on.
+function boneMaterial() {
+  const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide });
+  const plan = { planCentre: { value: new THREE.Vector3() }, planRadius: { value: 0 }, depthColours: { value: 1 } };
+  material.userData.plan = plan;
+  material.onBeforeCompile = (shader) => {
+    Object.assign(shader.uniforms, plan);
+    shader.vertexShader = shader.vertexShader
+      .replace("#include <common>", "#include <common>\nvarying vec3 vBonePoint;")
+      .replace("#include <begin_vertex>", "#include <begin_vertex>\nvBonePoint = transformed;");
+    shader.fragmentShader = shader.fragmentShader
+      .replace("#include <common>", `#include <common>\nvarying vec3 vBonePoint;\nuniform vec3 planCentre;\nuniform float planRadius;\nuniform float depthColours;\n${depthColourGlsl()}`)
+      .replace("#include <color_fragment>", "#include <color_fragment>\nif (depthColours > 0.5) diffuseColor.rgb = depthColour(length(vBonePoint - planCentre) - planRadius);");
+  };
+  return material;
 }
 
 async function inflate(bytes) {
@@ -32,12 +63,18 @@ export function parseMesh(buffer) {
   const view = new DataView(buffer);
   const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
   if (magic !== "THRM") throw new Error(`not a thrsim reaming mesh (${magic})`);
-  const nodes = view.getUint32(8, true), tets = view.getUint32(12, true);
+  const version = view.getUint32(4, true), nodes = view.getUint32(8, true), tets = view.getUint32(12, true);
   let offset = 16;
   const positions = new Float32Array(buffer.slice(offset, offset + nodes * 12)); offset += nodes * 12;
   const indices = new Uint32Array(buffer.slice(offset, offset + tets * 16)); offset += tets * 16;
-  const neighbours = new Int32Array(buffer.slice(offset, offset + tets * 16));
-  return { nodes, tets, positions, indices, neighbours };
+  const neighbours = new Int32Array(buffer.slice(offset, offset + tets * 16)); offset += tets * 16;
+  let materials = new Uint8Array(tets), materialNames = ["cortical"]; // version 1: one material
+  if (version >= 2) {
+    materials = new Uint8Array(buffer.slice(offset, offset + tets)); offset += tets;
+    const length = view.getUint32(offset, true); offset += 4;
+    materialNames = JSON.parse(new TextDecoder().decode(new Uint8Array(buffer, offset, length)));
+  }
+  return { nodes, tets, positions, indices, neighbours, materials, materialNames };
 }
 
 // A face's slot in the vertex buffers is kept while the face stays on the boundary, so a frame
@@ -48,10 +85,10 @@ export function parseMesh(buffer) {
 const MERGE_GAP_SLOTS = 32; // changed slots closer than this are uploaded as one range
 
 export class BonePatch {
-  constructor(mesh, placementRowMajor, levels) {
+  constructor(mesh, placementRowMajor) {
     this.mesh = mesh;
     this.levels = new Uint8Array(mesh.tets);
-    this.colours = palette(levels);
+    this.colours = mesh.materialNames.map((name) => new THREE.Color(LAYER_COLOURS[name] ?? OTHER_LAYER).toArray());
     this.frame = -1;
     this.visibleFaces = 0;
     const capacity = mesh.tets * 4; // faces
@@ -70,7 +107,7 @@ export class BonePatch {
     geometry.setDrawRange(0, 0);
     // Front faces only: the faces are the remaining bone's outward boundary, so a back face is
     // always behind a front one (culling halves SwiftShader's shading of the patch).
-    this.object = new THREE.Mesh(geometry, new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide }));
+    this.object = new THREE.Mesh(geometry, boneMaterial());
     this.object.matrixAutoUpdate = false;
     // patch frame (mm) → pelvis model frame (m): the server's placement, mirrored for a left hip
     this.object.matrix.set(...placementRowMajor).multiply(new THREE.Matrix4().makeScale(1e-3, 1e-3, 1e-3));
@@ -174,10 +211,20 @@ export class BonePatch {
     this.write(slot, face);
   }
 
-  // One face's three vertices: positions, its flat outward normal, its tet's colour.
+  // The planned hemisphere (centre in mm in the bone's frame, radius in mm) the depth colours measure against.
+  setPlan(centreMm, radiusMm) {
+    const plan = this.object.material.userData.plan;
+    plan.planCentre.value.fromArray(centreMm);
+    plan.planRadius.value = radiusMm;
+  }
+
+  // Colour by depth against the plan (true) or by the bone's layers (false).
+  setDepthColours(on) { this.object.material.userData.plan.depthColours.value = on ? 1 : 0; }
+
+  // One face's three vertices: positions, its flat outward normal, its tet's layer colour.
   write(slot, face) {
     const { positions: nodes, indices } = this.mesh;
-    const tet = face >> 2, corners = FACES[face & 3], colour = this.colours[this.levels[tet]];
+    const tet = face >> 2, corners = FACES[face & 3], colour = this.colours[this.mesh.materials[tet]];
     const a = 3 * indices[4 * tet + corners[0]], b = 3 * indices[4 * tet + corners[1]], c = 3 * indices[4 * tet + corners[2]];
     const ux = nodes[b] - nodes[a], uy = nodes[b + 1] - nodes[a + 1], uz = nodes[b + 2] - nodes[a + 2];
     const vx = nodes[c] - nodes[a], vy = nodes[c + 1] - nodes[a + 1], vz = nodes[c + 2] - nodes[a + 2];

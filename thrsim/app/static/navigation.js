@@ -3,12 +3,15 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
-import { NavigationScene } from "./scene.js";
+import { NavigationScene, cameraViews } from "./scene.js";
 
 const canvas = $("view");
 const view = new NavigationScene(canvas);
 const orbit = new OrbitControls(view.camera, canvas);
 orbit.enableDamping = false;
+view.onLoaded = () => { dirty = true; }; // the pelvis's surface arrived
+view.onError = (error) => { stats.errors.push(String(error)); toast(error.message, "error"); };
+cameraViews(view, orbit, () => ({ centre: view.sceneInfo.acetabulum[view.sceneInfo.side], axis: view.socketAxis() }));
 
 // Figures the end-to-end tests and the benchmark read.
 const stats = { frames: 0, states: 0, errors: [], acks: [], events: [], last: null, hello: null, saved: null, connected: false };
@@ -123,6 +126,7 @@ function frameView() {
   view.camera.position.set(focus.x + 0.75, focus.y + 0.4, focus.z + 0.5);
   orbit.target.copy(focus);
   orbit.update();
+  view.setHome(view.camera.position, orbit.target);
 }
 
 // ---- controls ---------------------------------------------------------------------------------

@@ -4,8 +4,9 @@
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { BonePatch, parseMesh } from "./bone.js";
+import { CavityView } from "./cavity.js";
 import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
-import { NavigationScene } from "./scene.js";
+import { NavigationScene, cameraViews } from "./scene.js";
 
 const canvas = $("view");
 const view = new NavigationScene(canvas);
@@ -17,8 +18,22 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // Latency probe (`thrsim bench --reaming-page`): when the measured inclination changes, when that
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
+// Drawn-bone lag (`thrsim bench --reaming-page`): at each drawing while reaming, how long (ms,
+// wall-clock) the page has known of a simulator frame newer than the bone it draws: since the
+// first state past the drawn bone's frame arrived, 0 when the bone drawn is the latest (the worst,
+// their sum and count). newerFrames: [frame, arrival] of states not yet drawn, oldest first.
+stats.boneLag = { worst: 0, sum: 0, count: 0 };
+const newerFrames = [];
 let bone = null;
-window.trainer = { stats, view, send: (message) => send(message), bone: () => bone };
+const cavityView = new CavityView(view, stats);
+window.trainer = { stats, view, cavityView, send: (message) => send(message), bone: () => bone };
+view.onLoaded = cavityView.onChange = () => { dirty = inset.stale = true; };
+view.onError = (error) => { stats.errors.push(String(error)); toast(error.message, "error"); };
+// The surgeon looks down the planned cup's axis (the safe zone's centre until a plan says otherwise).
+cameraViews(view, orbit, () => {
+  const plan = stats.last?.reaming.plan;
+  return plan ? { centre: plan.centre_m, axis: plan.axis } : { centre: view.sceneInfo.acetabulum[view.sceneInfo.side], axis: view.socketAxis() };
+});
 
 // The aim and the push: the server's (the hello's defaults) when a session starts, then the trainee's.
 let steer = null;
@@ -67,8 +82,10 @@ async function loadBone(scene) {
   const previous = bone;
   const response = await fetch(info.mesh);
   if (!response.ok) { toast(`bone mesh: ${response.status}`, "error"); return; }
-  const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model, info.display_levels);
+  const patch = new BonePatch(parseMesh(await response.arrayBuffer()), info.patch_to_model);
   patch.object.layers.enable(1); // also in the cavity inset
+  view.openSocket(patch.mesh.positions, patch.object); // the pelvis gives way to the bone being reamed
+  cavityView.setBone(patch);
   view.scene.traverse((object) => { if (object.isLight) object.layers.enable(1); });
   // The server sends each viewer only what changed since what it last sent: a rebuilt patch (the
   // other hip, a new session) starts from the levels this page holds once the frames before it are applied.
@@ -104,10 +121,14 @@ function receive(message) {
   if (message.type === "state") {
     stats.states += 1;
     stats.last = message;
+    const lastSeen = newerFrames.length ? newerFrames[newerFrames.length - 1][0] : -1;
+    if (message.reaming.frame > lastSeen) newerFrames.push([message.reaming.frame, performance.now()]);
+    else if (message.reaming.frame < lastSeen) newerFrames.length = 0; // an undo or a restore: the frames start again
     const inclination = message.angles ? message.angles.radiographic[0] : null;
     if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);
     placeReamer(message.reaming);
+    cavityView.apply(message);
     if (!stats.framed && bone) frameView();
     running = message.reaming.running;
     hudStale = true; // the panel's text follows at the next drawn frame: states come up to twice a tick
@@ -128,7 +149,6 @@ function receive(message) {
     translucentReamer();
     // No registration here: the landmark points would only clutter the rim.
     view.landmarks.visible = false;
-    view.content.getObjectByName("sockets").visible = false;
     view.nextLandmark.visible = false;
     view.pulsing = () => false;
     $("side").value = message.scene.side;
@@ -160,6 +180,7 @@ function feedback(event) {
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
     push_out_of_range: `push ${event.detail}`,
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
+    cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
@@ -226,10 +247,11 @@ function frameView() {
   const p = view.sceneInfo.reaming.patch_to_model;
   opening.set(p[2], p[6], p[10]).normalize();
   const aside = new THREE.Vector3().crossVectors(opening, new THREE.Vector3(0, 0, 1)).cross(opening).normalize().negate();
-  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.35);
+  const eye = opening.clone().multiplyScalar(Math.cos(0.61)).add(aside.multiplyScalar(Math.sin(0.61))).multiplyScalar(0.27);
   view.camera.position.copy(view.focus).add(eye);
   orbit.target.copy(view.focus);
   orbit.update();
+  view.setHome(view.camera.position, orbit.target);
   // The inset: the cavity seen along the opening, the bone patch alone (layer 1). The patch lies
   // in the socket's floor, an inner radius (22 mm) in from the acetabular centre.
   const floor = view.focus.clone().addScaledVector(opening, -0.022);
@@ -313,6 +335,7 @@ $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number
 $("force").addEventListener("input", (e) => { force = Number(e.target.value); sendForce(); });
 $("run").addEventListener("click", () => send({ type: "run", action: running ? "pause" : "start" }));
 $("undo").addEventListener("click", () => send({ type: "run", action: "undo" }));
+$("confirm-cup").addEventListener("click", () => send({ type: "confirm_cup" }));
 // Restoring the bone loses the cavity: the page asks first.
 $("reset").addEventListener("click", () => $("confirm-restore").showModal());
 $("confirm-restore").addEventListener("close", () => { if ($("confirm-restore").returnValue === "restore") send({ type: "run", action: "reset" }); });
@@ -347,6 +370,7 @@ document.addEventListener("keydown", (e) => {
     ArrowDown: () => { steer.inclination_deg = clamp(steer.inclination_deg - step, 0, 90); sendSteer(); },
     ArrowRight: () => { steer.anteversion_deg = clamp(steer.anteversion_deg + step, -90, 90); sendSteer(); },
     ArrowLeft: () => { steer.anteversion_deg = clamp(steer.anteversion_deg - step, -90, 90); sendSteer(); },
+    Enter: () => $("confirm-cup").click(),
     "[": () => swapReamer(-1),
     "]": () => swapReamer(1),
     h: () => $("help").classList.toggle("hidden"),
@@ -369,6 +393,13 @@ function frame(now) {
       placeReamer(stats.last.reaming);
     }
     render();
+    if (running && bone && bone.frame >= 0) {
+      while (newerFrames.length && newerFrames[0][0] <= bone.frame) newerFrames.shift();
+      const lag = newerFrames.length ? performance.now() - newerFrames[0][1] : 0;
+      stats.boneLag.worst = Math.max(stats.boneLag.worst, lag);
+      stats.boneLag.sum += lag;
+      stats.boneLag.count += 1;
+    }
     if (hudStale) { hudStale = false; showState(stats.last); }
     if (stats.probe.arrived && !stats.probe.drawn) stats.probe.drawn = performance.now();
   }

@@ -1,5 +1,6 @@
-// The navigation scene: a stylised pelvis built from the server's landmarks, the IR camera and
-// its truncated-pyramid tracking volume, the tracked tools and the reamer's safe-zone ray.
+// The navigation scene: the pelvis's bone surface (built by the server around its landmarks), the
+// IR camera and its truncated-pyramid tracking volume, the tracked tools and the reamer's safe-zone
+// ray; camera views (home, surgeon's eye) both pages share.
 // Coordinates are the server's model frame (metres, +x patient right, +y anterior, +z superior),
 // used as three.js's world as it is: the patient lies supine, anterior is up (three.js's +y).
 // Under software WebGL (SwiftShader) a frame's CPU cost grows with its draw calls (~25 µs each),
@@ -13,11 +14,6 @@ import * as THREE from "three";
 import { mergeGeometries } from "three/addons/utils/BufferGeometryUtils.js";
 import { RenderScale, imageRendering } from "./render_scale.js";
 
-// The pelvis's bars are closed tubes, drawn front faces only; its plates (the iliac wings) are
-// open, seen from both sides. SwiftShader rasterises every back face it is given: the bars drawn
-// double-sided cost it about 2 of its 9 ms a frame at 1280×720.
-const BONE_BARS = new THREE.MeshLambertMaterial({ color: 0xe6d8b8 });
-const BONE_PLATES = new THREE.MeshLambertMaterial({ color: 0xe6d8b8, side: THREE.DoubleSide });
 const GREEN = 0x00c850, RED = 0xdc1e1e, AMBER = 0xffb000, GREY = 0x888888, YELLOW = 0xffe14d;
 export const ZONE_COLOURS = { green: GREEN, amber: AMBER, red: RED };
 
@@ -28,7 +24,6 @@ const SCALE = new THREE.Matrix4();
 const COLOUR = new THREE.Color();
 
 const v = (p) => new THREE.Vector3(p[0], p[1], p[2]);
-const mirror = (p) => [-p[0], p[1], p[2]];
 
 function matrixFromRowMajor(values, into = POSE) {
   return into.set(...values);
@@ -54,70 +49,51 @@ function painted(geometry, hex) {
   return geometry;
 }
 
-// A bar along the points: a tube closed at both ends by flat caps on its own end rings (whose
-// vertex order turns clockwise seen from ahead of the curve), so its back faces need no drawing.
-function bar(points, radius, radial = 8) {
-  const curve = new THREE.CatmullRomCurve3(points.map(v));
-  const tube = new THREE.TubeGeometry(curve, 12, radius, radial, false);
-  const p = tube.attributes.position;
-  const ring = (first) => Array.from({ length: radial }, (_, j) => [p.getX(first + j), p.getY(first + j), p.getZ(first + j)]);
-  const start = fan(curve.getPointAt(0).toArray(), ring(0));
-  const end = fan(curve.getPointAt(1).toArray(), ring(p.count - radial - 1).reverse());
-  return [tube, start, end];
-}
-
-function fan(centre, loop) {
-  // A triangle fan from a centre point to a closed loop: a thin bony plate.
-  const positions = [];
-  for (let i = 0; i < loop.length; i++) {
-    const a = loop[i], b = loop[(i + 1) % loop.length];
-    positions.push(...centre, ...a, ...b);
-  }
+// The pelvis: its bone surface is built by the server (thrsim.nav.pelvis_surface, GET /api/pelvis:
+// "THRP", u32 version, vertices, triangles, then positions and normals (V×3 f32, metres, model
+// frame) and triangles (T×3 u32)), fetched once per page. Closed and outward-facing, so drawn front
+// faces only. The bone the reaming page serves (a patch of the socket's floor, or the whole
+// socket) replaces the pelvis where it lies: fragments of the pelvis inside the served bone's
+// extent (its radii and its half-angle about its pole, in its own frame) are discarded, so the
+// reamed bone is never hidden behind the pelvis's own socket surface.
+export function parsePelvis(buffer) {
+  const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
+  if (magic !== "THRP") throw new Error(`not a thrsim pelvis surface (${magic})`);
+  const header = new DataView(buffer);
+  const vertices = header.getUint32(8, true), triangles = header.getUint32(12, true);
   const geometry = new THREE.BufferGeometry();
-  geometry.setAttribute("position", new THREE.Float32BufferAttribute(positions, 3));
-  geometry.computeVertexNormals();
+  geometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array(buffer, 16, 3 * vertices), 3));
+  geometry.setAttribute("normal", new THREE.BufferAttribute(new Float32Array(buffer, 16 + 12 * vertices, 3 * vertices), 3));
+  geometry.setIndex(new THREE.BufferAttribute(new Uint32Array(buffer, 16 + 24 * vertices, 3 * triangles), 1));
   return geometry;
 }
 
-function hemisphereCup(centre, axis, radius) {
-  // The acetabulum: a hemispherical socket opening along `axis`.
-  const geometry = new THREE.SphereGeometry(radius, 16, 6, 0, Math.PI * 2, 0, Math.PI / 2);
-  geometry.applyQuaternion(new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 1, 0), v(axis).negate().normalize()));
-  return geometry.translate(...centre);
+let pelvisSurface = null;
+function fetchPelvis(url) {
+  pelvisSurface ??= fetch(url).then((response) => {
+    if (!response.ok) throw new Error(`pelvis surface: ${response.status}`);
+    return response.arrayBuffer();
+  }).then(parsePelvis);
+  return pelvisSurface;
 }
 
-function buildPelvis(scene) {
-  const group = new THREE.Group();
-  const bars = [], plates = [], cups = [];
-  const lm = scene.landmarks;
-  const side = scene.side, other = side === "right" ? "left" : "right";
-  const rimNames = Object.keys(lm).filter((n) => n.startsWith("rim_"));
-  const rimCentre = rimNames.reduce((s, n) => s.add(v(lm[n])), new THREE.Vector3()).multiplyScalar(1 / rimNames.length);
-  const rimAxis = new THREE.Vector3().subVectors(rimCentre, v(scene.acetabulum[side])).normalize();
-  for (const s of [side, other]) {
-    const flip = s === side ? (p) => p : mirror;
-    const get = (name) => (lm[`${name}_${s}`] ?? flip(lm[name]));
-    const acetabulum = scene.acetabulum[s];
-    const axis = s === side ? rimAxis.toArray() : mirror(rimAxis.toArray());
-    const ischialSpine = flip(lm.ischial_spine), tuberosity = flip(lm.ischial_tuberosity);
-    const notch = [0.55 * ischialSpine[0] + 0.45 * get("psis")[0], -0.13, 0.5 * (ischialSpine[2] + get("psis")[2]) + 0.02];
-    const crest = [get("asis"), get("iliac_tubercle"), get("iliac_crest_posterior"), get("psis")];
-    const wingLoop = [...crest, notch, [acetabulum[0] * 0.9, acetabulum[1] - 0.01, acetabulum[2] + 0.035], get("aiis")];
-    const wingCentre = wingLoop.reduce((a, p) => a.map((x, k) => x + p[k] / wingLoop.length), [0, 0, 0]);
-    wingCentre[0] *= 0.8; // the iliac fossa curves medially
-    plates.push(fan(wingCentre, wingLoop));
-    bars.push(...bar(crest, 0.007));
-    bars.push(...bar([acetabulum, get("pubic"), [0.0, flip(lm.pubic_symphysis)[1], flip(lm.pubic_symphysis)[2]]], 0.009));
-    bars.push(...bar([get("pubic"), [get("pubic")[0] * 1.3, -0.03, -0.11], tuberosity], 0.007));
-    bars.push(...bar([acetabulum, ischialSpine, tuberosity], 0.01));
-    cups.push(hemisphereCup(acetabulum, axis, scene.rim_radius_m));
-    bars.push(...bar([get("psis"), [get("psis")[0] * 0.35, -0.16, 0.0], [0, -0.14, -0.06]], 0.012)); // sacrum edge
-  }
-  group.add(new THREE.Mesh(merge(bars), BONE_BARS), new THREE.Mesh(merge(plates), BONE_PLATES));
-  const sockets = new THREE.Mesh(merge(cups), new THREE.MeshLambertMaterial({ color: 0xc9b48a, side: THREE.DoubleSide }));
-  sockets.name = "sockets"; // the reaming page hides them: its bone patch is the operated socket
-  group.add(sockets);
-  return group;
+function pelvisMaterial() {
+  const material = new THREE.MeshLambertMaterial({ color: 0xe6d8b8 });
+  const served = { boneFromModel: { value: new THREE.Matrix4() }, boneExtent: { value: new THREE.Vector4(0, 0, 2, 0) } };
+  material.userData.served = served;
+  material.onBeforeCompile = (shader) => {
+    Object.assign(shader.uniforms, served);
+    shader.vertexShader = shader.vertexShader
+      .replace("#include <common>", "#include <common>\nuniform mat4 boneFromModel;\nvarying vec3 vBonePoint;")
+      .replace("#include <begin_vertex>", "#include <begin_vertex>\nvBonePoint = (boneFromModel * vec4(transformed, 1.0)).xyz;");
+    // boneExtent: inner and outer radius (mm), cosine of the half-angle about −z, on (1) or off (0)
+    shader.fragmentShader = shader.fragmentShader
+      .replace("#include <common>", "#include <common>\nuniform vec4 boneExtent;\nvarying vec3 vBonePoint;")
+      .replace("#include <clipping_planes_fragment>", `#include <clipping_planes_fragment>
+        float servedRadius = length(vBonePoint);
+        if (boneExtent.w > 0.5 && servedRadius > boneExtent.x && servedRadius < boneExtent.y && -vBonePoint.z >= boneExtent.z * servedRadius) discard;`);
+  };
+  return material;
 }
 
 // The marker balls, one mesh: they always share a colour (green tracked, red not).
@@ -237,7 +213,14 @@ export class NavigationScene {
     this.content = new THREE.Group();
     this.root.add(this.content);
     this.sceneInfo = scene;
-    this.content.add(buildPelvis(scene));
+    this.pelvis = new THREE.Mesh(new THREE.BufferGeometry(), this.pelvis?.material ?? pelvisMaterial());
+    this.pelvis.name = "pelvis";
+    this.content.add(this.pelvis);
+    const pelvis = this.pelvis;
+    fetchPelvis(scene.pelvis).then((geometry) => {
+      pelvis.geometry = geometry;
+      this.onLoaded?.();
+    }).catch((error) => this.onError?.(error));
     // The landmark points: one mesh coloured per vertex (grey, green once acquired), and the point
     // to touch next drawn over its own ball, larger, glowing and pulsing.
     const ball = new THREE.SphereGeometry(0.004, 8, 6);
@@ -271,6 +254,61 @@ export class NavigationScene {
     this.occluder.visible = false;
     this.content.add(this.occluder);
     this.focus = v(scene.acetabulum[scene.side]);
+  }
+
+  // Where the served bone lies (its mesh's nodes, mm in its own frame, placed by `object`, whose
+  // matrix maps that frame to the model frame): the pelvis is not drawn there.
+  openSocket(nodesMm, object) {
+    let inner = Infinity, outer = 0, cosine = 1;
+    for (let i = 0; i < nodesMm.length; i += 3) {
+      const x = nodesMm[i], y = nodesMm[i + 1], z = nodesMm[i + 2];
+      const r = Math.hypot(x, y, z);
+      inner = Math.min(inner, r);
+      outer = Math.max(outer, r);
+      if (r > 0) cosine = Math.min(cosine, -z / r);
+    }
+    const served = this.pelvis.material.userData.served;
+    served.boneFromModel.value.copy(object.matrix).invert();
+    // radially, a margin of the pelvis's own facets (its grid is 8 mm: its socket lies within about 1 mm
+    // of a sphere); around, a little inside the bone's edge, so that the pelvis's socket meets it with no gap
+    served.boneExtent.value.set(inner - 1.5, outer + 1.5, Math.cos(Math.max(0, Math.acos(cosine) - 0.01)), 1);
+  }
+
+  // Camera views: the page's home view (set when it frames the scene), and looking down an axis
+  // at a point, as a surgeon looks into the socket (a little off the axis, past the reamer's shaft).
+  setHome(position, target) {
+    this.home = { position: position.clone(), target: target.clone() };
+  }
+
+  resetView(orbit) {
+    if (!this.home) return;
+    this.camera.position.copy(this.home.position);
+    orbit.target.copy(this.home.target);
+    orbit.update();
+  }
+
+  surgeonView(orbit, centre, axis, distance = 0.22) {
+    const out = v(axis).normalize();
+    const up = new THREE.Vector3(0, 0, 1).addScaledVector(out, -out.z).normalize(); // superior, across the axis
+    const eye = out.clone().multiplyScalar(Math.cos(0.3)).addScaledVector(up, Math.sin(0.3)).multiplyScalar(distance);
+    this.camera.up.copy(up);
+    this.camera.position.copy(v(centre)).add(eye);
+    orbit.target.copy(v(centre));
+    orbit.update();
+    this.camera.up.set(0, 1, 0);
+  }
+
+  // The operated socket's opening: from its centre toward the rim landmarks' centre (model frame).
+  socketAxis() {
+    const lm = this.sceneInfo.landmarks;
+    const rim = Object.keys(lm).filter((n) => n.startsWith("rim_"));
+    const mean = rim.reduce((s, n) => s.add(v(lm[n])), new THREE.Vector3()).multiplyScalar(1 / rim.length);
+    const centre = v(this.sceneInfo.acetabulum[this.sceneInfo.side]);
+    // the rim's landmarks lie on a circle about the axis: its normal is the cross of two chords
+    const a = v(lm[rim[0]]).sub(mean), b = v(lm[rim[Math.floor(rim.length / 4)]]).sub(mean);
+    const normal = new THREE.Vector3().crossVectors(a, b).normalize();
+    const outward = new THREE.Vector3().subVectors(centre, v(this.sceneInfo.landmarks[`asis_${this.sceneInfo.side === "right" ? "left" : "right"}`]));
+    return (normal.dot(outward) < 0 ? normal.negate() : normal).toArray();
   }
 
   irCameraPosition() { return new THREE.Vector3().setFromMatrixPosition(this.irCamera.matrix); }
@@ -339,4 +377,35 @@ export class NavigationScene {
   }
 
   render() { this.renderer.render(this.scene, this.camera); }
+}
+
+// The camera-view buttons (reset, surgeon's eye) and their keys (Home, E), on either page.
+// `socket()` gives the surgeon's view its target: { centre, axis } in the model frame.
+export function cameraViews(view, orbit, socket) {
+  const bar = document.createElement("div");
+  bar.id = "camera-views";
+  const button = (id, text, key, title, action) => {
+    const b = document.createElement("button");
+    b.id = id;
+    b.title = title;
+    const kbd = document.createElement("kbd");
+    kbd.textContent = key;
+    b.append(`${text} `, kbd);
+    b.addEventListener("click", action);
+    bar.append(b);
+  };
+  const reset = () => view.resetView(orbit);
+  const surgeon = () => {
+    const { centre, axis } = socket();
+    view.surgeonView(orbit, centre, axis);
+  };
+  button("view-reset", "Reset view", "Home", "Back to the starting view (Home)", reset);
+  button("view-surgeon", "Surgeon's view", "E", "Look down the socket's axis, as the surgeon does (E)", surgeon);
+  document.body.append(bar);
+  document.addEventListener("keydown", (e) => {
+    if ((e.target instanceof HTMLInputElement && e.target.type === "range") || e.target instanceof HTMLSelectElement) return;
+    if (e.ctrlKey || e.metaKey || e.altKey) return;
+    if (e.key === "Home") { e.preventDefault(); reset(); }
+    if (e.key === "e" || e.key === "E") { e.preventDefault(); surgeon(); }
+  });
 }

@@ -1,28 +1,11 @@
 """The synthetic pelvis's bone surface, built procedurally around its landmarks, for the trainer pages.
 
 The surface is the zero level of a signed distance (mm, negative inside bone) in the pelvis model
-frame of :mod:`thrsim.nav.pelvis`, so the bone passes through the landmarks the trainers use (both
-ASIS, the pubic tubercles and symphysis, the iliac crest, the PSIS, the ischial spine and
-tuberosity, the acetabular rim). Each bone is a smooth union of spheres sampled densely along
-curves and surfaces, with radii that vary along them (so the rami and wings swell and thin as
-bone does rather than being tubes):
-
-* ilium: a wing lofted between the iliac crest (ASIS, tubercle, posterior crest, PSIS) and its
-  lower border (AIIS, the roof over the acetabulum, the greater sciatic notch), bulging laterally
-  (the gluteal surface) and thickest along the crest;
-* the acetabular body: a ball behind the socket, cut flat at the rim's plane (through the
-  acetabular centre, across the native opening axis of :mod:`thrsim.nav.pelvis`) where the rim
-  landmarks lie; the socket itself is a hemisphere of :data:`SOCKET_RADIUS_MM` open to the
-  camera along that axis;
-* ischium: the posterior column down to the tuberosity, the ischial spine, the ischial ramus;
-* pubis: the superior and inferior rami around the obturator foramen, the body at the symphysis;
-* and the sacrum between the iliac wings.
-
-Parts meet through smooth minima (fillets of a few millimetres). The left half is the right one
-mirrored across x = 0 (the distance is evaluated at |x|), so the pelvis is one shape for either
-hip. The zero level is extracted by surface nets on a cubic grid (one vertex per cell the surface
-crosses, moved onto the surface along the distance's gradient; one quad per crossed grid edge),
-which gives a closed surface of a few thousand triangles with smooth normals. Pure numerics;
+frame of :mod:`thrsim.nav.pelvis`, so the bone passes through the landmarks the trainers use. Each
+bone is a smooth union of spheres sampled along curves and surfaces, with radii that vary along
+them (:class:`_PelvisDistance`); the left half is the right one mirrored across x = 0, so the
+pelvis is one shape for either hip. Surface nets extract the zero level (:func:`_surface_nets`):
+a closed surface of a few thousand triangles with smooth normals. Pure numerics;
 :func:`surface_payload` is the binary form ``GET /api/pelvis`` serves.
 """
 
@@ -126,7 +109,22 @@ class _Spheres:
 
 
 class _PelvisDistance:
-    """The signed distance (mm) of the whole pelvis at points (…, 3) in mm, model frame."""
+    """The signed distance (mm) of the whole pelvis at points (…, 3) in mm, model frame.
+
+    * ilium: a wing lofted between the iliac crest (ASIS, tubercle, posterior crest, PSIS) and its
+      lower border (AIIS, the roof over the acetabulum, the greater sciatic notch), bulging
+      laterally (the gluteal surface) and thickest along the crest;
+    * the acetabular body: a ball behind the socket, cut flat at the rim's plane (through the
+      acetabular centre, across the native opening axis of :mod:`thrsim.nav.pelvis`) where the rim
+      landmarks lie; the socket itself is a hemisphere of :data:`SOCKET_RADIUS_MM` open to the
+      camera along that axis;
+    * ischium: the posterior column down to the tuberosity, the ischial spine, the ischial ramus;
+    * pubis: the superior and inferior rami around the obturator foramen, the body at the symphysis;
+    * and the sacrum between the iliac wings.
+
+    Parts meet through smooth minima (fillets of a few millimetres); the distance is evaluated at
+    |x|, so the left half mirrors the right.
+    """
 
     def __init__(self):
         lm = synthetic_pelvis_landmarks("right")
@@ -225,7 +223,9 @@ class _PelvisDistance:
 
 
 def _surface_nets(distance, lower: np.ndarray, upper: np.ndarray, step: float):
-    """Vertices (mm) and quads of the zero level of ``distance`` over the box, grid ``step``."""
+    """Vertices (mm) and quads of the zero level of ``distance`` over the box, grid ``step``: one
+    vertex per cell the surface crosses, moved onto the surface along the distance's gradient, and
+    one quad per crossed grid edge."""
     axes = [np.arange(lo, hi + step, step) for lo, hi in zip(lower, upper, strict=True)]
     shape = tuple(len(a) for a in axes)
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)

@@ -36,7 +36,7 @@ class Python(NamedTuple):
 THIS_PYTHON = Python(sys.executable)
 # the kernels' cache folder, and one kernel compiled and cached there
 PROBE = (
-    "import json, numba, thrsim, thrsim.physics.reaming, thrsim.portable_math as pm\n"
+    "import json, numba, thrsim, thrsim.physics.reaming_case, thrsim.portable_math as pm\n"
     "pm.exp(1.0)\n"
     "print(json.dumps({'thrsim': thrsim.__file__, 'numba_cache': numba.config.CACHE_DIR}))\n"
 )

@@ -15,7 +15,7 @@ import numpy as np
 
 from thrsim.config import PUSH_FORCE_N, BonePatchConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.physics.reaming import CONTACT_STEPS, ReamingSimulation
+from thrsim.physics.reaming_case import CONTACT_STEPS, ReamingCase
 from thrsim.provenance import package_versions
 from thrsim.verification.reaming_checks import socket_window_case
 
@@ -37,7 +37,7 @@ def bench_mesh(bone: BonePatchConfig) -> dict:
     }
 
 
-def _time_frames(simulation: ReamingSimulation, frames: int) -> dict:
+def _time_frames(simulation: ReamingCase, frames: int) -> dict:
     """Time ``frames`` frames after one warm-up frame (JIT compile, first contact); the cost per active
     element and step is what compares a patch with a socket whatever their sizes."""
     simulation.run(1)
@@ -76,11 +76,11 @@ def bench_socket(frames: int) -> dict:
     return {
         "window": {
             "case": "48 mm reamer on the native 46 mm socket, window 30°/90°, feed 1 mm/s",
-            **_time_frames(ReamingSimulation(window), frames),
+            **_time_frames(ReamingCase(window), frames),
         },
         "whole": {
             "case": f"48 mm reamer on the native 46 mm socket at {WHOLE_SOCKET_ELEMENT_MM} mm elements, {PUSH_FORCE_N:g} N along the socket axis",
-            **_time_frames(ReamingSimulation(whole), frames),
+            **_time_frames(ReamingCase(whole), frames),
         },
     }
 
@@ -88,7 +88,7 @@ def bench_socket(frames: int) -> dict:
 def bench_solver(bone: BonePatchConfig, frames: int, inclination_deg: float = 15.0, anteversion_deg: float = 30.0) -> dict:
     """Seconds per output frame of the default reaming case (after one warm-up frame: JIT compile)."""
     case = ReamingCaseConfig(inclination_deg=inclination_deg, anteversion_deg=anteversion_deg, frames=frames + 1, bone=bone)
-    simulation = ReamingSimulation(case)
+    simulation = ReamingCase(case)
     timed = _time_frames(simulation, frames)
     return {
         "case": f"inclination {inclination_deg} deg, anteversion {anteversion_deg} deg, {case.force_n:g} N",

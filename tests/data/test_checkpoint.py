@@ -16,7 +16,7 @@ from thrsim.data.case_file import validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.ground_truth import run_case
 from thrsim.physics.explicit import SolidArrays
-from thrsim.physics.reaming import SOLID_STATE
+from thrsim.physics.reaming_case import SOLID_STATE
 
 #: a coarse patch pushed hard: it cuts within a few frames
 CASE = ReamingCaseConfig(inclination_deg=15, anteversion_deg=30, frames=4, force_n=460, bone=BonePatchConfig(element_size_mm=1.6))

@@ -176,7 +176,7 @@ def test_real_solver_sweep_local_matches_dask(tmp_path):
     depend on the thread count): 2 local workers on 2 cores and Dask tasks both use 1 thread.
     """
     distributed = pytest.importorskip("distributed")
-    pytest.importorskip("thrsim.physics.reaming")
+    pytest.importorskip("thrsim.physics.reaming_case")
     plan = plan_sweep((30.0,), (0.0, 90.0), frames=2, extra_forces_n=(), element_sizes_mm=(1.2,))
     local = run_sweep(tmp_path / "local", plan, solver="fem", workers=2, threads=1)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:

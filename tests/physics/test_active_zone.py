@@ -16,7 +16,7 @@ from thrsim.config import (
 )
 from thrsim.geometry.box_mesh import box_mesh
 from thrsim.physics.explicit import ExplicitSolid
-from thrsim.physics.reaming import ReamingSimulation
+from thrsim.physics.reaming_case import ReamingCase
 
 
 def _pressed_box():
@@ -60,7 +60,7 @@ def test_a_socket_case_integrates_a_small_share_of_the_bone():
         inclination_deg=0.0, anteversion_deg=0.0, bone_kind="socket", socket=SocketConfig(element_size_mm=1.5), frames=1,
         reamer=ReamerConfig(head_diameter_mm=head_diameter_for_size(48.0)), solver=SolverConfig(zone_steps=200),
     )  # fmt: skip
-    simulation = ReamingSimulation(case)
+    simulation = ReamingCase(case)
     assert simulation.zone_enabled
     active = simulation.select_zone(200)
     # a reamer one size up, seated on the native socket's rim, reaches the rim band only

@@ -98,16 +98,16 @@ def test_unwritable_output_and_inverted_mesh_are_refused(tmp_path):
 
 
 def test_a_blow_up_stops_with_the_frame_and_writes_nothing(tmp_path, monkeypatch, capsys):
-    from thrsim.physics.reaming import ReamingSimulation
+    from thrsim.physics.reaming_case import ReamingCase
 
-    original = ReamingSimulation.advance
+    original = ReamingCase.advance
 
     def unstable_advance(self, steps):
         result = original(self, steps)
         self.solid.velocity[0, 0] = np.nan  # a node's velocity turns NaN during frame 1
         return result
 
-    monkeypatch.setattr(ReamingSimulation, "advance", unstable_advance)
+    monkeypatch.setattr(ReamingCase, "advance", unstable_advance)
     out = tmp_path / "c.h5"
     code, _, err = run_main(
         monkeypatch,

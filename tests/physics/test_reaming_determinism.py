@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parents[2]
 _CASE = """
 import hashlib, numpy as np
 from thrsim.config import BonePatchConfig, ReamingCaseConfig
-from thrsim.physics.reaming import ReamingSimulation
+from thrsim.physics.reaming_case import ReamingCase
 case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, force_n=460.0, frames=4,
                          bone=BonePatchConfig(element_size_mm=1.2))
-simulation = ReamingSimulation(case)
+simulation = ReamingCase(case)
 log, summary = simulation.run(case.frames)
 records = log.arrays()
 digest = hashlib.sha256()

@@ -7,7 +7,7 @@ import pytest
 
 from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.physics.reaming import ENERGY_NAMES, STALL_FRAMES, ReamingSimulation
+from thrsim.physics.reaming_case import ENERGY_NAMES, STALL_FRAMES, ReamingCase
 
 COARSE = BonePatchConfig(element_size_mm=1.0)
 FRAMES = 10
@@ -21,7 +21,7 @@ def coarse_mesh():
 
 def _run(mesh, frames=FRAMES, **overrides):
     case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=frames, bone=COARSE, **overrides)
-    simulation = ReamingSimulation(case, mesh)
+    simulation = ReamingCase(case, mesh)
     log, summary = simulation.run(frames)
     return simulation, log.arrays(), summary
 
@@ -106,7 +106,7 @@ def test_bone_that_takes_more_energy_to_cut_loses_less(coarse_mesh, baseline):
 
 def test_zero_force_after_first_contact_all_but_stops_removal(coarse_mesh):
     case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=4, bone=COARSE)
-    simulation = ReamingSimulation(case, coarse_mesh)
+    simulation = ReamingCase(case, coarse_mesh)
     log, _ = simulation.run(4)
     loaded = [int((status == 0).sum()) for status in log.status]
     loaded_rate = (loaded[-1] - loaded[1]) / (len(loaded) - 2)
@@ -131,7 +131,7 @@ def test_perforation_ends_the_case_before_the_reamer_falls():
         inclination_deg=15.0, anteversion_deg=30.0, force_n=600.0, frames=20, bone=bone,
         damage=JohnsonCookDamage(displacement_at_failure_m=1e-4), contact={"specific_cutting_energy_j_m3": 1e8},
     )  # fmt: skip
-    simulation = ReamingSimulation(case)
+    simulation = ReamingCase(case)
     log, summary = simulation.run(case.frames)
     assert summary["end_reason"] == "perforated"
     assert summary["frames"] == summary["perforated_frame"] - 1 == len(log.time) - 1
@@ -148,7 +148,7 @@ def test_tilted_reamer_missing_the_patch_never_perforates_and_stops_when_it_can_
     # near-uniaxial compression: the case ends stalled (or passed_through where nothing is left)
     bone = BonePatchConfig(element_size_mm=1.2)
     case = ReamingCaseConfig(inclination_deg=45.0, anteversion_deg=0.0, frames=40, bone=bone)
-    simulation = ReamingSimulation(case)
+    simulation = ReamingCase(case)
     assert simulation.tip_exit_depth is None
     log, summary = simulation.run(case.frames)
     assert summary["end_reason"] in ("stalled", "passed_through")
@@ -168,7 +168,7 @@ def test_tilted_reamer_missing_the_patch_never_perforates_and_stops_when_it_can_
 
 def test_axis_through_the_patch_has_bone_under_the_tip(coarse_mesh):
     case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=1, bone=COARSE)
-    simulation = ReamingSimulation(case, coarse_mesh)
+    simulation = ReamingCase(case, coarse_mesh)
     # the outer face lies under the tip, one mean edge length at most inside the outer sphere
     assert COARSE.outer_radius - 1.2e-3 < simulation.tip_exit_depth <= COARSE.outer_radius + 1e-12
     assert simulation.bone_in_path()

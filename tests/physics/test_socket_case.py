@@ -10,7 +10,7 @@ import pytest
 from checkout_cli import run_thrsim
 
 from thrsim.config import ReamerConfig, ReamingCaseConfig, SocketConfig, head_diameter_for_size, teeth_for_diameter
-from thrsim.physics.reaming import ReamingSimulation
+from thrsim.physics.reaming_case import ReamingCase
 
 #: a coarse socket: seconds to mesh, enough elements to ream
 COARSE = ["--bone", "socket", "--element-size", "2.5"]
@@ -46,7 +46,7 @@ def test_a_pre_reamed_socket_starts_from_its_cavity():
         inclination_deg=0, anteversion_deg=0, bone_kind="socket", socket=socket, pre_ream_mm=48.0,
         reamer=ReamerConfig(head_diameter_mm=head_diameter_for_size(50.0)), frames=1,
     )  # fmt: skip
-    simulation = ReamingSimulation(case)
+    simulation = ReamingCase(case)
     radius = np.linalg.norm(simulation.mesh.centroids, axis=1)
     assert simulation.prepared.sum() > 50
     assert np.all(radius[simulation.prepared] < 24e-3) and not np.any(simulation.solid.active[radius < 24e-3])

@@ -1,7 +1,7 @@
 """Checkpoints of a running case: a long case resumes from its last checkpointed frame after a kill.
 
 A checkpoint is one HDF5 file beside the case file (``CASE.h5.resume``), written atomically
-(temporary name, fsync, rename) from the solver's :meth:`~thrsim.physics.reaming.ReamingSimulation.snapshot`:
+(temporary name, fsync, rename) from the solver's :meth:`~thrsim.physics.reaming_case.ReamingCase.snapshot`:
 the bone's and the reamer's state and every frame recorded so far. It names the thrsim version and
 the hash of the case's full configuration; a checkpoint of another case or another thrsim is not
 resumed. Resuming gives the case file an uninterrupted run would have written, bit for bit.

@@ -1,6 +1,6 @@
 """One ground-truth case: run the explicit reaming solver and write its case file.
 
-The solver (:mod:`thrsim.physics.reaming`) returns arrays and a summary; this module turns them
+The solver (:mod:`thrsim.physics.reaming_case`) returns arrays and a summary; this module turns them
 into the HDF5 case file (:mod:`thrsim.data.case_file`), atomically.
 """
 
@@ -13,7 +13,7 @@ from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import CaseFrames, write_case
 from thrsim.data.checkpoint import CHECKPOINT_EVERY_S, Checkpointer, read_checkpoint
 from thrsim.geometry.mesh import TetMesh
-from thrsim.physics.reaming import ENERGY_NAMES, ReamingSimulation
+from thrsim.physics.reaming_case import ENERGY_NAMES, ReamingCase
 
 
 def run_case(
@@ -29,7 +29,7 @@ def run_case(
     With ``checkpoint`` (a path, see :mod:`thrsim.data.checkpoint`), the case resumes from the
     checkpoint found there when it is one of this very case, checkpoints every ``checkpoint_every_s``
     seconds, and removes it once the case file is written."""
-    simulation = ReamingSimulation(case, mesh)
+    simulation = ReamingCase(case, mesh)
     on_frame = None
     if checkpoint is not None:
         snapshot = read_checkpoint(checkpoint, case) if checkpoint.exists() else None

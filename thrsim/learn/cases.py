@@ -23,7 +23,7 @@ from thrsim.data.pack import is_pack, read_pack
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.graph import StaticGraph, mesh_digest
-from thrsim.physics.reaming import cutting_energies
+from thrsim.physics.reaming_case import cutting_energies
 
 
 @dataclass

@@ -38,7 +38,7 @@ from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.nav.bone_frame import angles_of, check_side, on_side
 
-#: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming)
+#: why a rollout cannot go on, as the solver ends its cases (thrsim.physics.reaming_case)
 PERFORATED, PASSED_THROUGH, MEDIAL_WALL_BREACHED = "perforated", "passed_through", "medial_wall_breached"
 
 

@@ -41,9 +41,9 @@ def default_case(frames: int) -> ReamingCaseConfig:
 
 def _run(case: ReamingCaseConfig, mesh) -> dict:
     """Run a case; return its summary plus the mean advance over the frames after first contact."""
-    from thrsim.physics.reaming import ReamingSimulation
+    from thrsim.physics.reaming_case import ReamingCase
 
-    simulation = ReamingSimulation(case, mesh)
+    simulation = ReamingCase(case, mesh)
     log, summary = simulation.run(case.frames)
     axial = np.asarray(log.reamer_axial)[:, 0] - simulation.start_position
     first = summary["first_contact_frame"] or 0
@@ -141,7 +141,7 @@ def reaming_active_zone() -> list[CheckResult]:
     integrating everything, on the default patch over ``CONVERGENCE_FRAMES`` frames and on a small
     socket (``ZONE_SOCKET_ELEMENT_MM`` elements, a reamer one size up, ``ZONE_SOCKET_FRAMES``
     frames): removed volume and mean advance within 5 %, the zone's energy balance within 5 %."""
-    from thrsim.physics.reaming import bone_mesh
+    from thrsim.physics.reaming_case import bone_mesh
 
     records = []
     with Stopwatch() as watch:
@@ -185,7 +185,7 @@ def reaming_socket_window() -> list[CheckResult]:
     native 46 mm socket at 1 mm/s for ``WINDOW_FRAMES`` frames: energy balance within 5 %, and the
     removed volume and the mean push the feed takes within 10 % when the contact penalty factor or
     Δt is halved."""
-    from thrsim.physics.reaming import bone_mesh
+    from thrsim.physics.reaming_case import bone_mesh
 
     base = socket_window_case(WINDOW_FRAMES)
     mesh = bone_mesh(base)

@@ -201,7 +201,7 @@ def advance_reaming(
     return time
 
 
-class ReamingSimulation:
+class ReamingCase:
     """Bone solid + rigid hand-held reamer, advanced frame by frame (physics only: no files)."""
 
     def __init__(self, case: ReamingCaseConfig, mesh: TetMesh | None = None) -> None:

@@ -116,8 +116,6 @@ def test_the_command_reference_covers_every_command_and_option():
 #: protocols go to the docstrings of the classes and functions that keep them, measurements and
 #: history to the documentation pages (benchmarks.md above all)
 MODULE_DOCSTRING_LINES = 12
-#: modules another change is rewriting now, shortened after it lands (this list only shrinks)
-LONG_DOCSTRINGS_FOR_NOW = {"app/reaming.py": "the trainer's scene is being merged into it"}
 
 
 def test_every_module_docstring_is_a_few_lines():
@@ -128,14 +126,8 @@ def test_every_module_docstring_is_a_few_lines():
         path.relative_to(package).as_posix(): len((ast.get_docstring(ast.parse(path.read_text()), clean=False) or "").splitlines())
         for path in sorted(package.rglob("*.py"))
     }
-    long = [
-        f"thrsim/{name}: {count} lines"
-        for name, count in lines.items()
-        if count > MODULE_DOCSTRING_LINES and name not in LONG_DOCSTRINGS_FOR_NOW
-    ]
+    long = [f"thrsim/{name}: {count} lines" for name, count in lines.items() if count > MODULE_DOCSTRING_LINES]
     assert not long, f"module docstrings over {MODULE_DOCSTRING_LINES} lines (move the detail, see above):\n" + "\n".join(long)
-    shortened = [name for name in LONG_DOCSTRINGS_FOR_NOW if lines.get(name, 0) <= MODULE_DOCSTRING_LINES]
-    assert not shortened, f"short now (or gone): drop them from LONG_DOCSTRINGS_FOR_NOW: {shortened}"
 
 
 def test_the_contributor_guide_names_the_examples_to_follow():

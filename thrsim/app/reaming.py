@@ -5,23 +5,7 @@ pushes (the page's force control, or a force sensor's SENSOR stream); every fram
 simulator (:class:`thrsim.learn.simulator.ReamingSimulator`) removes bone. Tracking, the APP,
 cup angles and the safe zone are the navigation trainer's (:mod:`thrsim.app.navigation`),
 composed here, so the reamer is tracked, lost and measured exactly as in the navigation mode.
-
-Frames (:mod:`thrsim.nav.bone_frame`). The bone patch's frame (origin at the acetabular centre, +z out of
-the acetabulum) sits in the hip's APP frame (lateral, anterior, inferior) with its +z along the cup axis at the safe
-zone's centre (40° inclination, 15° anteversion, radiographic), so reaming at the zone's centre
-is the dataset's γ = 0 and the model's trained range (the card's, γ ≤ 45° for the shipped model) spans every clinical aim. The
-APP frame of a left hip is the mirror of a right one's, so one patch and one model serve both
-sides; only the placement in the pelvis (``patch_to_model``) is mirrored.
-
-Plan and reamer. The session is measured against a plan (:class:`~thrsim.session.plan.Plan`): the
-trainee's, which the page may set until the first frame is reamed, or an instructor's case, fixed.
-The trainee holds one reamer size at a time (every swap an event); each frame passes it to the
-simulator, which cuts with the nearest size its model learned, and the trace keeps both sizes.
-
-Time. The simulator steps the model's frame time of reaming per frame (its card's: the training cases', 1/60 s). While running,
-every tick steps the frames that are due by the running time (at most ``max_frames_per_tick``;
-beyond that the simulation falls behind real time and says so). Frames are driven by the tick
-times, which the session logs, so a replay steps the same frames. No I/O here.
+The frames, the plan and the reamer held, and time: :class:`ReamingTrainer`. No I/O here.
 """
 
 from __future__ import annotations
@@ -79,7 +63,26 @@ def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str 
 
 
 class ReamingTrainer:
-    """One trainee's reaming session. Feed it controls, poses, forces and ticks; read its state."""
+    """One trainee's reaming session. Feed it controls, poses, forces and ticks; read its state.
+
+    Frames (:mod:`thrsim.nav.bone_frame`). The bone patch's frame (origin at the acetabular centre,
+    +z out of the acetabulum) sits in the hip's APP frame (lateral, anterior, inferior) with its +z
+    along the cup axis at the safe zone's centre (40° inclination, 15° anteversion, radiographic),
+    so reaming at the zone's centre is the dataset's γ = 0 and the model's trained range (the
+    card's) spans every clinical aim. The APP frame of a left hip is the mirror of a right one's,
+    so one patch and one model serve both sides; only the placement in the pelvis
+    (``patch_to_model``) is mirrored.
+
+    Plan and reamer. The session is measured against a plan (:class:`~thrsim.session.plan.Plan`):
+    the trainee's, which the page may set until the first frame is reamed, or an instructor's case,
+    fixed. The trainee holds one reamer size at a time (every swap an event); each frame passes it
+    to the simulator, which cuts with the nearest size its model learned, and the trace keeps both.
+
+    Time. The simulator steps the model's frame time of reaming per frame (its card's). While
+    running, every tick steps the frames that are due by the running time (at most
+    ``max_frames_per_tick``; beyond that the simulation falls behind real time and says so). Frames
+    are driven by the tick times, which the session logs, so a replay steps the same frames.
+    """
 
     mode = "reaming"
 

@@ -193,9 +193,6 @@ class SweepPlan:
     requested: int = 0  # grid points before γ = 0 merging
     main_forces_n: tuple[float, ...] = DEFAULT_FORCES_N  # the forces of the full grid (the rest are extra)
 
-    def by_id(self) -> dict[str, CaseSpec]:
-        return {c.case_id: c for c in self.cases}
-
 
 def plan_sweep(
     inclinations: tuple[float, ...] = DEFAULT_INCLINATIONS,

@@ -107,9 +107,6 @@ class GraphBatch:
     #: per node, its share of a contact area (:func:`contact_weights`), which the reaction head's shares scale by
     contact_weight: torch.Tensor | None = None
 
-    def network_args(self) -> tuple:
-        return (self.nodes, self.edges, self.globals_, self.senders, self.receivers, self.node_graph, self.edge_graph)
-
 
 def frame_arrays(
     graph: StaticGraph,

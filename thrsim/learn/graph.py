@@ -71,7 +71,6 @@ class StaticGraph:
         self._mark = np.zeros(self.n_nodes, dtype=np.bool_)  # scratch of `region`, left all False
         self._inner_faces = _inner_face_table(mesh)
         self._inner_tet = self._inner_faces.any(axis=1)
-        self._inner_tet_ids = np.flatnonzero(self._inner_tet)
         self._face_centres = mesh.nodes[mesh.tets][:, TET_FACES].mean(axis=2)  # (E, 4 faces, 3)
 
     @property

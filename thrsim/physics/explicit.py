@@ -415,7 +415,6 @@ class ExplicitSolid:
             raise ValueError(f"time step {self.dt:.3g} s exceeds the stable step {self.scaling.stable_dt_s:.3g} s")
         rho = self.scaling.element_density
         self.element_mass = rho * self.volume
-        self.physical_element_mass = density * self.volume
         # ABAQUS linear bulk viscosity b1·ρ·c_d·L with the density actually used and L the
         # Courant length (smallest altitude): with the longer damage length L_e the damping of
         # the highest mode grows past what the 0.9 safety factor absorbs and the step diverges
@@ -593,10 +592,6 @@ class ExplicitSolid:
     def damage_dissipation(self) -> float:
         """Strain energy released by stiffness degradation (ABAQUS's ALLDMD)."""
         return float(self.damage_work.sum())
-
-    def internal_energy(self) -> float:
-        """Elastic strain energy + plastic dissipation + damage dissipation (ABAQUS's ALLIE)."""
-        return self.elastic_energy() + self.plastic_dissipation() + self.damage_dissipation()
 
 
 def tissues_of(mesh: TetMesh, cortical: Tissue, others: dict[str, Tissue]) -> list[Tissue]:

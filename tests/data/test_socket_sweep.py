@@ -12,6 +12,7 @@ from checkout_cli import run_thrsim
 from thrsim.config import SocketSweepConfig, head_diameter_for_size
 from thrsim.data.pack import read_pack
 from thrsim.data.sweep import CaseSpec, plan_socket_sweep
+from thrsim.learn.graph import mesh_digest
 
 
 def _settings(spec: CaseSpec) -> dict:
@@ -114,9 +115,10 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
     assert packed.returncode == 0, packed.stderr[-2000:]
     mesh, cases = read_pack(pack)
-    assert len(cases) == 2 and sum(case.mesh is not None for case in cases) == 1
+    assert len(cases) == 2 and all(case.mesh is not None for case in cases)  # its own, or its file's
+    assert mesh_digest(cases[0].mesh) != mesh_digest(cases[1].mesh)  # two windows, two meshes
     for case in cases:
-        own = case.mesh or mesh
+        own = case.mesh
         assert case.alpha.shape[1] == own.n_tets and case.status.shape == case.alpha.shape
         assert set(own.material_names) == {"cortical", "cancellous"}
 

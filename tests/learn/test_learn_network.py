@@ -142,7 +142,8 @@ def test_removal_hazard_is_minus_log_survival_and_only_where_alpha_is_updated():
     model = _removal_model(float(np.log(p / (1 - p))))
     alpha = torch.linspace(0.0, 1.0, 20)
     b = _damaged_batch(alpha, torch.rand(20))
-    out, hazard, damage = model.predict(b)
+    prediction = model.predict(b)
+    out, hazard, damage = prediction.alpha, prediction.hazard, prediction.damage
     updated = b.update & (alpha >= 0.3)
     assert torch.allclose(hazard[updated], torch.full((int(updated.sum()),), -np.log(1 - p), dtype=torch.float32), rtol=1e-5)
     assert torch.all(hazard[~updated] == 0)

@@ -56,10 +56,9 @@ def test_the_frame_rate_and_the_push_are_defined_once_in_config():
     assert not found, "a second definition of 60 Hz or 230 N (use thrsim.config's):\n" + "\n".join(found)
 
 
-def _strings(path: Path):
-    """(line, text) of every string literal but docstrings (prose may say what the thesis's defaults are)."""
-    tree = ast.parse(path.read_text())
-    docstrings = {
+def _docstring_ids(tree: ast.AST) -> set[int]:
+    """ids of the docstring constants of a parsed module, its classes and functions."""
+    return {
         id(node.body[0].value)
         for node in ast.walk(tree)
         if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
@@ -67,6 +66,12 @@ def _strings(path: Path):
         and isinstance(node.body[0], ast.Expr)
         and isinstance(node.body[0].value, ast.Constant)
     }
+
+
+def _strings(path: Path):
+    """(line, text) of every string literal but docstrings (prose may say what the thesis's defaults are)."""
+    tree = ast.parse(path.read_text())
+    docstrings = _docstring_ids(tree)
     for node in ast.walk(tree):
         if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
             yield node.lineno, node.value
@@ -167,14 +172,7 @@ def test_the_generic_server_names_no_mode():
     from thrsim.app.modes import MODES
 
     tree = ast.parse((PACKAGE / "app" / "server.py").read_text())
-    docstrings = {
-        id(node.body[0].value)
-        for node in ast.walk(tree)
-        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef))
-        and node.body
-        and isinstance(node.body[0], ast.Expr)
-        and isinstance(node.body[0].value, ast.Constant)
-    }
+    docstrings = _docstring_ids(tree)
     named = [
         (node.lineno, node.value)
         for node in ast.walk(tree)

@@ -14,7 +14,7 @@ import shutil
 import pytest
 from app_helpers import ServedTrainer, keys
 
-from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS
+from thrsim.app.drawing_bench import CHROMIUM
 from thrsim.report import build_assessment
 from thrsim.session import read_session
 from thrsim.session.questionnaire import read_questionnaire
@@ -33,16 +33,6 @@ def served(tmp_path_factory):
     trainer = ServedTrainer(tmp_path_factory.mktemp("sessions"))
     yield trainer
     trainer.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_FLAGS, "--no-first-run"])
-        yield browser
-        browser.close()
 
 
 @pytest.fixture

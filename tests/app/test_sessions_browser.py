@@ -11,7 +11,7 @@ import shutil
 import pytest
 from app_helpers import ServedTrainer, keys
 
-from thrsim.app.drawing_bench import CHROMIUM, CHROMIUM_FLAGS
+from thrsim.app.drawing_bench import CHROMIUM
 from thrsim.report import build_assessment
 
 pytestmark = [
@@ -27,16 +27,6 @@ def served(tmp_path_factory):
     trainer = ServedTrainer(tmp_path_factory.mktemp("sessions"))  # the shipped model
     yield trainer
     trainer.stop()
-
-
-@pytest.fixture(scope="module")
-def browser():
-    from playwright.sync_api import sync_playwright
-
-    with sync_playwright() as playwright:
-        browser = playwright.chromium.launch(executable_path=CHROMIUM, args=[*CHROMIUM_FLAGS, "--no-first-run"])
-        yield browser
-        browser.close()
 
 
 @pytest.fixture

@@ -59,15 +59,9 @@ WIDTHS = {name: (len(NODE_COLUMNS[name]), *widths) for name, widths in EDGE_GLOB
 CORNER_COLUMNS = len(CORNER_NAMES)
 
 
-#: the volume of a regular tetrahedron of the solver's 0.45 mm edge (m³): a contact weight of 1
-REFERENCE_TET_VOLUME_M3 = (0.45e-3) ** 3 / (6.0 * 2.0**0.5)
-
-
 def contact_weights(graph: StaticGraph, sub: Subgraph) -> np.ndarray:
-    """Each node's share of a contact area, (V / V_ref)^(2/3): summed over the nodes in contact it
-    grows with the area touched, not the number of elements, so a reaction law learned on one
-    mesh holds on a coarser or finer one."""
-    return ((graph.volumes[sub.nodes] / REFERENCE_TET_VOLUME_M3) ** (2.0 / 3.0)).astype(np.float32)
+    """Each node's share of a contact area (:attr:`StaticGraph.contact_weight`) on ``sub``."""
+    return graph.contact_weight[sub.nodes]
 
 
 def input_widths(features: FeatureSettings) -> tuple[int, int, int]:
@@ -232,25 +226,7 @@ def _socket_node_features(
         out[i, 6] = 1.0 if alpha_sub[i] >= threshold else 0.0
         out[i, 7] = open_faces
         out[i, 8] = np.log10(cutting_energy[element] * 1e-9)
-        column = 9
-        if with_corners:
-            nearest_before = np.inf
-            for k in range(4):
-                dx, dy, dz = corners[element, k, 0] - centre[0], corners[element, k, 1] - centre[1], corners[element, k, 2] - centre[2]
-                value = np.sqrt(dx * dx + dy * dy + dz * dz)
-                slot = k
-                while slot > 0 and distance[slot - 1] > value:
-                    distance[slot] = distance[slot - 1]
-                    slot -= 1
-                distance[slot] = value
-                dx, dy, dz = corners[element, k, 0] - px, corners[element, k, 1] - py, corners[element, k, 2] - pz
-                nearest_before = min(nearest_before, np.sqrt(dx * dx + dy * dy + dz * dz))
-            for k in range(4):
-                out[i, column + k] = distance[k] - teeth_radius
-            out[i, column + 4] = nearest_before - teeth_radius
-            column += 5
-        if len(damage_sub) > 0:
-            out[i, column] = damage_sub[i]
+        _corner_and_damage_columns(corners, element, centre, px, py, pz, teeth_radius, distance, with_corners, damage_sub, i, 9, out)
 
 
 @njit(cache=True)
@@ -333,25 +309,7 @@ def _full_node_features(
         out[i, 9] = alpha_sub[i]
         out[i, 10] = 1.0 if alpha_sub[i] >= threshold else 0.0
         out[i, 11] = open_faces
-        column = 12
-        if with_corners:
-            nearest_before = np.inf
-            for k in range(4):
-                dx, dy, dz = corners[element, k, 0] - centre[0], corners[element, k, 1] - centre[1], corners[element, k, 2] - centre[2]
-                value = np.sqrt(dx * dx + dy * dy + dz * dz)
-                slot = k  # insertion sort of four
-                while slot > 0 and distance[slot - 1] > value:
-                    distance[slot] = distance[slot - 1]
-                    slot -= 1
-                distance[slot] = value
-                dx, dy, dz = corners[element, k, 0] - px, corners[element, k, 1] - py, corners[element, k, 2] - pz
-                nearest_before = min(nearest_before, np.sqrt(dx * dx + dy * dy + dz * dz))
-            for k in range(4):
-                out[i, column + k] = distance[k] - teeth_radius
-            out[i, column + 4] = nearest_before - teeth_radius
-            column += 5
-        if len(damage_sub) > 0:
-            out[i, column] = damage_sub[i]
+        _corner_and_damage_columns(corners, element, centre, px, py, pz, teeth_radius, distance, with_corners, damage_sub, i, 12, out)
 
 
 @njit(cache=True)
@@ -413,3 +371,27 @@ def batch(
         reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(-1, 3),
         contact_weight=None if contact_weight is None else cat(contact_weight, np.float32),
     )
+
+
+@njit(cache=True)
+def _corner_and_damage_columns(corners, element, centre, px, py, pz, teeth_radius, distance, with_corners, damage_sub, i, column, out):
+    """Row ``i`` from ``column`` on: with corners, the four sorted corner distances to the teeth's
+    sphere and the nearest one at the previous centre (px, py, pz); then D where given."""
+    if with_corners:
+        nearest_before = np.inf
+        for k in range(4):
+            dx, dy, dz = corners[element, k, 0] - centre[0], corners[element, k, 1] - centre[1], corners[element, k, 2] - centre[2]
+            value = np.sqrt(dx * dx + dy * dy + dz * dz)
+            slot = k  # insertion sort of four
+            while slot > 0 and distance[slot - 1] > value:
+                distance[slot] = distance[slot - 1]
+                slot -= 1
+            distance[slot] = value
+            dx, dy, dz = corners[element, k, 0] - px, corners[element, k, 1] - py, corners[element, k, 2] - pz
+            nearest_before = min(nearest_before, np.sqrt(dx * dx + dy * dy + dz * dz))
+        for k in range(4):
+            out[i, column + k] = distance[k] - teeth_radius
+        out[i, column + 4] = nearest_before - teeth_radius
+        column += 5
+    if len(damage_sub) > 0:
+        out[i, column] = damage_sub[i]

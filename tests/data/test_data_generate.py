@@ -78,6 +78,18 @@ def test_local_sweep_manifest_and_resume(tmp_path):
     assert all(e["status"] == "complete" for e in read_manifest(root)["cases"].values())
     validate_case(damaged)
 
+    # a file of the same orientation solved with another configuration is redone, never adopted
+    elsewhere = tmp_path / "elsewhere"
+    run_sweep(elsewhere, small_plan(), solver="synthetic", workers=1, template_overrides={"frame_rate_hz": 30.0})
+    stranger = elsewhere / "cases" / "g030.0_t000.0_f230N.h5"
+    (root / "cases" / stranger.name).write_bytes(stranger.read_bytes())
+    manifest = read_manifest(root)
+    del manifest["cases"]["g030.0_t000.0_f230N"]
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    fourth = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (fourth.complete, fourth.skipped, fourth.adopted) == (1, 2, 0)
+    assert file_sha256(root / "cases" / stranger.name) != file_sha256(stranger)
+
     # growth with the same configuration: only the new case runs
     grown = run_sweep(root, small_plan(anteversions=(0.0, 90.0, 135.0)), solver="synthetic", workers=1)
     assert (grown.complete, grown.skipped) == (1, 3)

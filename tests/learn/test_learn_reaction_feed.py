@@ -8,6 +8,9 @@ model: here a tiny one trained on the synthetic dataset.
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 from learn_helpers import tiny_socket_settings
@@ -15,6 +18,7 @@ from learn_helpers import tiny_socket_settings
 from thrsim.config import ReamerHoldConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
+from thrsim.learn.graph import StaticGraph
 from thrsim.learn.model_dir import load_model
 from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s
 from thrsim.learn.reamer_feed import advance_to_support
@@ -101,6 +105,29 @@ def test_the_feed_follows_the_law():
     assert feed_m_s(law, 50.0, 2000.0) == 0.0  # the bone holds more than the push: stalled
     assert feed_m_s(law, 230.0, 2000.0) == pytest.approx(130.0 / 52000.0)
     assert feed_m_s(law, 310.0, 2000.0) > feed_m_s(law, 230.0, 2000.0)
+
+
+def test_a_stall_bounds_the_law_from_below_and_a_feed_fixes_it():
+    import torch
+
+    from thrsim.learn.learned_simulator import law_errors
+
+    law = torch.tensor([[30.0, 1e3, 0.2, 5.0]] * 4)
+    # stalled at 20 N (the law holds 30: no error) and at 40 N (the law holds too little); fed at 2 mm/s
+    recorded = torch.tensor([[20.0, 0.2, 0.0], [40.0, 0.2, 0.0], [32.0, 0.21, 2e-3], [30.0, 0.21, 2e-3]])
+    force, torque = law_errors(law, recorded, torch.tensor([10.0, 0.1]))
+    assert force.tolist() == pytest.approx([0.0, -1.0, 0.0, 0.2])
+    assert torque.tolist() == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-6)
+
+
+def test_training_learns_the_law_from_pushed_cases_only(synthetic_dataset):
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    fed = dataclasses.replace(cases[0], case_id="set-feed", set_feed_mm_s=1.0)
+    trainer = Trainer(StaticGraph(mesh), [fed, *cases[1:]], [], tiny_socket_settings(), 0.5)
+    assert trainer.reaction_case_ids == {case.case_id for case in cases[1:]}
+    assert all(math.isnan(value) for value in trainer._sample(0, None)[4])  # the set-feed case's frames teach no law
 
 
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):

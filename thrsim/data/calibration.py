@@ -24,13 +24,10 @@ from thrsim.config import SweepConfig
 from thrsim.data.case_file import CaseReader
 from thrsim.data.generate import read_manifest
 from thrsim.errors import ThrsimInputError
+from thrsim.geometry.socket import window_area_mm2
 
 #: the pushes the seated feed is reported at (N): the sweep's, the thesis's range about its mean
 PUSHES_N = tuple(sorted({*SweepConfig().forces_n, *SweepConfig().extra_forces_n}))
-
-
-def _window_area_mm2(radius_mm: float, half_angle_deg: float) -> float:
-    return 2.0 * math.pi * radius_mm**2 * (1.0 - math.cos(math.radians(half_angle_deg)))
 
 
 def window_resistance(entry: dict, case_file: Path) -> dict | None:
@@ -51,7 +48,7 @@ def window_resistance(entry: dict, case_file: Path) -> dict | None:
     if axial is None or first is None:
         return None
     reaction_n = float(np.mean(axial[first + 1 :])) if len(axial) > first + 1 else 0.0
-    area = _window_area_mm2(radius_mm, settings["socket.window_half_angle_deg"])
+    area = window_area_mm2(radius_mm, settings["socket.window_half_angle_deg"])
     return {
         "polar_deg": float(settings["socket.window_polar_deg"]),
         "cancellous": "osteoporotic" if settings["cancellous"]["specific_cutting_energy_j_m3"] < 1e8 else "normal",

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
-from thrsim.data.case_file import data_digest, file_sha256, validate_case
+from thrsim.data.case_file import data_digest, file_sha256, solution_hash, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
@@ -129,7 +129,7 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
             summary = solve(config, part) or {}
         wall = time.perf_counter() - started
         check = validate_case(part)
-        _check_matches(check, spec, part)
+        _check_matches(check, spec, part, template)
         sha = file_sha256(part)
         digest = data_digest(part)
         os.replace(part, final)
@@ -161,7 +161,10 @@ def _file_record(check: dict, sha: str, digest: str) -> dict:
     }
 
 
-def _check_matches(check: dict, spec: CaseSpec, path: Path) -> None:
+def _check_matches(check: dict, spec: CaseSpec, path: Path, template: dict) -> None:
+    """Refuse a case file that is not ``spec``'s case: its axes, its configuration (threads aside) or too many frames."""
+    if check.get("solution_hash") != solution_hash(spec.case_config(template).model_dump(mode="json")):
+        raise ThrsimInputError(f"{path}: solved with another configuration than case {spec.case_id}")
     for key, want in (("inclination_deg", spec.inclination_deg), ("anteversion_deg", spec.anteversion_deg), ("force_n", spec.force_n)):
         got = check.get(key)
         if got is None or abs(float(got) - want) > 1e-6:
@@ -341,7 +344,7 @@ def _entry(spec: CaseSpec, split: SplitRule | SocketSplitRule, solver: str) -> d
     }
 
 
-def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[str, dict] | None:
+def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None, template: dict) -> tuple[str, dict] | None:
     """('skipped', entry) when the manifest's checksum matches, ('adopted', fields) when a valid
     file is there that the manifest missed, None when the case must run."""
     path = root / CASES_DIR / f"{spec.case_id}.h5"
@@ -352,7 +355,7 @@ def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[
         return "skipped", entry
     try:
         check = validate_case(path)
-        _check_matches(check, spec, path)
+        _check_matches(check, spec, path, template)
     except ThrsimInputError:
         return None
     return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
@@ -500,7 +503,7 @@ class _Sweep:
         for spec in specs:
             old = cases.get(spec.case_id)
             entry = {**(old or {}), **_entry(spec, split, solver), "attempts": (old or {}).get("attempts", 0)}
-            found = _existing_complete(self.root, spec, old)
+            found = _existing_complete(self.root, spec, old, self.manifest["identity"]["template"])
             if found is None:
                 entry.pop("in_progress", None)
                 checkpoint = checkpoint_path(self.root / CASES_DIR / f"{spec.case_id}.h5")
@@ -575,7 +578,7 @@ class _Sweep:
                     del pending[spec.case_id]
         executor.stop()
         for case_id, spec in pending.items():
-            found = _existing_complete(self.root, spec, None)
+            found = _existing_complete(self.root, spec, None, self.manifest["identity"]["template"])
             if found is not None:
                 self.manifest["cases"][case_id].update(found[1], status="complete", adopted=True, finished=_now())
                 self.result.adopted += 1

@@ -18,6 +18,7 @@ from typing import Any
 
 from thrsim.config import CANCELLOUS_PRESETS, ReamingCaseConfig, SocketSweepConfig, SweepConfig, head_diameter_for_size
 from thrsim.errors import ThrsimInputError
+from thrsim.geometry.socket import window_area_mm2
 
 DEFAULTS = SweepConfig()
 DEFAULT_INCLINATIONS = DEFAULTS.inclinations_deg
@@ -384,12 +385,40 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
                 continue  # a repeat draw: draw again
             cases[spec.case_id] = spec
             made += 1
+    pushed = [_pushed_case(config, window, pressure) for window in config.pushed_windows for pressure in config.push_pressures_n_mm2]
+    cases.update((spec.case_id, spec) for spec in pushed)
+    pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
-        f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})"
+        f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
+        f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
     ]
     return SweepPlan(
         cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
     )
+
+
+def window_push_n(config: SocketSweepConfig, socket_mm: float, pressure_n_mm2: float) -> float:
+    """The push (N, to 0.1 N) that puts ``pressure_n_mm2`` on a window of the native socket."""
+    return round(pressure_n_mm2 * window_area_mm2(socket_mm / 2.0, config.window_half_angle_deg), 1)
+
+
+def _pushed_case(config: SocketSweepConfig, window: tuple[float, float, float, float], pressure_n_mm2: float) -> CaseSpec:
+    """A pushed window: the reamer along the socket's axis, driven by a set pressure over the window."""
+    polar, azimuth, socket_mm, reamer_mm = (float(v) for v in window)
+    azimuth = 0.0 if polar == 0.0 else azimuth
+    settings: list[tuple[str, Any]] = [
+        ("socket.socket_diameter_mm", socket_mm),
+        ("socket.window_polar_deg", polar),
+        ("socket.window_azimuth_deg", azimuth),
+        ("socket.window_half_angle_deg", config.window_half_angle_deg),
+        ("reamer.head_diameter_mm", head_diameter_for_size(reamer_mm)),
+    ]
+    split = "test" if (polar, azimuth) in {(float(p), float(a)) for p, a in config.test_pushed_windows} else "train"
+    return CaseSpec(
+        inclination_deg=0.0, anteversion_deg=0.0, force_n=window_push_n(config, socket_mm, pressure_n_mm2),
+        frames=config.frames, settings=tuple(settings), label=f"s{socket_mm:g}_n_r{reamer_mm:g}_w{polar:g}a{azimuth:g}_push{pressure_n_mm2:g}",
+        split=split,
+    )  # fmt: skip
 
 
 def _socket_case(config: SocketSweepConfig, split: str, pick: dict) -> CaseSpec:

@@ -49,6 +49,7 @@ class CaseArrays:
     reaction_n: np.ndarray | None = None  # (T,) the bone's axial reaction on the reamer over each frame
     motor_torque_n_m: np.ndarray | None = None  # (T,) the torque spinning the reamer took over each frame
     hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
+    set_feed_mm_s: float | None = None  # the feed a rig set (None: the push drove the reamer against the bone)
 
     def recorded_push_n(self) -> float:
         """The push the bone and the hold took, median over the frames: the recorded reaction plus the
@@ -124,6 +125,7 @@ def _case_arrays(
         reaction_n=None if reaction_n is None else np.asarray(reaction_n, dtype=np.float64),
         motor_torque_n_m=None if motor_torque_n_m is None else np.asarray(motor_torque_n_m, dtype=np.float64),
         hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
+        set_feed_mm_s=None if config.get("feed_mm_s") is None else float(config["feed_mm_s"]),
     )
 
 

@@ -120,6 +120,7 @@ def train_model(
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),
+            "reaction_cases": sorted(trainer.reaction_case_ids) if settings.arch.reaction_head else [],
         },
         "training": {
             "epochs": trainer.epoch,

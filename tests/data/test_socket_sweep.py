@@ -129,6 +129,9 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     if along_axis:
         feeds = [calibration["seated"][push]["feed_mm_s"] for push in ("150", "230", "310")]
         assert all(math.isfinite(f) for f in feeds) and feeds[0] < feeds[1] < feeds[2]
+    # and the pushed window, between the pressures that stalled and cut
+    pushed = calibration["pushed"]
+    assert pushed["cases_used"] == 1 and 0.8 in [round(v, 3) for v in pushed["windows"][0]["bracket_n_mm2"]]
     # the pack keeps each window's own mesh beside its frames
     pack = tmp_path / "socket-pack.h5"
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
@@ -152,3 +155,24 @@ def test_a_bad_socket_plan_is_refused(tmp_path, plan, says):
     done = run_thrsim("dataset", "--bone", "socket", "--socket-plan", str(path), "--out", str(tmp_path / "data"))
     assert done.returncode == 2 and says in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "data").exists()
+
+
+def test_the_cutting_threshold_lies_between_the_pressures_that_stalled_and_cut():
+    from thrsim.data.calibration import cutting_threshold
+
+    def window(polar, pressure, stalled):
+        return {
+            "window": [polar, 0.0],
+            "socket_mm": 46.0,
+            "pressure_n_mm2": pressure,
+            "feed_mm_s": 0.0 if stalled else 1.0,
+            "stalled": stalled,
+        }
+
+    found = cutting_threshold([window(0.0, 0.2, True), window(0.0, 0.35, False), window(0.0, 0.5, False), window(60.0, 0.2, False)])
+    assert [b["bracket_n_mm2"] for b in found["bands"]] == [[0.2, 0.35], [0.0, 0.2]]
+    assert [b["band_deg"] for b in found["bands"]] == [[0.0, 30.0], [30.0, 90.0]]
+    # Σ p·A over the hemisphere of a 48 mm reamer: the pole band's cap (cos 0 − cos 30°) and the rest (cos 30°)
+    low, high = found["seated_push_n"]["48"]
+    cap, rest = 2 * math.pi * (1 - math.cos(math.radians(30))) * 24.0**2, 2 * math.pi * math.cos(math.radians(30)) * 24.0**2
+    assert low == pytest.approx(0.2 * cap) and high == pytest.approx(0.35 * cap + 0.2 * rest)

@@ -442,7 +442,7 @@ class SocketSweepConfig(_Frozen):
     #: the push over the window's area of the native socket, N/mm² (the cutting threshold is near 0.3)
     push_pressures_n_mm2: tuple[float, ...] = (0.2, 0.35, 0.5, 0.8)
     test_pushed_windows: tuple[tuple[float, float], ...] = ((30.0, 270.0),)
-    train_cases: int = Field(36, ge=1, le=10_000)
+    train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
     validation_cases: int = Field(6, ge=0, le=10_000)
     test_cases: int = Field(9, ge=0, le=10_000)
     frames: FrameCount = 60

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -89,6 +90,13 @@ def test_local_sweep_manifest_and_resume(tmp_path):
     fourth = run_sweep(root, plan, solver="synthetic", workers=1)
     assert (fourth.complete, fourth.skipped, fourth.adopted) == (1, 2, 0)
     assert file_sha256(root / "cases" / stranger.name) != file_sha256(stranger)
+
+    # a plan that now solves a case otherwise (same name, another setting) redoes it; the others are kept
+    changed = dataclasses.replace(plan, cases=[dataclasses.replace(plan.cases[0], settings=(("contact.friction", 0.25),)), *plan.cases[1:]])
+    fifth = run_sweep(root, changed, solver="synthetic", workers=1)
+    assert (fifth.complete, fifth.skipped, fifth.adopted) == (1, 2, 0)
+    sixth = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (sixth.complete, sixth.skipped) == (1, 2)
 
     # growth with the same configuration: only the new case runs
     grown = run_sweep(root, small_plan(anteversions=(0.0, 90.0, 135.0)), solver="synthetic", workers=1)

@@ -9,7 +9,7 @@ from collections import Counter
 import pytest
 from checkout_cli import run_thrsim
 
-from thrsim.config import SocketSweepConfig, head_diameter_for_size
+from thrsim.config import SocketSweepConfig, head_diameter_for_size, teeth_for_diameter
 from thrsim.data.pack import read_pack
 from thrsim.data.sweep import CaseSpec, plan_socket_sweep
 from thrsim.learn.graph import mesh_digest
@@ -65,6 +65,7 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     # every case is a valid socket case, and reads back from its manifest entry unchanged
     for case in plan.cases:
         built = case.case_config({"bone_kind": "socket"})
+        assert built.reamer.tooth_count == teeth_for_diameter(built.reamer.head_diameter_mm)  # each size its own teeth
         assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed) and built.socket.window_polar_deg is not None
         assert CaseSpec(**json.loads(json.dumps(case.params()))) == case
 
@@ -147,7 +148,12 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
 
 @pytest.mark.parametrize(
     ("plan", "says"),
-    [({"train_cases": 0}, "train_cases"), ({"cancellous": ["spongy"]}, "unknown cancellous"), ({"windows": 3}, "windows")],
+    [
+        ({"train_cases": 0}, "set-feed socket cases need train_cases"),
+        ({"train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": []}, "no case"),
+        ({"cancellous": ["spongy"]}, "unknown cancellous"),
+        ({"windows": 3}, "windows"),
+    ],
 )
 def test_a_bad_socket_plan_is_refused(tmp_path, plan, says):
     path = tmp_path / "plan.json"

@@ -423,6 +423,13 @@ def solution_hash(config: dict) -> str:
     return config_hash({**config, "solver": solver})
 
 
+def file_solution_hash(path: str | os.PathLike) -> str | None:
+    """:func:`solution_hash` of the configuration a case file was solved with (None if it records none)."""
+    with _open(Path(path)) as f:
+        config = decode_attrs(f.attrs).get("config")
+    return solution_hash(config) if isinstance(config, dict) else None
+
+
 def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, ...]]:
     """The file's layout: returns (nodes, elements, frames, energy names) or raises."""
     fmt = f.attrs.get("format")

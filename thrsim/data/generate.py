@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
-from thrsim.data.case_file import data_digest, file_sha256, solution_hash, validate_case
+from thrsim.data.case_file import data_digest, file_sha256, file_solution_hash, solution_hash, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
@@ -346,13 +346,15 @@ def _entry(spec: CaseSpec, split: SplitRule | SocketSplitRule, solver: str) -> d
 
 def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None, template: dict) -> tuple[str, dict] | None:
     """('skipped', entry) when the manifest's checksum matches, ('adopted', fields) when a valid
-    file is there that the manifest missed, None when the case must run."""
+    file is there that the manifest missed, None when the case must run; a file solved with another
+    configuration than ``spec``'s (a changed plan) is neither."""
     path = root / CASES_DIR / f"{spec.case_id}.h5"
     if not path.exists():
         return None
     sha = file_sha256(path)
     if entry and entry.get("status") == "complete" and entry.get("sha256") == sha:
-        return "skipped", entry
+        same = file_solution_hash(path) == solution_hash(spec.case_config(template).model_dump(mode="json"))
+        return ("skipped", entry) if same else None
     try:
         check = validate_case(path)
         _check_matches(check, spec, path, template)

@@ -246,3 +246,18 @@ def test_solver_rates_group_complete_cases_by_inclination_and_force():
     assert rates["15/230"]["feed_rate_mm_s"] == 1.4 and rates["15/230"]["removal_rate_mm3_s"] == 280.0  # medians
     assert rates["15/230"]["worker_hours"] == 1.5
     assert rates["0/150"]["feed_rate_mm_s"] is None and rates["0/150"]["excursion_median_mm"] is None
+
+
+def test_a_new_dataset_adopts_the_plans_cases_solved_elsewhere_and_refuses_strangers(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    run_sweep(elsewhere, small_plan(), solver="synthetic", workers=1)
+    solved = elsewhere / "cases" / "g030.0_t000.0_f230N.h5"
+    root = tmp_path / "ds"
+    (root / "cases").mkdir(parents=True)
+    (root / "cases" / "mine.h5").write_bytes(solved.read_bytes())
+    with pytest.raises(ThrsimInputError, match="not the plan's cases"):
+        run_sweep(root, small_plan(), solver="synthetic", workers=1)
+    (root / "cases" / "mine.h5").rename(root / "cases" / solved.name)
+    result = run_sweep(root, small_plan(), solver="synthetic", workers=1)
+    assert (result.adopted, result.complete) == (1, 2)
+    assert file_sha256(root / "cases" / solved.name) == file_sha256(solved)

@@ -245,16 +245,18 @@ def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [] if a == b else [f"{prefix[:-1]} ({a!r} there, {b!r} now)"]
 
 
-def check_directory(root: Path, identity: dict) -> dict | None:
-    """Refuse a directory that is not ours or was made by another configuration; return its manifest."""
+def check_directory(root: Path, identity: dict, case_files: frozenset[str] = frozenset()) -> dict | None:
+    """Refuse a directory that is not ours or was made by another configuration; return its manifest.
+    A new dataset's cases folder may hold files named as ``case_files`` (the plan's cases solved
+    elsewhere, e.g. by ``thrsim fem``): the run adopts each that was solved as its case, redoes the rest."""
     if root.exists() and not root.is_dir():
         raise ThrsimInputError(f"{root}: exists and is not a directory")
     manifest = read_manifest(root) if root.exists() else None
     if manifest is None:
         if root.exists() and any(p.name not in (LOCK, CASES_DIR) for p in root.iterdir()):
             raise ThrsimInputError(f"{root}: not empty and not a thrsim dataset (no {MANIFEST}); refusing to write into it")
-        if (root / CASES_DIR).exists() and any((root / CASES_DIR).glob("*.h5")):
-            raise ThrsimInputError(f"{root}: holds case files but no {MANIFEST}; refusing to mix")
+        if (root / CASES_DIR).exists() and any(path.name not in case_files for path in (root / CASES_DIR).glob("*.h5")):
+            raise ThrsimInputError(f"{root}: holds case files that are not the plan's cases and no {MANIFEST}; refusing to mix")
         return None
     if manifest.get("identity_hash") != config_hash(identity):
         diffs = _differences(manifest.get("identity", {}), identity)
@@ -388,7 +390,7 @@ def check_sweep_target(
     template = template_of(frames.pop(), template_overrides)
     name = solver_name(solver)
     identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
-    manifest = check_directory(root, identity)
+    manifest = check_directory(root, identity, frozenset(f"{case.case_id}.h5" for case in plan.cases))
     check_folder_creatable(root, "dataset folder")
     if not callable(solver):
         resolve_solver(solver)  # an unknown solver is an input error, found before any work

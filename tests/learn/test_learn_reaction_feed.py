@@ -164,6 +164,9 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
     assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
     assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
     assert set(pushed[-1].out_of_range) <= {"push", "tilt"}
+    sideways = np.cross(case.axis, (1.0, 0.0, 0.0) if abs(case.axis[0]) < 0.9 else (0.0, 1.0, 0.0))
+    aside = pushed[-1].reamer_position + 3e-3 * sideways / np.linalg.norm(sideways)  # its axis 3 mm off the centre
+    assert "centre" in simulator.step(case.axis, 230.0, reamer_position=aside, reamer_mm=trained).out_of_range
     bigger = simulator.step(case.axis, 230.0, reamer_mm=trained + 4.0)
     assert bigger.reamer_mm == trained + 4.0 and "reamer size" in bigger.out_of_range
     tilted = simulator.step((0.0, np.sin(np.radians(80.0)), -np.cos(np.radians(80.0))), 230.0, reamer_mm=trained)

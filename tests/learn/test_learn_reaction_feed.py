@@ -140,6 +140,8 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     for source in (report, report["tool_forced"], report["mlp"], report["geometric"]):
         assert source[size]["1"]["windows"] > 0
     assert set(report["by_layer"]["tool_forced"]) == {"cortical"}  # the synthetic block: one material
+    assert set(report["by_control"]["autonomous"]) == {"pushed"}  # the synthetic cases: a set push, no set feed
+    assert report["by_control"]["autonomous"]["pushed"]["end"]["windows"] > 0
     assert report["geometric"][size]["longest_horizon"]["cavity_depth_error_mean_mm"] >= 0.0
     checks = report["physics_checks"]
     assert checks["checked"] and checks["held"] == dict.fromkeys(

@@ -261,6 +261,8 @@ def test_a_new_dataset_adopts_the_plans_cases_solved_elsewhere_and_refuses_stran
     result = run_sweep(root, small_plan(), solver="synthetic", workers=1)
     assert (result.adopted, result.complete) == (1, 2)
     assert file_sha256(root / "cases" / solved.name) == file_sha256(solved)
+    adopted = read_manifest(root)["cases"][solved.stem]
+    assert adopted["wall_s"] is None and adopted["solver_summary"]["end_reason"] == validate_case(solved)["end_reason"]
     # an adopted case was not timed here: it packs all the same
     from thrsim.data.pack import read_pack, write_pack
 

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
-from thrsim.data.case_file import data_digest, file_sha256, file_solution_hash, solution_hash, validate_case
+from thrsim.data.case_file import CaseReader, data_digest, file_sha256, file_solution_hash, solution_hash, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
@@ -362,7 +362,13 @@ def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None, template:
         _check_matches(check, spec, path, template)
     except ThrsimInputError:
         return None
-    return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
+    with CaseReader(path) as reader:  # what the solver said of the case, as its file keeps it
+        summary = {key: value for key, value in reader.attrs.items() if key not in ("config", "versions", "format")}
+    return "adopted", {
+        **_file_record(check, sha, data_digest(path)),
+        "wall_s": None,
+        "solver_summary": json.loads(json.dumps(summary, default=json_default)),
+    }
 
 
 @dataclass(frozen=True)

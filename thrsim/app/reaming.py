@@ -296,6 +296,7 @@ class ReamingTrainer:
         if self.simulator is not None and self.simulator.socket:
             self.simulator.withdraw()  # the next frame places the new reamer clear of the bone, as ``thrsim ream --reamers``
             self._reaction = None
+            self._outside = tuple(flag for flag in self._outside if flag != "reamer size")  # a new reamer, a new stretch
         self._event(time_s, "reamer_changed", f"{before} → {size_mm} mm", from_mm=before, to_mm=size_mm)
         return f"reamer {size_mm} mm"
 

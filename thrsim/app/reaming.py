@@ -478,7 +478,7 @@ class ReamingTrainer:
             "motor_torque_n_m": None if self._reaction is None else self._reaction[1],
             "frame_forces": frame_forces,
             "out_of_range": list(self._outside),
-            "contact": self._contact(force),
+            "contact": None if axis is None else self._contact(force),
             "paused": "page hidden" if self.running and self.page_hidden else None,
             "plan": {
                 **self.plan.model_dump(),
@@ -495,7 +495,7 @@ class ReamingTrainer:
     def _contact(self, force: float) -> dict | None:
         """While reaming with a whole-socket model, what a fast contact model needs between frames
         (:mod:`thrsim.io.haptic`): the reaction law of the next frame (A, B, A_torque, B_torque), the
-        hold's damping and the push; None otherwise (no law, or not reaming)."""
+        hold's damping and the push; None otherwise (no law, not reaming, the reamer not measured)."""
         sim = self.simulator
         if sim is None or not self.running or self.page_hidden:
             return None

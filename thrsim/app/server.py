@@ -644,7 +644,7 @@ def create_app(settings: ServeSettings) -> FastAPI:
                 listen.host, settings.haptic_port, settings.haptic_hz, tuple(map(str, listen.allowed_peers)), hub.contact_force
             )
             try:
-                hub.haptic_address = haptic.start()
+                hub.haptic_address = await asyncio.to_thread(haptic.start)
             except OSError as error:
                 app.state.startup_error = (
                     f"cannot listen for the haptic stream on {listen.host}:{settings.haptic_port}: {error.strerror or error}"

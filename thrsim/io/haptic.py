@@ -18,6 +18,7 @@ import contextlib
 import ipaddress
 import logging
 import multiprocessing
+import os
 import socket
 import time
 
@@ -85,7 +86,9 @@ class HapticStream:
         OSError where it cannot listen."""
         reader, writer = _SPAWN.Pipe(duplex=False)
         self._process = _SPAWN.Process(
-            target=_serve, args=(self.host, self.port, self.rate_hz, self.allowed, self.force, self._stop, writer), daemon=True
+            target=_serve,
+            args=(self.host, self.port, self.rate_hz, self.allowed, self.force, self._stop, writer, os.getpid()),
+            daemon=True,
         )
         self._process.start()
         writer.close()
@@ -107,8 +110,9 @@ class HapticStream:
                 self._process.join(5)
 
 
-def _serve(host: str, port: int, rate_hz: float, allowed: tuple[str, ...], force: ContactForce, stop, started) -> None:
-    """The stream's process: listen, say where (or why not) through ``started``, send until ``stop``."""
+def _serve(host: str, port: int, rate_hz: float, allowed: tuple[str, ...], force: ContactForce, stop, started, server_pid: int) -> None:
+    """The stream's process: listen, say where (or why not) through ``started``, send until ``stop``
+    or until the server is gone (killed, it could not say stop)."""
     listener = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
     listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
@@ -120,7 +124,7 @@ def _serve(host: str, port: int, rate_hz: float, allowed: tuple[str, ...], force
     listener.listen(8)
     listener.setblocking(False)
     started.send(listener.getsockname()[:2])
-    _Sender(listener, rate_hz, tuple(ipaddress.ip_network(network) for network in allowed), force).run(stop)
+    _Sender(listener, rate_hz, tuple(ipaddress.ip_network(network) for network in allowed), force).run(stop, server_pid)
 
 
 class _Sender:
@@ -130,11 +134,11 @@ class _Sender:
         self.listener, self.rate_hz, self.allowed, self.force = listener, rate_hz, allowed, force
         self._clients: dict[socket.socket, bytearray] = {}
 
-    def run(self, stop) -> None:
+    def run(self, stop, server_pid: int) -> None:
         period = 1.0 / self.rate_hz
         most_owed = max(1, round(CATCH_UP_S / period))
         due = time.monotonic()  # when the next period's pair is due
-        while not stop.is_set():
+        while not stop.is_set() and os.getppid() == server_pid:
             owed = int((time.monotonic() - due) / period) + 1
             if owed > most_owed:  # asleep far longer than a period (a busy machine): go on from now
                 due += (owed - most_owed) * period

@@ -1,7 +1,7 @@
 """The reaming trainer on the whole socket, with a real (tiny) whole-socket model: the case's socket
 meshed and placed, the trainee's reamers cut, each frame's reaction and torque traced and shown,
 inputs outside what the model learned are events, the fast contact model gives what the next frame
-records, and a session saved to its HDF5 file replays exactly."""
+records, and a session saved to its HDF5 file replays exactly and reports what lay out of range."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from thrsim.app.replay import replay_session
 from thrsim.config import SafeZone
 from thrsim.io.haptic import ContactForce
 from thrsim.nav.bone_frame import patch_in_app
+from thrsim.report import build_report
 from thrsim.session.file import read_session
 from thrsim.session.plan import Plan
 from thrsim.session.reaming import read_reaming
@@ -137,3 +138,5 @@ def test_a_whole_socket_session_is_saved_and_replayed_exactly(tiny_socket_model,
     assert {"push_out_of_range", "reamer_out_of_range", "reamer_changed"} <= {e["kind"] for e in record.events}
     outcome = replay_session(path, model=tiny_socket_model)
     assert outcome.reproduced and outcome.events > 3
+    report = build_report(path, None)  # its errors and corrections list the inputs outside what the model learned
+    assert "reamer out of range" in report and "push out of range" in report

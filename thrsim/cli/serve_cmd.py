@@ -155,16 +155,18 @@ def serve(
         listener.listen(128)  # connections wait in the backlog until the app has started
     except OSError as error:
         raise ThrsimInputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
-    if igtl_port != 0:
-        # Refuse a taken OpenIGTLink port here, as one line, before the app starts.
-        igtl_listen = settings.igtl_config().host
+    # Refuse a taken OpenIGTLink or haptic port here, as one line, before the app starts.
+    igtl_listen = settings.igtl_config().host
+    for what, wanted in (("OpenIGTLink", igtl_port), ("the haptic stream", haptic_port)):
+        if not wanted:  # off, or any free port
+            continue
         try:
             with socket.socket(socket.AF_INET6 if ":" in igtl_listen else socket.AF_INET, socket.SOCK_STREAM) as probe:
                 probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                probe.bind((igtl_listen, igtl_port))
+                probe.bind((igtl_listen, wanted))
         except OSError as error:
             listener.close()
-            raise ThrsimInputError(f"cannot listen for OpenIGTLink on {igtl_listen}:{igtl_port}: {error.strerror or error}") from None
+            raise ThrsimInputError(f"cannot listen for {what} on {igtl_listen}:{wanted}: {error.strerror or error}") from None
     if compile:
         print(
             "thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)",

@@ -1,7 +1,8 @@
 """``thrsim serve --model SOCKET_MODEL`` end to end, on 127.0.0.1: a real server reaming the whole
 socket with a tiny whole-socket model; a pyigtl client receives each frame's ``ReamerReaction`` and
 ``ReamerTorque`` SENSORs with the values the saved session records; the haptic stream sends at least
-1000 messages a second whose force is the one the next frame records; and the reaming page in a
+1000 messages a second whose force is the one the next frame records; a fresh process replays the
+session exactly; and the reaming page in a
 headless Chromium draws the socket and shows the force and what lies outside what the model learned."""
 
 from __future__ import annotations
@@ -18,10 +19,12 @@ import numpy as np
 import pyigtl
 import pytest
 from app_helpers import ServedTrainer, keys, next_of_type, wait_for
+from checkout_cli import run_thrsim
 from pyigtl_sensor import register
 from websockets.sync.client import connect
 
 from thrsim.app.drawing_bench import CHROMIUM
+from thrsim.config import SocketConfig
 from thrsim.io import igtl
 from thrsim.io.feedback import REACTION_DEVICE, TORQUE_DEVICE
 from thrsim.io.igtl import UNIT_NEWTON, UNIT_NEWTON_METRE
@@ -81,7 +84,7 @@ class _HapticClient:
         self.sock.close()
 
 
-def test_the_force_goes_to_the_tracker_client_and_the_haptic_stream_as_recorded(served):
+def test_the_force_goes_to_the_tracker_client_and_the_haptic_stream_as_recorded(served, tiny_socket_model):
     register()  # pyigtl reads SENSOR messages
     client = pyigtl.OpenIGTLinkClient("127.0.0.1", served.igtl_port)
     haptic = _HapticClient(served.haptic_port)
@@ -130,6 +133,9 @@ def test_the_force_goes_to_the_tracker_client_and_the_haptic_stream_as_recorded(
     assert len(felt) > 100
     nearest = np.min(np.abs(felt[:, None] - np.array(sorted(recorded_reactions))[None, :]), axis=1)
     assert np.mean(nearest <= 1e-9 * np.abs(felt)) > 0.95  # the last law of each reamer precedes no frame
+    # a fresh process meshes the case's socket again and relives the served session exactly, forces and all
+    replayed = run_thrsim("replay", saved["file"], "--model", str(tiny_socket_model), "--json", timeout=600)
+    assert replayed.returncode == 0 and json.loads(replayed.stdout)["reproduced"], replayed.stdout + replayed.stderr
 
 
 @pytest.mark.skipif(shutil.which(CHROMIUM) is None, reason="Debian chromium is not installed (./install.sh installs it)")
@@ -143,6 +149,8 @@ def test_the_page_draws_the_socket_and_shows_the_force_live(served, browser):
     assert page.evaluate("trainer.bone().mesh.tets") == elements and elements > 1000  # the socket, not the patch
     assert page.evaluate("trainer.bone().mesh.materialNames") == ["cortical", "cancellous"]
     assert page.locator(".force-row").first.is_hidden()  # no force before the first frame
+    native = f"a {SocketConfig().socket_diameter_mm:g} mm socket, normal bone"  # the default case's, in the plan
+    page.wait_for_function(f"document.getElementById('plan-summary').textContent.endsWith('{native}')", timeout=30_000)
     keys(page, "Space")
     page.wait_for_function("trainer.stats.last.reaming.reaction_n !== null", timeout=120_000)
     shown = "document.getElementById('reaction').textContent === trainer.stats.last.reaming.reaction_n.toFixed(0) + ' N'"

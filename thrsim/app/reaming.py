@@ -570,6 +570,7 @@ class ReamingTrainer:
             "mesh": "/api/reaming/mesh",
             "display_levels": DISPLAY_LEVELS,
             "teeth_radius_m": None if sim is None else sim.model.teeth_radius_m,
+            "bone": None if sim is None else "socket" if sim.socket else "patch",  # the whole socket: the case's, in the plan
         }
         return scene
 

@@ -243,7 +243,8 @@ function showPlanAndReamer(r) {
   }
   $("plan-set").disabled = locked;
   setText("plan-status", p.source === "case file" ? "Set by the instructor's case file." : p.fixed ? "Fixed: reaming has started." : "Set before reaming: the report measures the cavity against it.");
-  setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior`);
+  const patient = view.sceneInfo?.reaming.bone === "socket" ? ` · a ${p.native_socket_mm} mm socket, ${p.cancellous} bone` : "";
+  setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior${patient}`);
   const select = $("reamer-size");
   if (select.options.length !== r.reamer.sizes_mm.length) select.replaceChildren(...r.reamer.sizes_mm.map((size) => new Option(`${size} mm`, size)));
   if (document.activeElement !== select) select.value = r.reamer.size_mm;

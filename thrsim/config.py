@@ -534,6 +534,9 @@ class TrackingVolumeConfig(_Frozen):
 LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
 #: OpenIGTLink's registered TCP port (IANA), where the listener and PlusServer's configurations listen by default
 OPENIGTLINK_PORT = 18944
+#: the haptic stream's rate (``thrsim serve --haptic-port``): twice a 1 kHz haptic loop's, so the
+#: newest force a loop reads is never more than half its period old (HIPS-style loops answer in under 1 ms)
+HAPTIC_RATE_HZ = 2000.0
 KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 

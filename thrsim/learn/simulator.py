@@ -233,6 +233,13 @@ class ReamingSimulator:
         self._step.reaction_law = None  # the bone changed: the next step stands first to read its law
 
     @property
+    def reaction_law(self) -> np.ndarray | None:
+        """A socket model's reaction law for the next frame (A, B, A_torque, B_torque: R = A + B·feed,
+        N and N·s/m; torque likewise), a copy; None before it was read (a patch model: always)."""
+        law = self._step.reaction_law
+        return None if law is None else np.array(law, dtype=np.float64)
+
+    @property
     def alpha(self) -> np.ndarray:
         """α of every element now (the simulator's own array: copy before changing it)."""
         return self.bone.alpha

@@ -107,6 +107,26 @@ def test_the_feed_follows_the_law():
     assert feed_m_s(law, 310.0, 2000.0) > feed_m_s(law, 230.0, 2000.0)
 
 
+def test_in_contact_the_advance_relaxes_toward_the_balance_and_no_push_still_stops_it(socket_model, case):
+    from thrsim.learn.reaction_feed import FEED_RELAXATION
+
+    _, feed = _parts(socket_model, case)
+    law = np.array([100.0, 5e4, 0.1, 10.0])
+    balanced = feed_m_s(law, 230.0, feed.damping_n_s_m) * case.frame_dt_s
+    centre = case.positions[0]
+    for last in (0.0, 1e-3, 4e-3):  # from standing, from a slow and a plunging frame: part way from the last to the balance
+        moved = feed.advance_m(law, case.alpha[0], centre, case.axis, 230.0, last)
+        assert moved == pytest.approx(FEED_RELAXATION * balanced + (1 - FEED_RELAXATION) * last)
+        assert feed.advance_m(law, case.alpha[0], centre, case.axis, 0.0, last) == 0.0  # no push: no advance, whatever came before
+        assert feed.advance_m(law, case.alpha[0], centre, case.axis, 310.0, last) >= moved  # more push, never less
+    # a law that swings with the advance it saw (stiff after a plunge, soft after a stall) settles instead of swinging
+    swinging = lambda advance: np.array([1000.0 if advance > 0.2e-3 else 50.0, 1e4, 0.0, 0.0])  # noqa: E731
+    advances = [0.0]
+    for _ in range(12):
+        advances.append(feed.advance_m(swinging(advances[-1]), case.alpha[0], centre, case.axis, 230.0, advances[-1]))
+    assert max(advances[-4:]) - min(advances[-4:]) < 0.15e-3  # each frame on the last law alone: 0 and 0.25 mm in turn
+
+
 def test_a_stall_bounds_the_law_from_below_and_a_feed_fixes_it():
     import torch
 

@@ -46,7 +46,9 @@ def ream(
         help="also draw (offscreen OpenGL) the last frame that still shows the bone to this PNG (a run that goes through the bone ends with little or none left)",
         metavar="FILE.png",
     ),
-    bone: str = typer.Option("patch", "--bone", help="patch (the shipped model's) or socket (the whole socket; needs a socket --model)"),
+    bone: str = typer.Option(
+        "patch", "--bone", help="patch (the shipped model's) or socket (the whole socket: the shipped socket model, or a socket --model)"
+    ),
     reamers: str | None = typer.Option(
         None, "--reamers", help="socket: reamer sizes in mm, taken in turn, each until seated (e.g. 46,48,50)", metavar="LIST"
     ),

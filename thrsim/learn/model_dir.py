@@ -41,6 +41,8 @@ MODEL_FORMAT_VERSION = 1
 CARD, NETWORK, ADVANCE, MESH = "card.json", "network.safetensors", "advance.safetensors", "mesh.safetensors"
 #: where the shipped default model lives inside the package
 SHIPPED_MODEL = Path(__file__).parent / "models" / "default"
+#: the shipped whole-socket model (the socket feature set and the reaction head): ``thrsim ream --bone socket``'s
+SHIPPED_SOCKET_MODEL = Path(__file__).parent / "models" / "socket"
 #: a card is a few kilobytes (the shipped one 10 KB); anything far larger is not one
 MAX_CARD_BYTES = 16 << 20
 

@@ -4,8 +4,9 @@ The solver's hand-held reamer is an effective mass on an axial damper (``ReamerH
 M·s̈ = F − R − c·ṡ. Over a frame the inertia term is small beside the others, so the frame's feed
 is the v at which the push meets the bone's reaction law (:mod:`thrsim.learn.learned_simulator`,
 R(v) = A + B·v, A and B ≥ 0) and the damper: v = max(0, F − A) / (B + c). Hence no push, no feed;
-more push, never less feed; a reaction above the push stalls the reamer. With nothing in contact
-(A = B = 0) the reamer closes in at F / c but stops where the first bone enters the teeth's dome.
+more push, never less feed; a reaction above the push stalls the reamer. In contact a frame goes
+part way from its last advance to that balance (the law depends on the advance it saw). With nothing
+in contact (A = B = 0) the reamer closes in at F / c but stops where the first bone enters the teeth.
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from thrsim.config import ReamerHoldConfig
 from thrsim.geometry.mesh import TetMesh
 from thrsim.learn.graph import attached_nodes
 from thrsim.learn.reamer_feed import advance_to_support
+
+#: the share of the balanced advance a frame in contact takes, the rest its last advance (see ReactionFeed.advance_m)
+FEED_RELAXATION = 0.5
 
 
 def feed_m_s(law: np.ndarray, force_n: float, damping_n_s_m: float) -> float:
@@ -34,13 +38,21 @@ class ReactionFeed:
         self.teeth_radius_m, self.threshold, self.frame_dt_s = teeth_radius_m, threshold, frame_dt_s
         self.damping_n_s_m = hold.axial_damping_n_s_m
 
-    def advance_m(self, law: np.ndarray | None, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float) -> float:
+    def advance_m(
+        self, law: np.ndarray | None, alpha: np.ndarray, centre: np.ndarray, axis: np.ndarray, force_n: float, last_advance_m: float = 0.0
+    ) -> float:
         """Advance along ``axis`` (m) over the next frame under ``force_n``, given the reaction law the
-        last step predicted (None or all zero: nothing in contact)."""
+        last step predicted (None or all zero: nothing in contact) after advancing ``last_advance_m``.
+
+        In contact the advance relaxes toward the balance (:data:`FEED_RELAXATION`): the law is read
+        after the last frame's advance, and a network that saw a deep advance predicts a stiff bone,
+        one that saw none a soft one, so balancing each frame on the last law alone swings between
+        stalling and plunging; the relaxed advance settles where the law and the feed agree."""
         if not force_n > 0.0:
             return 0.0
         if law is not None and (law[0] > 0.0 or law[1] > 0.0):
-            return feed_m_s(law, force_n, self.damping_n_s_m) * self.frame_dt_s
+            balanced = feed_m_s(law, force_n, self.damping_n_s_m) * self.frame_dt_s
+            return FEED_RELAXATION * balanced + (1.0 - FEED_RELAXATION) * max(last_advance_m, 0.0)
         free = force_n / self.damping_n_s_m * self.frame_dt_s
         attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
         contact = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, 1)

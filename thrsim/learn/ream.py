@@ -188,7 +188,7 @@ def ream_socket(
     seated, the bone breached or ``frames_per_reamer`` run); write each reamer's last frame and a summary."""
     from thrsim.config import SocketConfig
     from thrsim.geometry.socket import generate_socket
-    from thrsim.learn.model_dir import load_model, reads_any_mesh
+    from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL, load_model, reads_any_mesh
 
     out = Path(out)
     try:
@@ -200,7 +200,7 @@ def ream_socket(
     if not (np.isfinite(element_size_mm) and 0.3 <= element_size_mm <= 5.0):
         raise ThrsimInputError(f"must lie in [0.3, 5] mm, got {element_size_mm:g}", "element_size_mm")
     check_out(out)
-    model = load_model(model_dir)
+    model = load_model(SHIPPED_SOCKET_MODEL if model_dir is None else model_dir)
     if not reads_any_mesh(model.settings):
         raise ThrsimInputError(f"{model.path}: a patch model; the socket needs a model trained with the socket feature set", "model_dir")
     mesh = generate_socket(SocketConfig(element_size_mm=element_size_mm))

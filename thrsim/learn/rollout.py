@@ -195,8 +195,9 @@ def _pushed_rollout(step: LearnedStep, case, start: int, frames: int, threshold:
     centre = case.positions[start].copy()
     step(state, centre, case.axis, push_n, 0.0, case.omega_rad_s)  # standing: the bone's law, no cut
     masks, centres = [], []
+    moved = 0.0
     for _ in range(frames):
-        moved = feed.advance_m(step.reaction_law, state.alpha, centre, case.axis, push_n)
+        moved = feed.advance_m(step.reaction_law, state.alpha, centre, case.axis, push_n, moved)
         centre = centre + moved * case.axis
         state = step(state, centre, case.axis, push_n, moved, case.omega_rad_s)
         masks.append(state.alpha < threshold)

@@ -208,6 +208,7 @@ class ReamingSimulator:
         self._centre: np.ndarray | None = None  # right-side frame
         self._start: np.ndarray | None = None
         self._impulse_n_s = 0.0  # push impulse since the reamer was placed (the regressor's input)
+        self._last_advance_m = 0.0  # the last frame's advance (a socket model's feed relaxes from it)
         self._step.reaction_law = None
 
     def withdraw(self) -> None:
@@ -320,9 +321,11 @@ class ReamingSimulator:
             if self._centre is None or self._start is None:  # set together
                 self._centre = self._start = start_position(self.model.mesh.nodes, axis, self._step.teeth_radius_m)
             if isinstance(self._feed, ReactionFeed):
-                if self._step.reaction_law is None:  # standing: the bone's law at the reamer now, no cut
+                standing = self._step.reaction_law is None
+                if standing:  # standing: the bone's law at the reamer now, no cut
                     self._step(self.bone, self._centre, axis, force, 0.0, self.model.omega_rad_s)
-                moved = self._feed.advance_m(self._step.reaction_law, self.alpha, self._centre, axis, force)
+                last = 0.0 if standing else self._last_advance_m
+                moved = self._feed.advance_m(self._step.reaction_law, self.alpha, self._centre, axis, force, last)
             else:
                 gamma, theta = angles_of(axis)
                 moved = self._feed.advance_m(self.alpha, self._centre, self._start, axis, gamma, theta, force, self._impulse_n_s)
@@ -338,6 +341,7 @@ class ReamingSimulator:
         after = self.removed
         newly = np.flatnonzero(after & ~before)
         self._centre = new_centre
+        self._last_advance_m = advance
         self._impulse_n_s += force * self.model.frame_dt_s
         self.frame += 1
         end_reason = self._end_reason(new_centre, axis, after)

@@ -334,8 +334,10 @@ class ReamingSimulator:
         law = self._step.reaction_law
         reaction = torque = None
         if self.socket and law is not None:
-            feed = advance / self.model.frame_dt_s
-            reaction, torque = float(law[0] + law[1] * max(feed, 0.0)), float(law[2] + law[3] * max(feed, 0.0))
+            feed = max(advance / self.model.frame_dt_s, 0.0)
+            reaction, torque = float(law[0] + law[1] * feed), float(law[2] + law[3] * feed)
+            if reamer_position is None and isinstance(self._feed, ReactionFeed):  # pushed: what the hold balances (a stall takes the push)
+                reaction = max(0.0, force - self._feed.damping_n_s_m * feed)
         before = self.removed
         self.bone = self._step(self.bone, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed

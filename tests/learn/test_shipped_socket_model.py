@@ -1,0 +1,67 @@
+"""The shipped whole-socket model: what its card says it learned, and the physics its feed must obey."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from checkout_cli import run_thrsim
+
+from thrsim.config import SocketConfig
+from thrsim.geometry.socket import generate_socket
+from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL, load_model, reads_any_mesh
+from thrsim.learn.simulator import ReamingSimulator
+
+AXIS = np.array([0.0, 0.0, -1.0])
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model(SHIPPED_SOCKET_MODEL)
+
+
+@pytest.fixture(scope="module")
+def socket():
+    return generate_socket(SocketConfig(element_size_mm=2.5))
+
+
+def _ream(model, socket, force_n: float, frames: int = 24):
+    simulator = ReamingSimulator(model=model, mesh=socket)
+    results = [simulator.step(AXIS, force_n, reamer_mm=48.0) for _ in range(frames)]
+    return results, float(sum(r.advance_m for r in results))
+
+
+def test_the_card_records_what_the_model_learned(model):
+    assert reads_any_mesh(model.settings) and model.settings.arch.reaction_head
+    assert model.trained_reamer_mm == (46.0, 48.0, 52.0, 54.0)  # 50 mm held out
+    assert model.trained_force_n is not None and model.trained_inclination_deg == (0.0, 30.0)
+    assert model.card["data"]["source"] == "datasets/socket-0.5.0" and len(model.card["data"]["reaction_cases"]) == 20
+
+
+def test_no_push_no_cut_and_more_push_never_less(model, socket):
+    still, depth = _ream(model, socket, 0.0)
+    assert depth == 0.0 and not still[-1].removed.any()
+    removed = []
+    for force in (150.0, 230.0, 400.0):
+        results, _ = _ream(model, socket, force)
+        assert all(r.reaction_n is not None and 0.0 <= r.reaction_n <= force for r in results)  # the hold takes no more than the push
+        removed.append(results[-1].removed_volume_m3)
+    assert removed == sorted(removed) and removed[-1] > 0.0
+
+
+def test_thrsim_ream_reams_the_whole_socket_with_the_shipped_model(tmp_path):
+    done = run_thrsim(
+        "ream",
+        "--bone",
+        "socket",
+        "--reamers",
+        "46,48",
+        "--element-size",
+        "2.5",
+        "--frames",
+        "30",
+        "--out",
+        str(tmp_path / "r"),
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "reamer 46 mm" in done.stdout and "reamer 48 mm" in done.stdout

@@ -44,6 +44,7 @@ from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, Ig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import feedback
 from thrsim.nav.bone_frame import check_side
+from thrsim.nav.phantom import PhantomFile
 from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
@@ -124,6 +125,7 @@ class ServeSettings:
     save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
     plan: Plan | None = None  # an instructor's case: the reaming plan every session starts with (None: the trainee's)
     thresholds: Thresholds | None = None  # what the served reports score against (None: the shipped defaults)
+    phantom: PhantomFile | None = None  # a lab's physical pelvis the headset shows the bone on (None: the simulated one)
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:

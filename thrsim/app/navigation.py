@@ -32,12 +32,12 @@ from thrsim.nav.anatomy import (
 )
 from thrsim.nav.bone_frame import check_side, on_side, other_side
 from thrsim.nav.calibration import calibrate_frames
-from thrsim.nav.phantom import Phantom, headset_from_model
 from thrsim.nav.pelvis import (
     ACETABULUM_RIM_RADIUS,
     acetabulum_centre,
     synthetic_pelvis_landmarks,
 )
+from thrsim.nav.phantom import Phantom, headset_from_model
 from thrsim.nav.registration import LandmarkRegistration, RegistrationResult
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status

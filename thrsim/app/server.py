@@ -44,8 +44,8 @@ from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, Ig
 from thrsim.errors import ThrsimInputError
 from thrsim.io import feedback
 from thrsim.nav.bone_frame import check_side
-from thrsim.nav.phantom import PhantomFile
 from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
+from thrsim.nav.phantom import PhantomFile
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import is_interrupted

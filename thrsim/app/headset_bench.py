@@ -56,7 +56,7 @@ def time_headset(seconds: float = 10.0, path: str = "/reaming", chromium: str = 
     """Per-eye draw time of a page in the emulated Quest 3 at its per-eye resolution, with its draw calls and triangles."""
     load_before = os.getloadavg()
     width, height = 2 * QUEST3_EYE[0], QUEST3_EYE[1]
-    with served_page(path, width, height, chromium=chromium, prepare=emulate_headset) as (browser, page):
+    with served_page(path, width, height, "--no-compile", chromium=chromium, prepare=emulate_headset) as (browser, page):
         page.wait_for_function("window.trainer && trainer.stats.states > 5", timeout=120_000)
         enter_headset(page)
         page.wait_for_timeout(2000)  # warm-up: shaders compiled, the bone and the panels drawn once

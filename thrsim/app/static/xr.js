@@ -170,11 +170,11 @@ export function attachHeadset(view, stats, send, tool) {
     renderer.setSize(...view.size, false);
   }
 
-  // The panels stand on either side of the hip, facing the user, at arm's length (0.7 m).
+  // The panels stand side by side beyond the hip, facing the user, at arm's length (0.8 m).
   function buildPanels() {
     const score = new Panel(0.42, 0.24), status = new Panel(0.42, 0.22);
-    score.mesh.position.set(-0.33, 1.3, -0.62);
-    status.mesh.position.set(0.33, 1.3, -0.62);
+    score.mesh.position.set(-0.22, 1.3, -0.78);
+    status.mesh.position.set(0.22, 1.3, -0.78);
     for (const p of [score, status]) p.mesh.lookAt(0, 1.55, 0);
     headset.panels = { score, status };
   }

@@ -131,3 +131,26 @@ def test_a_controller_aims_the_reamer_along_its_shaft():
     assert 0.0 <= trainer._reamer_angles["inclination_deg"] <= 90.0
     with pytest.raises(ThrsimInputError, match="direction"):
         c.parse_control({"type": "reamer_axis", "axis": [0, 0, 0]})
+
+
+def test_serve_refuses_a_bad_phantom_file_in_one_line(tmp_path, monkeypatch, capsys):
+    from checkout_cli import run_main
+
+    bad = tmp_path / "phantom.json"
+    bad.write_text('{"name": "x", "landmarks_mm": {}, "calibration_target_mm": [0, 0, 0]}')
+    sessions = tmp_path / "sessions"
+    code, out, err = run_main(monkeypatch, capsys, "serve", "--phantom", str(bad), "--sessions", str(sessions), "--port", "0")
+    assert code == 2 and "landmarks_mm" in err and len(err.strip().splitlines()) == 1 and out == "" and not sessions.exists()
+
+
+def test_sessions_record_the_phantom_and_rebuild_it():
+    """The served phantom is in every mode's session settings (JSON), so a replay's trainer stands on it too."""
+    from thrsim.app.modes import MODES
+    from thrsim.app.server import ServeSettings
+
+    definition = read_phantom_file(SIMULATED_PHANTOM)
+    settings = MODES["navigation"].session_settings(ServeSettings(phantom=definition))
+    assert json.loads(json.dumps(settings)) == settings and settings["phantom"]["name"] == definition.name
+    trainer = MODES["navigation"].make_trainer({"side": "left", **settings})
+    assert trainer.phantom is not None and np.allclose(trainer.model_to_reference, phantom_from_file(definition).reference_from_model)
+    assert trainer.scene()["phantom"]["landmarks"] == len(FIT_LANDMARKS)

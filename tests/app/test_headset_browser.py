@@ -88,13 +88,17 @@ def navigation(browser, served):
     page.close()
 
 
-def test_a_page_without_a_headset_offers_none(browser, served):
-    page = browser.new_page()
-    page.goto(served.url + "/", timeout=30_000)
-    page.wait_for_function("window.trainer && trainer.stats.states > 2", timeout=60_000)
-    page.wait_for_timeout(500)
-    assert page.locator("button.headset").count() == 0 and page.evaluate("trainer.xr.session") is None
-    page.close()
+def test_a_page_without_a_headset_offers_none_and_the_pages_never_load_the_emulator(browser, served):
+    for path in ("/", "/reaming"):
+        page = browser.new_page()
+        requested: list[str] = []
+        page.on("request", lambda request, requested=requested: requested.append(request.url))
+        page.goto(served.url + path, timeout=30_000)
+        page.wait_for_function("window.trainer && trainer.stats.states > 2", timeout=60_000)
+        page.wait_for_timeout(500)
+        assert page.locator("button.headset").count() == 0 and page.evaluate("trainer.xr.session") is None
+        assert any(url.endswith("/static/xr.js") for url in requested) and not any("iwer" in url for url in requested)
+        page.close()
 
 
 def test_a_session_starts_and_both_eyes_draw_the_bone(navigation):

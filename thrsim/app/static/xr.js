@@ -153,7 +153,8 @@ export function attachHeadset(view, stats, send, tool) {
     view.root.matrixAutoUpdate = false;
     if (!headset.panels) buildPanels();
     for (const panel of Object.values(headset.panels)) view.scene.add(panel.mesh);
-    for (const index of [0, 1]) addController(index);
+    if (!headset.controllers.length) for (const index of [0, 1]) addController(index);
+    for (const c of headset.controllers) view.scene.add(c.ray, c.grip);
   }
 
   function leave() {
@@ -163,9 +164,9 @@ export function attachHeadset(view, stats, send, tool) {
     renderer.setClearColor(0x000000, 1);
     view.scene.traverse((object) => { if (object.type === "GridHelper") object.visible = true; });
     view.root.matrix.identity();
+    view.root.matrixAutoUpdate = true;
     for (const panel of Object.values(headset.panels)) view.scene.remove(panel.mesh);
     for (const c of headset.controllers) view.scene.remove(c.ray, c.grip);
-    headset.controllers = [];
     renderer.xr.enabled = false;
     renderer.setSize(...view.size, false);
   }
@@ -192,7 +193,6 @@ export function attachHeadset(view, stats, send, tool) {
     ray.addEventListener("disconnected", () => { c.source = null; });
     ray.addEventListener("selectstart", () => { c.selecting = true; c.selectStarted = performance.now(); });
     ray.addEventListener("selectend", () => { c.selecting = false; });
-    view.scene.add(ray, grip);
     headset.controllers.push(c);
   }
 
@@ -223,11 +223,12 @@ export function attachHeadset(view, stats, send, tool) {
         send({ type: "headset", action: "start" });
         headset.sent.targets = 0;
         headset.calibrating = s.headset.needed;
+        headset.calibrator = c; // the controller in the cradle: the one whose button was pressed
       }
       c.calibrate = calibrate;
     }
-    if (headset.calibrating > 0 && hand) {
-      send({ type: "headset", action: "target", pose: rowMajor(hand.grip.matrixWorld) });
+    if (headset.calibrating > 0) {
+      send({ type: "headset", action: "target", pose: rowMajor(headset.calibrator.grip.matrixWorld) });
       headset.sent.targets += 1;
       headset.calibrating -= 1;
       return; // still on the target: it probes or reams nothing

@@ -72,8 +72,8 @@ def time_headset(seconds: float = 10.0, path: str = "/reaming", chromium: str = 
         raise RuntimeError("the emulated headset drew no frame")
     ordered = sorted(frames)
     return {
-        "what": "both eyes of the page drawn in an emulated Meta Quest 3 (iwer) at its per-eye resolution, software WebGL: "
-        "a relative figure (the headset's budget: 72–90 Hz, 11–14 ms a frame for both eyes)",
+        "what": "both eyes of the page drawn in an emulated Meta Quest 3 (iwer) at its per-eye resolution, software WebGL; "
+        "per eye: half a stereo frame's time; a relative figure (the headset's budget: 72–90 Hz, 11–14 ms a frame for both eyes)",
         "page": path,
         "eye_pixels": [canvas[0] // 2, canvas[1]],
         "frames": len(frames),

@@ -13,6 +13,7 @@ from thrsim.app.navigation import CALIBRATION_SAMPLES, NavigationTrainer
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.phantom import FIT_LANDMARKS, SIMULATED_PHANTOM, headset_from_model, phantom_from_file, read_phantom_file
 from thrsim.nav.rigid import invert, make_pose, transform_points
+from thrsim.session.file import read_session
 
 
 def _pose(seed: int, reach_m: float = 1.0) -> np.ndarray:
@@ -154,3 +155,34 @@ def test_sessions_record_the_phantom_and_rebuild_it():
     trainer = MODES["navigation"].make_trainer({"side": "left", **settings})
     assert trainer.phantom is not None and np.allclose(trainer.model_to_reference, phantom_from_file(definition).reference_from_model)
     assert trainer.scene()["phantom"]["landmarks"] == len(FIT_LANDMARKS)
+
+
+def test_a_headset_session_on_a_phantom_replays_alike(tmp_path):
+    """The phantom in the settings, the headset's calibration and a controller's aim in the journal: the replay re-lives them."""
+    from thrsim.app.live import LiveSession
+    from thrsim.app.modes import MODES
+    from thrsim.app.replay import replay_session
+    from thrsim.app.server import ServeSettings
+
+    settings = {
+        "side": "right",
+        "seed": 1,
+        **MODES["navigation"].session_settings(ServeSettings(phantom=read_phantom_file(SIMULATED_PHANTOM))),
+    }
+    now = [0.0]
+    session = LiveSession(MODES["navigation"], settings, lambda: now[0], tmp_path)
+    trainer = session.trainer
+    target = _pose(5, 2.0) @ invert(trainer.camera_pose) @ trainer._headset_target()
+    session.control({"type": "headset", "action": "start"})
+    for i in range(CALIBRATION_SAMPLES):
+        now[0] = 0.01 * i
+        session.control({"type": "headset", "action": "target", "pose": target.ravel().tolist()})
+    now[0] = 1.0
+    assert session.tick()["headset"]["state"] == "done"
+    session.control({"type": "reamer_axis", "axis": [0.5, 0.2, -0.6]})
+    now[0] = 1.5
+    session.tick()
+    path = session.save()
+    assert read_session(path).settings["phantom"] == settings["phantom"]  # what a replay's trainer is built from
+    outcome = replay_session(path)
+    assert outcome.refused_controls == 0 and outcome.events_match and outcome.trace_match and outcome.events > 0

@@ -1,7 +1,7 @@
 """Fixtures shared across test folders: a synthetic dataset and a tiny model trained on it.
 
 The learned-simulator tests (tests/learn) and the reaming trainer's (tests/app) both need a real
-trained model; it is trained once per test session (a 192-tet synthetic block, 12 frames per case,
+trained model (a patch model, and a whole-socket one); each is trained once per test session (a 192-tet synthetic block, 12 frames per case,
 networks a few units wide).
 """
 
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 from hypothesis import settings
-from learn_helpers import run_thrsim, tiny_settings
+from learn_helpers import run_thrsim, tiny_settings, tiny_socket_settings
 
 # Property tests draw the same examples on every run and have no per-example time limit: a loaded
 # 2-core CI machine must not fail a correct example for its speed (speed lives in `thrsim bench`),
@@ -55,4 +55,17 @@ def tiny_model(synthetic_dataset, tmp_path_factory) -> Path:
     torch.set_num_threads(1)
     out = tmp_path_factory.mktemp("learn-model") / "model"
     train_model(synthetic_dataset, out, tiny_settings())
+    return out
+
+
+@pytest.fixture(scope="session")
+def tiny_socket_model(synthetic_dataset, tmp_path_factory) -> Path:
+    """A whole-socket model (the socket features and reaction head) trained as :func:`tiny_model` is."""
+    import torch
+
+    from thrsim.learn.pipeline import train_model
+
+    torch.set_num_threads(1)
+    out = tmp_path_factory.mktemp("learn-socket-model") / "model"
+    train_model(synthetic_dataset, out, tiny_socket_settings())
     return out

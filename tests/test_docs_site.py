@@ -149,3 +149,7 @@ def test_the_tracker_page_names_every_device_and_the_port_the_trainer_uses():
     missing = [device for device in KNOWN_TRACKER_DEVICES if f"`{device}`" not in page]
     assert not missing, f"tracker.md does not name these device names: {missing}"
     assert str(IgtlConfig().port) in page and "PLUS" in page and "3D Slicer" in page
+    from thrsim.io import feedback
+
+    sent = (feedback.EVENT_DEVICE, feedback.SIM_REAMER_DEVICE, feedback.REACTION_DEVICE, feedback.TORQUE_DEVICE)
+    assert not [device for device in sent if f"`{device}`" not in page], "tracker.md does not name what thrsim sends back"

@@ -196,7 +196,6 @@ def test_the_report_assembly_and_its_sections_import_no_circle():
 #: top-level functions and classes the package itself does not use, and why they stay
 USED_OUTSIDE_THE_PACKAGE = {
     "io/igtl.py": {
-        "pack_sensor": "a tracker's side of the codec: the tracker page tells scripts to build SENSOR messages with it",
         "unpack_string": "the peer's side of the codec: decodes the NavigationState the server sends",
         "unpack_status": "the peer's side of the codec: decodes the server's STATUS replies",
     },

@@ -406,13 +406,15 @@ def _angles_within(values: tuple[float, ...], highest_deg: float, what: str) -> 
 class SocketSweepConfig(_Frozen):
     """The 0.5 dataset (``thrsim dataset --bone socket``): windows of the layered socket, each reamed by
     the next reamer size at a prescribed feed, so every case cuts from its first frames at a known
-    local feed and the force it takes is recorded (the whole socket's feed follows from the balance
-    of the push over its contact). The one definition of the plan's axes and held-out values.
+    local feed and the force it takes is recorded; and pushed windows, where a set pressure over the
+    window drives the reamer against the bone, so the reaction it must overcome is recorded (stalls
+    included). The one definition of the plan's axes and held-out values.
 
-    Each case draws one value of every axis; the train cases from the train values only, balanced
-    (each value about as often as the others); each test case holds out one axis at a held-out
-    value (a reamer size, a tilt direction, a feed never trained on); validation cases tilt toward
-    the validation direction. Fixed ``seed``: the same plan every time.
+    Each set-feed case draws one value of every axis; the train cases from the train values only,
+    balanced; each test case holds out one axis at a held-out value (a reamer size, a tilt direction,
+    a feed never trained on); validation cases tilt toward the validation direction. Every pushed
+    window runs at every pressure, along the socket's axis; the held-out windows are test cases.
+    Fixed ``seed``: the same plan every time.
     """
 
     #: (native socket diameter, prepared cavity diameter or None for the native socket, reamer size), mm
@@ -432,7 +434,15 @@ class SocketSweepConfig(_Frozen):
     test_anteversions_deg: tuple[float, ...] = (45.0, 135.0)
     test_feeds_mm_s: tuple[float, ...] = (1.5,)
     validation_anteversions_deg: tuple[float, ...] = (315.0,)
-    train_cases: int = Field(36, ge=1, le=10_000)
+    #: pushed windows: (window polar, window azimuth, native socket, reamer size) in degrees and mm
+    pushed_windows: tuple[tuple[float, float, float, float], ...] = (
+        (0.0, 0.0, 44.0, 46.0), (30.0, 0.0, 46.0, 48.0), (55.0, 90.0, 46.0, 48.0), (80.0, 180.0, 50.0, 52.0), (0.0, 0.0, 50.0, 52.0),
+        (30.0, 270.0, 44.0, 46.0),
+    )  # fmt: skip
+    #: the push over the window's area of the native socket, N/mm² (the cutting threshold is near 0.3)
+    push_pressures_n_mm2: tuple[float, ...] = (0.2, 0.35, 0.5, 0.8)
+    test_pushed_windows: tuple[tuple[float, float], ...] = ((30.0, 270.0),)
+    train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
     validation_cases: int = Field(6, ge=0, le=10_000)
     test_cases: int = Field(9, ge=0, le=10_000)
     frames: FrameCount = 60
@@ -524,6 +534,9 @@ class TrackingVolumeConfig(_Frozen):
 LOOPBACK_NETWORKS = ("127.0.0.0/8", "::1/128")
 #: OpenIGTLink's registered TCP port (IANA), where the listener and PlusServer's configurations listen by default
 OPENIGTLINK_PORT = 18944
+#: the haptic stream's rate (``thrsim serve --haptic-port``): twice a 1 kHz haptic loop's, so the
+#: newest force a loop reads is never more than half its period old (HIPS-style loops answer in under 1 ms)
+HAPTIC_RATE_HZ = 2000.0
 KNOWN_TRACKER_DEVICES = ("ReamerToReference", "ReamerToTracker", "ReferenceToTracker", "ProbeToReference", "ProbeToTracker")
 
 

@@ -269,6 +269,18 @@ def test_serve_refuses_a_taken_port(served, tmp_path):
     assert get(served.url + "/api/health")[0] == 200  # the running trainer is untouched
 
 
+def test_serve_refuses_a_taken_haptic_port(tmp_path):
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen(1)
+        done = subprocess.run(
+            [sys.executable, "-m", "thrsim", "serve", "--port", "0", "--igtl-port", "0", "--sessions", str(tmp_path),
+             "--haptic-port", str(taken.getsockname()[1])],
+            cwd=REPO, capture_output=True, text=True, timeout=60, env=checkout_env(),
+        )  # fmt: skip
+    assert done.returncode == 2 and "cannot listen for the haptic stream on 127.0.0.1:" in done.stderr and done.stderr.count("\n") == 1
+
+
 async def asgi_status(app, path: str, headers: dict[str, str]) -> int:
     """The status of a GET through the app in this process (no socket), with these headers."""
     scope = {

@@ -65,6 +65,22 @@ BAD_FLAGS = {
     "serve_seed_negative": (("serve", "--port", "0", "--igtl-port", "0", "--seed", "-1"), "--seed must be a non-negative integer"),
     "serve_side_unknown": (("serve", "--port", "0", "--igtl-port", "0", "--side", "middle"), "--side"),  # made sessions/ first
     "serve_igtl_allow_bogus": (("serve", "--port", "0", "--igtl-port", "0", "--igtl-allow", "bogus"), "--igtl-allow"),
+    "serve_haptic_hz_nan": (
+        ("serve", "--port", "0", "--igtl-port", "0", "--haptic-port", "0", "--haptic-hz", "nan"),
+        "--haptic-hz: must lie in",
+    ),
+    "serve_haptic_hz_low": (
+        ("serve", "--port", "0", "--igtl-port", "0", "--haptic-port", "0", "--haptic-hz", "50"),
+        "--haptic-hz: must lie in",
+    ),
+    "serve_haptic_port_huge": (
+        ("serve", "--port", "0", "--igtl-port", "0", "--haptic-port", "70000"),
+        "--haptic-port: must lie in 0..65535",
+    ),
+    "serve_socket_element_size_inf": (
+        ("serve", "--port", "0", "--igtl-port", "0", "--socket-element-size", "inf"),
+        "--socket-element-size: must lie in",
+    ),
     "serve_phantom_missing": (("serve", "--port", "0", "--igtl-port", "0", "--phantom", "none.json"), "cannot read the phantom file"),
     "fem_threads_huge": ((*FEM, "--threads", HUGE), "solver.threads (--threads): Input should be less than or equal to 4096"),  # ran
     "fem_effective_mass_1e300": ((*FEM, "--effective-mass", "1e300"), "--effective-mass"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -77,6 +78,25 @@ def test_local_sweep_manifest_and_resume(tmp_path):
     assert not list((root / "cases").glob("*.part"))
     assert all(e["status"] == "complete" for e in read_manifest(root)["cases"].values())
     validate_case(damaged)
+
+    # a file of the same orientation solved with another configuration is redone, never adopted
+    elsewhere = tmp_path / "elsewhere"
+    run_sweep(elsewhere, small_plan(), solver="synthetic", workers=1, template_overrides={"frame_rate_hz": 30.0})
+    stranger = elsewhere / "cases" / "g030.0_t000.0_f230N.h5"
+    (root / "cases" / stranger.name).write_bytes(stranger.read_bytes())
+    manifest = read_manifest(root)
+    del manifest["cases"]["g030.0_t000.0_f230N"]
+    (root / "manifest.json").write_text(json.dumps(manifest))
+    fourth = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (fourth.complete, fourth.skipped, fourth.adopted) == (1, 2, 0)
+    assert file_sha256(root / "cases" / stranger.name) != file_sha256(stranger)
+
+    # a plan that now solves a case otherwise (same name, another setting) redoes it; the others are kept
+    changed = dataclasses.replace(plan, cases=[dataclasses.replace(plan.cases[0], settings=(("contact.friction", 0.25),)), *plan.cases[1:]])
+    fifth = run_sweep(root, changed, solver="synthetic", workers=1)
+    assert (fifth.complete, fifth.skipped, fifth.adopted) == (1, 2, 0)
+    sixth = run_sweep(root, plan, solver="synthetic", workers=1)
+    assert (sixth.complete, sixth.skipped) == (1, 2)
 
     # growth with the same configuration: only the new case runs
     grown = run_sweep(root, small_plan(anteversions=(0.0, 90.0, 135.0)), solver="synthetic", workers=1)
@@ -226,3 +246,25 @@ def test_solver_rates_group_complete_cases_by_inclination_and_force():
     assert rates["15/230"]["feed_rate_mm_s"] == 1.4 and rates["15/230"]["removal_rate_mm3_s"] == 280.0  # medians
     assert rates["15/230"]["worker_hours"] == 1.5
     assert rates["0/150"]["feed_rate_mm_s"] is None and rates["0/150"]["excursion_median_mm"] is None
+
+
+def test_a_new_dataset_adopts_the_plans_cases_solved_elsewhere_and_refuses_strangers(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    run_sweep(elsewhere, small_plan(), solver="synthetic", workers=1)
+    solved = elsewhere / "cases" / "g030.0_t000.0_f230N.h5"
+    root = tmp_path / "ds"
+    (root / "cases").mkdir(parents=True)
+    (root / "cases" / "mine.h5").write_bytes(solved.read_bytes())
+    with pytest.raises(ThrsimInputError, match="not the plan's cases"):
+        run_sweep(root, small_plan(), solver="synthetic", workers=1)
+    (root / "cases" / "mine.h5").rename(root / "cases" / solved.name)
+    result = run_sweep(root, small_plan(), solver="synthetic", workers=1)
+    assert (result.adopted, result.complete) == (1, 2)
+    assert file_sha256(root / "cases" / solved.name) == file_sha256(solved)
+    adopted = read_manifest(root)["cases"][solved.stem]
+    assert adopted["wall_s"] is None and adopted["solver_summary"]["end_reason"] == validate_case(solved)["end_reason"]
+    # an adopted case was not timed here: it packs all the same
+    from thrsim.data.pack import read_pack, write_pack
+
+    write_pack(root, tmp_path / "pack.h5")
+    assert {case.case_id for case in read_pack(tmp_path / "pack.h5")[1]} >= {solved.stem}

@@ -9,7 +9,7 @@ from collections import Counter
 import pytest
 from checkout_cli import run_thrsim
 
-from thrsim.config import SocketSweepConfig, head_diameter_for_size
+from thrsim.config import SocketSweepConfig, head_diameter_for_size, teeth_for_diameter
 from thrsim.data.pack import read_pack
 from thrsim.data.sweep import CaseSpec, plan_socket_sweep
 from thrsim.learn.graph import mesh_digest
@@ -25,9 +25,22 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     again = plan_socket_sweep(config)
     assert [c.case_id for c in plan.cases] == [c.case_id for c in again.cases]
     assert len({c.case_id for c in plan.cases}) == len(plan.cases)
-    splits = Counter(c.split for c in plan.cases)
+    pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c)]
+    fed = [c for c in plan.cases if "feed_mm_s" in _settings(c)]
+    splits = Counter(c.split for c in fed)
     assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
-    train = [c for c in plan.cases if c.split == "train"]
+    # every pushed window at every pressure, along the socket's axis; the held-out windows only in test
+    assert len(pushed) == len(config.pushed_windows) * len(config.push_pressures_n_mm2)
+    held_windows = {tuple(w) for w in config.test_pushed_windows}
+    for case in pushed:
+        settings = _settings(case)
+        window = (settings["socket.window_polar_deg"], settings["socket.window_azimuth_deg"])
+        assert case.inclination_deg == 0.0 and (case.split == "test") == (window in held_windows)
+        radius_mm = settings["socket.socket_diameter_mm"] / 2
+        area_mm2 = 2 * math.pi * radius_mm**2 * (1 - math.cos(math.radians(config.window_half_angle_deg)))
+        assert any(abs(case.force_n - p * area_mm2) <= 0.05 for p in config.push_pressures_n_mm2)
+        assert case.case_config({"bone_kind": "socket"}).feed_mm_s is None
+    train = [c for c in fed if c.split == "train"]
     held_sizes = {head_diameter_for_size(size) for size in config.test_reamer_sizes_mm}
     for case in train:
         settings = _settings(case)
@@ -40,19 +53,20 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     assert set(polars) == set(config.window_polars_deg) and max(polars.values()) - min(polars.values()) <= 2
     assert set(feeds) == set(config.feeds_mm_s) and max(feeds.values()) - min(feeds.values()) <= 2
     # each test case reams with something never trained on; validation tilts toward its own direction
-    for case in (c for c in plan.cases if c.split == "test"):
+    for case in (c for c in fed if c.split == "test"):
         settings = _settings(case)
         assert (
             settings["reamer.head_diameter_mm"] in held_sizes
             or settings["feed_mm_s"] in config.test_feeds_mm_s
             or (case.inclination_deg > 0 and case.anteversion_deg in config.test_anteversions_deg)
         )
-    for case in (c for c in plan.cases if c.split == "validation"):
+    for case in (c for c in fed if c.split == "validation"):
         assert case.inclination_deg > 0 and case.anteversion_deg in config.validation_anteversions_deg
     # every case is a valid socket case, and reads back from its manifest entry unchanged
     for case in plan.cases:
         built = case.case_config({"bone_kind": "socket"})
-        assert built.bone_kind == "socket" and built.feed_mm_s is not None and built.socket.window_polar_deg is not None
+        assert built.reamer.tooth_count == teeth_for_diameter(built.reamer.head_diameter_mm)  # each size its own teeth
+        assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed) and built.socket.window_polar_deg is not None
         assert CaseSpec(**json.loads(json.dumps(case.params()))) == case
 
 
@@ -68,6 +82,8 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "test_feeds_mm_s": [25.0],
                 "inclinations_deg": [0.0, 15.0],
                 "reamer_centres_mm": [[0.0, 0.0, 0.0]],
+                "pushed_windows": [[0.0, 0.0, 44.0, 46.0]],
+                "push_pressures_n_mm2": [0.8],
                 "seed": 7,
             }
         )
@@ -91,14 +107,18 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     )
     done = run_thrsim(*args, timeout=1200)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert json.loads(done.stdout)["generated"] == 2
+    assert json.loads(done.stdout)["generated"] == 3
     manifest = json.loads((out / "manifest.json").read_text())
-    entries = list(manifest["cases"].values())
+    cases = manifest["cases"]
+    push = cases.pop("s44_n_r46_w0a0_push0.8")  # the pushed window: driven by 0.8 N/mm² over its area, no set feed
+    assert push["status"] == "complete" and push["solver_summary"]["feed_mm_s"] is None
+    assert push["params"]["force_n"] == pytest.approx(0.8 * 2 * math.pi * 22.0**2 * (1 - math.cos(math.radians(10.0))), abs=0.05)
+    entries = list(cases.values())
     assert sorted(e["split"] for e in entries) == ["test", "train"] and all(e["status"] == "complete" for e in entries)
     assert manifest["split_rule"]["test_feeds_mm_s"] == [25.0]
     assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
     again = run_thrsim(*args, timeout=600)
-    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 2
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 3
     # the calibration reads the cases reamed along the socket's axis: more push, more seated feed
     info = run_thrsim("dataset", "info", str(out), "--json", timeout=600)
     assert info.returncode == 0, info.stderr[-2000:]
@@ -110,13 +130,16 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     if along_axis:
         feeds = [calibration["seated"][push]["feed_mm_s"] for push in ("150", "230", "310")]
         assert all(math.isfinite(f) for f in feeds) and feeds[0] < feeds[1] < feeds[2]
+    # and the pushed window, between the pressures that stalled and cut
+    pushed = calibration["pushed"]
+    assert pushed["cases_used"] == 1 and 0.8 in [round(v, 3) for v in pushed["windows"][0]["bracket_n_mm2"]]
     # the pack keeps each window's own mesh beside its frames
     pack = tmp_path / "socket-pack.h5"
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
     assert packed.returncode == 0, packed.stderr[-2000:]
     mesh, cases = read_pack(pack)
-    assert len(cases) == 2 and all(case.mesh is not None for case in cases)  # its own, or its file's
-    assert mesh_digest(cases[0].mesh) != mesh_digest(cases[1].mesh)  # two windows, two meshes
+    assert len(cases) == 3 and all(case.mesh is not None for case in cases)  # its own, or its file's
+    assert len({mesh_digest(case.mesh) for case in cases}) >= 2  # windows of their own meshes
     for case in cases:
         own = case.mesh
         assert case.alpha.shape[1] == own.n_tets and case.status.shape == case.alpha.shape
@@ -125,7 +148,12 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
 
 @pytest.mark.parametrize(
     ("plan", "says"),
-    [({"train_cases": 0}, "train_cases"), ({"cancellous": ["spongy"]}, "unknown cancellous"), ({"windows": 3}, "windows")],
+    [
+        ({"train_cases": 0}, "set-feed socket cases need train_cases"),
+        ({"train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": []}, "no case"),
+        ({"cancellous": ["spongy"]}, "unknown cancellous"),
+        ({"windows": 3}, "windows"),
+    ],
 )
 def test_a_bad_socket_plan_is_refused(tmp_path, plan, says):
     path = tmp_path / "plan.json"
@@ -133,3 +161,24 @@ def test_a_bad_socket_plan_is_refused(tmp_path, plan, says):
     done = run_thrsim("dataset", "--bone", "socket", "--socket-plan", str(path), "--out", str(tmp_path / "data"))
     assert done.returncode == 2 and says in done.stderr and len(done.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "data").exists()
+
+
+def test_the_cutting_threshold_lies_between_the_pressures_that_stalled_and_cut():
+    from thrsim.data.calibration import cutting_threshold
+
+    def window(polar, pressure, stalled):
+        return {
+            "window": [polar, 0.0],
+            "socket_mm": 46.0,
+            "pressure_n_mm2": pressure,
+            "feed_mm_s": 0.0 if stalled else 1.0,
+            "stalled": stalled,
+        }
+
+    found = cutting_threshold([window(0.0, 0.2, True), window(0.0, 0.35, False), window(0.0, 0.5, False), window(60.0, 0.2, False)])
+    assert [b["bracket_n_mm2"] for b in found["bands"]] == [[0.2, 0.35], [0.0, 0.2]]
+    assert [b["band_deg"] for b in found["bands"]] == [[0.0, 30.0], [30.0, 90.0]]
+    # Σ p·A over the hemisphere of a 48 mm reamer: the pole band's cap (cos 0 − cos 30°) and the rest (cos 30°)
+    low, high = found["seated_push_n"]["48"]
+    cap, rest = 2 * math.pi * (1 - math.cos(math.radians(30))) * 24.0**2, 2 * math.pi * math.cos(math.radians(30)) * 24.0**2
+    assert low == pytest.approx(0.2 * cap) and high == pytest.approx(0.35 * cap + 0.2 * rest)

@@ -161,3 +161,21 @@ def test_device_names_round_trip_as_latin_1_within_20_bytes():
         chunk = every_byte[start : start + 20]
         header = igtl.HEADER.pack(1, b"STATUS", chunk, 0, 0, igtl.crc64(b""))
         assert igtl.encode_device_name(igtl.parse_header(header).device_name) == chunk
+
+
+def test_sensor_messages_encoded_here_are_pyigtls_byte_for_byte_and_decode_there():
+    """The trainer's force SENSORs (ReamerReaction in N, ReamerTorque in N·m) read by pyigtl's parser,
+    with a SENSOR class written from the specification (pyigtl has none)."""
+    from pyigtl_sensor import SensorMessage, register
+
+    register()
+    for device, value, unit in (("ReamerReaction", 231.25, igtl.UNIT_NEWTON), ("ReamerTorque", 1.5, igtl.UNIT_NEWTON_METRE)):
+        raw = igtl.encode_message(igtl.Message("SENSOR", device, igtl.pack_sensor([value], unit), timestamp=1234.0))
+        assert raw == SensorMessage([value], unit, timestamp=1234.0, device_name=device).pack()
+        fields = pyigtl.MessageBase.parse_header(raw[:58])
+        message = pyigtl.MessageBase.create_message(fields["message_type"])
+        message.unpack(fields, raw[58:])
+        assert (message.device_name, message.values, message.unit) == (device, [value], unit)
+    # the unit fields as the specification lays them out: prefix (4 bits) none, then unit (6) and exponent (4) slots
+    assert f"{igtl.UNIT_NEWTON:064b}"[:24] == "0000" + "001011" + "0001" + "000000" + "0000"  # newton^1
+    assert f"{igtl.UNIT_NEWTON_METRE:064b}"[:24] == "0000" + "001011" + "0001" + "000001" + "0001"  # newton^1 metre^1

@@ -8,6 +8,9 @@ model: here a tiny one trained on the synthetic dataset.
 
 from __future__ import annotations
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 from learn_helpers import tiny_socket_settings
@@ -15,6 +18,7 @@ from learn_helpers import tiny_socket_settings
 from thrsim.config import ReamerHoldConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.cases import load_cases
+from thrsim.learn.graph import StaticGraph
 from thrsim.learn.model_dir import load_model
 from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s
 from thrsim.learn.reamer_feed import advance_to_support
@@ -103,6 +107,29 @@ def test_the_feed_follows_the_law():
     assert feed_m_s(law, 310.0, 2000.0) > feed_m_s(law, 230.0, 2000.0)
 
 
+def test_a_stall_bounds_the_law_from_below_and_a_feed_fixes_it():
+    import torch
+
+    from thrsim.learn.learned_simulator import law_errors
+
+    law = torch.tensor([[30.0, 1e3, 0.2, 5.0]] * 4)
+    # stalled at 20 N (the law holds 30: no error) and at 40 N (the law holds too little); fed at 2 mm/s
+    recorded = torch.tensor([[20.0, 0.2, 0.0], [40.0, 0.2, 0.0], [32.0, 0.21, 2e-3], [30.0, 0.21, 2e-3]])
+    force, torque = law_errors(law, recorded, torch.tensor([10.0, 0.1]))
+    assert force.tolist() == pytest.approx([0.0, -1.0, 0.0, 0.2])
+    assert torque.tolist() == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-6)
+
+
+def test_training_learns_the_law_from_pushed_cases_only(synthetic_dataset):
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    fed = dataclasses.replace(cases[0], case_id="set-feed", set_feed_mm_s=1.0)
+    trainer = Trainer(StaticGraph(mesh), [fed, *cases[1:]], [], tiny_socket_settings(), 0.5)
+    assert trainer.reaction_case_ids == {case.case_id for case in cases[1:]}
+    assert all(math.isnan(value) for value in trainer._sample(0, None)[4])  # the set-feed case's frames teach no law
+
+
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):
     from thrsim.learn.evaluation import evaluate
 
@@ -113,6 +140,8 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     for source in (report, report["tool_forced"], report["mlp"], report["geometric"]):
         assert source[size]["1"]["windows"] > 0
     assert set(report["by_layer"]["tool_forced"]) == {"cortical"}  # the synthetic block: one material
+    assert set(report["by_control"]["autonomous"]) == {"pushed"}  # the synthetic cases: a set push, no set feed
+    assert report["by_control"]["autonomous"]["pushed"]["end"]["windows"] > 0
     assert report["geometric"][size]["longest_horizon"]["cavity_depth_error_mean_mm"] >= 0.0
     checks = report["physics_checks"]
     assert checks["checked"] and checks["held"] == dict.fromkeys(
@@ -137,6 +166,9 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
     assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
     assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
     assert set(pushed[-1].out_of_range) <= {"push", "tilt"}
+    sideways = np.cross(case.axis, (1.0, 0.0, 0.0) if abs(case.axis[0]) < 0.9 else (0.0, 1.0, 0.0))
+    aside = pushed[-1].reamer_position + 3e-3 * sideways / np.linalg.norm(sideways)  # its axis 3 mm off the centre
+    assert "centre" in simulator.step(case.axis, 230.0, reamer_position=aside, reamer_mm=trained).out_of_range
     bigger = simulator.step(case.axis, 230.0, reamer_mm=trained + 4.0)
     assert bigger.reamer_mm == trained + 4.0 and "reamer size" in bigger.out_of_range
     tilted = simulator.step((0.0, np.sin(np.radians(80.0)), -np.cos(np.radians(80.0))), 230.0, reamer_mm=trained)

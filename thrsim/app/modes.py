@@ -115,21 +115,42 @@ def _navigation_report(session: Any, _thresholds: Any) -> Any:
 #: loaded once per model folder and network kind: a new session reuses it (compiling changes a
 #: model's network in place, so compiled and eager sessions never share one)
 _MODELS: dict[tuple[str | None, bool], LoadedModel] = {}
+#: a whole-socket model on the socket of a case (model, native size, element size): meshed once, shared by its sessions
+_SOCKETS: dict[tuple[str | None, bool, float, float], LoadedModel] = {}
+
+
+def _on_socket(key: tuple[str | None, bool], plan: Any, element_size_mm: float) -> LoadedModel:
+    """A whole-socket model with the case's socket as its mesh (:func:`thrsim.app.reaming.socket_in_patch`)."""
+    import dataclasses
+
+    from thrsim.app.reaming import socket_in_patch
+    from thrsim.learn.graph import StaticGraph
+
+    socket_key = (*key, plan.native_socket_mm, element_size_mm)
+    if socket_key not in _SOCKETS:
+        mesh = socket_in_patch(plan.native_socket_mm, element_size_mm)
+        _SOCKETS[socket_key] = dataclasses.replace(_MODELS[key], mesh=mesh, graph=StaticGraph(mesh))
+    return _SOCKETS[socket_key]
 
 
 def _reaming(settings: dict) -> Trainer:
     from thrsim.app.reaming import ReamingTrainer
     from thrsim.errors import ThrsimInputError
-    from thrsim.learn.model_dir import load_model
+    from thrsim.learn.model_dir import load_model, reads_any_mesh
+    from thrsim.learn.ream import SOCKET_ELEMENT_SIZE_MM
     from thrsim.learn.simulator import ReamingSimulator
     from thrsim.session.plan import Plan
 
     model_dir, compile_wanted = settings.get("model"), bool(settings.get("compile"))
     plan = None if settings.get("plan") is None else Plan(**settings["plan"])  # an instructor's case (thrsim serve --plan)
     try:
-        if (model_dir, compile_wanted) not in _MODELS:
-            _MODELS[model_dir, compile_wanted] = load_model(model_dir)
-        simulator = ReamingSimulator(model=_MODELS[model_dir, compile_wanted], threads=1, compile=compile_wanted)
+        key = (model_dir, compile_wanted)
+        if key not in _MODELS:
+            _MODELS[key] = load_model(model_dir)
+        model, case = _MODELS[key], plan or Plan()
+        if reads_any_mesh(model.settings):  # a whole-socket model reams the case's socket
+            model = _on_socket(key, case, float(settings.get("socket_element_size_mm", SOCKET_ELEMENT_SIZE_MM)))
+        simulator = ReamingSimulator(model=model, threads=1, compile=compile_wanted, cancellous=case.cancellous)
     except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
         return ReamingTrainer(
             side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error), plan=plan, phantom=_phantom(settings)
@@ -168,9 +189,11 @@ def _as_reaming(trainer: Trainer) -> ReamingTrainer:
 
 
 def _reaming_settings(serve: Any) -> dict:
-    """The model folder (None: the shipped one), whether to compile its network, and an instructor's plan."""
+    """The model folder (None: the shipped one), whether to compile its network, an instructor's plan, and
+    the element size a whole-socket model's socket is meshed at (a patch model ignores it)."""
     settings: dict = {} if serve.model is None else {"model": str(serve.model)}
     settings |= {} if serve.plan is None else {"plan": serve.plan.model_dump()}
+    settings |= {} if serve.socket_element_size_mm is None else {"socket_element_size_mm": serve.socket_element_size_mm}
     settings |= _phantom_settings(serve)
     return settings | ({"compile": True} if serve.compile else {})
 

@@ -10,6 +10,7 @@ The frames, the plan and the reamer held, and time: :class:`ReamingTrainer`. No 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from collections.abc import Callable
@@ -19,9 +20,10 @@ import numpy as np
 
 from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
-from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone
+from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone, SocketConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER
+from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER, TetMesh
+from thrsim.learn.cases import axis_offset_mm
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.phantom import Phantom
@@ -33,6 +35,27 @@ from thrsim.session.reaming import ReamingRecord, write_reaming
 DISPLAY_LEVELS = 32
 #: a force sensor reading counts for this long; then the page's force control applies again
 SENSOR_FRESH_S = 0.5
+#: the events of a frame's inputs leaving what the model learned, by the simulator's flag (once per stretch outside)
+OUT_OF_RANGE_EVENTS = {
+    "push": "push_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
+}  # fmt: skip
+#: the whole socket's axes (columns) in the bone patch's frame: the socket frame's +x (anterior) and
+#: +y (superior, the dome) are the patch frame's +y (anterior) and −x (the patch's +x is inferior),
+#: +z (out of the socket) is shared: a quarter turn about z
+SOCKET_IN_PATCH = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+
+
+def socket_in_patch(native_socket_mm: float, element_size_mm: float) -> TetMesh:
+    """The layered socket of a native size (:func:`thrsim.geometry.socket.generate_socket`, the right
+    hip's) turned into the bone patch's frame, so that the trainer places, aims and measures it as it
+    does the patch (a whole-socket model's inputs do not depend on the bone's frame: only the mesh turns)."""
+    from thrsim.geometry.socket import generate_socket
+
+    coarse = max(SocketConfig().coarse_element_size_mm, element_size_mm)
+    mesh = generate_socket(
+        SocketConfig(socket_diameter_mm=native_socket_mm, element_size_mm=element_size_mm, coarse_element_size_mm=coarse)
+    )
+    return dataclasses.replace(mesh, nodes=mesh.nodes @ SOCKET_IN_PATCH.T)
 
 
 @dataclass
@@ -49,6 +72,8 @@ class _Trace:
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
     medial_wall_mm: list[float] = field(default_factory=list)  # bone left before the medial wall (a bone with one)
+    reaction_n: list[float] = field(default_factory=list)  # the bone's reaction along the axis (a socket model's; NaN without)
+    motor_torque_n_m: list[float] = field(default_factory=list)  # the motor torque (likewise)
 
 
 def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str | None:
@@ -123,7 +148,7 @@ class ReamingTrainer:
         self.events: list[dict] = []
         self._pending_events: list[dict] = []
         self.page_hidden = False  # the trainee's page is hidden or left: reaming holds (a running reamer resumes when it shows)
-        self._push_outside = False  # the last frame's push was outside the range the model learned
+        self._outside: tuple[str, ...] = ()  # what of the last frame's inputs lay outside what the model learned
         #: the plan the session is measured against: an instructor's case (fixed) or the trainee's, fixed once reaming starts
         self.plan = plan or Plan()
         self.plan_source = "trainee" if plan is None else "case file"
@@ -144,6 +169,8 @@ class ReamingTrainer:
         self._last_step_ms = math.nan
         self._reamer_position: np.ndarray | None = None  # patch frame, m
         self._cutting_layer: str | None = None
+        self._reaction: tuple[float, float] | None = None  # the last frame's reaction (N) and motor torque (N·m)
+        self._frame_forces: list[dict] = []  # frames stepped since the last state: their reaction and torque
         if self.simulator is not None:
             self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
         self._publish()
@@ -237,6 +264,7 @@ class ReamingTrainer:
         self.simulator.restore(back)
         self._reamer_position = None if back.centre is None else back.centre.copy()
         self._cutting_layer = None
+        self._reaction = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
         self.running_s = self.frames_run / self.frame_rate_hz
@@ -254,7 +282,8 @@ class ReamingTrainer:
             raise ThrsimInputError("the instructor's case file sets this session's plan")
         if self.trace.frame:
             raise ThrsimInputError("the plan is fixed once reaming has started")
-        self.plan = Plan(**control.model_dump(exclude={"type"}))
+        patient = {"native_socket_mm": self.plan.native_socket_mm, "cancellous": self.plan.cancellous}  # the case's socket
+        self.plan = Plan(**control.model_dump(exclude={"type"}), **patient)
         self._event(time_s, "plan_set", self._plan_words(), plan=self.plan.model_dump())
         return f"plan: {self._plan_words()}"
 
@@ -273,6 +302,10 @@ class ReamingTrainer:
             self.running = False
             self._event(time_s, "pause")
         before, self.reamer_mm = self.reamer_mm, size_mm
+        if self.simulator is not None and self.simulator.socket:
+            self.simulator.withdraw()  # the next frame places the new reamer clear of the bone, as ``thrsim ream --reamers``
+            self._reaction = None
+            self._outside = tuple(flag for flag in self._outside if flag != "reamer size")  # a new reamer, a new stretch
         self._event(time_s, "reamer_changed", f"{before} → {size_mm} mm", from_mm=before, to_mm=size_mm)
         return f"reamer {size_mm} mm"
 
@@ -362,7 +395,13 @@ class ReamingTrainer:
         )
         if self.medial_wall_modelled():
             trace.medial_wall_mm.append(self.bone_left_mm() or 0.0)
-        self._check_push(simulator, time_s, force)
+        reaction = None if result.reaction_n is None else (result.reaction_n, result.motor_torque_n_m or 0.0)
+        self._reaction = reaction
+        trace.reaction_n.append(math.nan if reaction is None else reaction[0])
+        trace.motor_torque_n_m.append(math.nan if reaction is None else reaction[1])
+        if reaction is not None:
+            self._frame_forces.append({"frame": result.frame, "reaction_n": reaction[0], "motor_torque_n_m": reaction[1]})
+        self._check_ranges(simulator, time_s, force, axis, result.out_of_range)
         if result.end_reason is not None:
             self.running = False
             self._event(
@@ -376,20 +415,36 @@ class ReamingTrainer:
             return False
         return True
 
-    def _check_push(self, simulator: ReamingSimulator, time_s: float, force: float) -> None:
-        """An event where a frame's push leaves the range the model was trained on (once per stretch outside)."""
-        trained = simulator.model.trained_force_n
-        outside = trained is not None and not trained[0] <= force <= trained[1]
-        if trained is not None and outside and not self._push_outside:
-            low, high = trained
-            self._event(
-                time_s,
-                "push_out_of_range",
-                f"{force:g} N: outside the {low:g}–{high:g} N the simulator learned",
-                force_n=force,
-                trained_force_n=[low, high],
-            )
-        self._push_outside = outside
+    def _check_ranges(self, simulator: ReamingSimulator, time_s: float, force: float, axis: np.ndarray, flags: tuple[str, ...]) -> None:
+        """An event where a frame's input leaves what the model learned (once per stretch outside): a
+        whole-socket model flags the push, the tilt, the reamer size and the axis's offset in every step
+        (:attr:`~thrsim.learn.simulator.StepResult.out_of_range`); a patch model's push is checked here."""
+        model = simulator.model
+        if not simulator.socket:
+            trained = model.trained_force_n
+            flags = ("push",) if trained is not None and not trained[0] <= force <= trained[1] else ()
+        for flag in flags:
+            if flag in self._outside:
+                continue
+            if flag == "push" and model.trained_force_n is not None:
+                low, high = model.trained_force_n
+                words = f"{force:g} N: outside the {low:g}–{high:g} N the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, force_n=force, trained_force_n=[low, high])
+            elif flag == "tilt" and model.trained_inclination_deg is not None:
+                low, high = model.trained_inclination_deg
+                gamma = angles_of(axis)[0]
+                words = f"{gamma:.1f}° off the socket's axis: outside the {low:g}–{high:g}° the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, tilt_deg=gamma, trained_tilt_deg=[low, high])
+            elif flag == "reamer size":
+                cut, sizes = simulator.cutting_size_mm(self.reamer_mm), list(model.trained_reamer_mm)
+                words = f"{cut:g} mm: outside the {min(sizes):g}–{max(sizes):g} mm reamers the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, reamer_mm=cut, trained_reamer_mm=sizes)
+            elif flag == "centre" and model.trained_axis_offset_mm is not None and self._reamer_position is not None:
+                low, high = model.trained_axis_offset_mm
+                offset = axis_offset_mm(self._reamer_position, np.asarray(axis, dtype=np.float64))
+                words = f"the reamer's axis {offset:.1f} mm from the socket's centre: beyond the {low:g}–{high:g} mm the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, axis_offset_mm=offset, trained_axis_offset_mm=[low, high])
+        self._outside = tuple(flags)
 
     def display_levels(self) -> np.ndarray:
         """uint8 per element for viewers: 0 removed, 1..DISPLAY_LEVELS α from the threshold to 1."""
@@ -409,6 +464,7 @@ class ReamingTrainer:
             if trained is not None and gamma > trained[1]:
                 note = note or f"reamer {gamma:.0f}° off the acetabular axis: beyond what the model learned ({trained[1]:g}°)"
         events, self._pending_events = self._pending_events, []
+        frame_forces, self._frame_forces = self._frame_forces, []
         bone_left, medial_wall = self.bone_left_mm(), self.medial_wall_modelled()
         reaming = {
             "available": sim is not None,
@@ -432,6 +488,11 @@ class ReamingTrainer:
             "medial_wall_modelled": medial_wall,
             "medial_wall_remaining_mm": bone_left if medial_wall else None,
             "cutting_layer": self._cutting_layer,
+            "reaction_n": None if self._reaction is None else self._reaction[0],
+            "motor_torque_n_m": None if self._reaction is None else self._reaction[1],
+            "frame_forces": frame_forces,
+            "out_of_range": list(self._outside),
+            "contact": None if axis is None else self._contact(force),
             "paused": "page hidden" if self.running and self.page_hidden else None,
             "plan": {
                 **self.plan.model_dump(),
@@ -444,6 +505,18 @@ class ReamingTrainer:
             "events": events,
         }
         return {**nav_state, "mode": self.mode, "reaming": reaming}
+
+    def _contact(self, force: float) -> dict | None:
+        """While reaming with a whole-socket model, what a fast contact model needs between frames
+        (:mod:`thrsim.io.haptic`): the reaction law of the next frame (A, B, A_torque, B_torque), the
+        hold's damping and the push; None otherwise (no law, not reaming, the reamer not measured)."""
+        sim = self.simulator
+        if sim is None or not self.running or self.page_hidden:
+            return None
+        law = sim.reaction_law
+        if law is None:
+            return None
+        return {"law": law.tolist(), "damping_n_s_m": sim.model.hold.axial_damping_n_s_m, "force_n": force}
 
     def _reamer_state(self) -> dict:
         """The reamer held, the sizes offered, and the size the simulator cuts with for it (its model's: see its card)."""
@@ -486,7 +559,9 @@ class ReamingTrainer:
         if not len(nodes):
             return None
         nearest = float(np.min(np.linalg.norm(nodes - self._reamer_position, axis=1)))
-        return max(0.0, (nearest - self.simulator.model.teeth_radius_m) * 1e3)
+        sim = self.simulator
+        teeth_m = sim.cutting_size_mm(self.reamer_mm) * 0.5e-3 if sim.socket else sim.model.teeth_radius_m
+        return max(0.0, (nearest - teeth_m) * 1e3)
 
     def medial_wall_modelled(self) -> bool:
         """Whether the bone has a medial wall (the layered socket does; the bone patch does not)."""
@@ -509,6 +584,7 @@ class ReamingTrainer:
             "mesh": "/api/reaming/mesh",
             "display_levels": DISPLAY_LEVELS,
             "teeth_radius_m": None if sim is None else sim.model.teeth_radius_m,
+            "bone": None if sim is None else "socket" if sim.socket else "patch",  # the whole socket: the case's, in the plan
         }
         return scene
 
@@ -528,6 +604,7 @@ class ReamingTrainer:
                 "trained_inclination_deg": sim.model.trained_inclination_deg,
                 "trained_reamer_mm": list(sim.model.trained_reamer_mm),
                 "frame_dt_s": sim.model.frame_dt_s,
+                "bone": "socket" if sim.socket else "patch",
             },
         }
 
@@ -551,6 +628,8 @@ class ReamingTrainer:
             depth_mm=np.array(t.depth_mm, dtype=float),
             angles=np.array(t.angles, dtype=float).reshape(-1, 3),
             medial_wall_mm=np.array(t.medial_wall_mm, dtype=float) if self.medial_wall_modelled() else None,
+            reaction_n=np.array(t.reaction_n, dtype=float) if sim is not None and sim.socket else None,
+            motor_torque_n_m=np.array(t.motor_torque_n_m, dtype=float) if sim is not None and sim.socket else None,
             events=list(self.events),
             trained_force_n=None if sim is None else sim.model.trained_force_n,
             frame_dt_s=1.0 / self.frame_rate_hz,

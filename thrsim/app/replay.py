@@ -77,6 +77,10 @@ def replay_session(path: str | Path, on_state=None, model: str | Path | None = N
             and np.array_equal(recorded.removed, replayed.removed)
             and np.allclose(recorded.removed_volume_mm3, replayed.removed_volume_mm3, rtol=0, atol=1e-9)
             and (recorded.reamer_mm is None or np.array_equal(recorded.reamer_mm, replayed.reamer_mm))  # the sequence, where recorded
+            and all(  # a whole-socket model's force, frame by frame
+                getattr(recorded, name) is None or np.array_equal(getattr(recorded, name), getattr(replayed, name), equal_nan=True)
+                for name in ("cut_mm", "reaction_n", "motor_torque_n_m")
+            )
         )
     used = trainer.settings().get("model")
     return ReplayOutcome(

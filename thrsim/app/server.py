@@ -40,9 +40,10 @@ from starlette.concurrency import run_in_threadpool
 from thrsim.app.live import STATIC, THREE_DIR, LiveSession, close_interrupted
 from thrsim.app.modes import MODES, Mode
 from thrsim.app.sessions_pages import record_routes
-from thrsim.config import FRAME_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, IgtlConfig, LiveSessionLimit, SessionEndLimit
+from thrsim.config import FRAME_RATE_HZ, HAPTIC_RATE_HZ, LOOPBACK_NETWORKS, OPENIGTLINK_PORT, IgtlConfig, LiveSessionLimit, SessionEndLimit
 from thrsim.errors import ThrsimInputError
 from thrsim.io import feedback
+from thrsim.io.haptic import ContactForce, HapticStream, contact_of
 from thrsim.nav.bone_frame import check_side
 from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
 from thrsim.nav.phantom import PhantomFile
@@ -125,6 +126,9 @@ class ServeSettings:
     save_retry_s: float = 10.0  # how often a session that could not be saved is tried again
     plan: Plan | None = None  # an instructor's case: the reaming plan every session starts with (None: the trainee's)
     thresholds: Thresholds | None = None  # what the served reports score against (None: the shipped defaults)
+    socket_element_size_mm: float | None = None  # a whole-socket model's socket is meshed at this size (mm; None: thrsim ream's)
+    haptic_port: int | None = None  # the haptic stream's port on the OpenIGTLink listener's address (None: off; 0: any)
+    haptic_hz: float = HAPTIC_RATE_HZ  # the haptic stream's rate (thrsim.io.haptic)
     phantom: PhantomFile | None = None  # a lab's physical pelvis the headset shows the bone on (None: the simulated one)
 
     def check(self) -> None:
@@ -135,6 +139,13 @@ class ServeSettings:
         if self.token is not None and not _TOKEN.fullmatch(self.token):
             raise ThrsimInputError("the access token may hold letters, digits and . _ ~ - only (it travels in URLs and a cookie)")
         check_side(self.side)
+        size = self.socket_element_size_mm
+        if size is not None and not (math.isfinite(size) and 0.3 <= size <= 5.0):
+            raise ThrsimInputError(f"must lie in [0.3, 5] mm, got {self.socket_element_size_mm:g}", "socket_element_size_mm")
+        if not (math.isfinite(self.haptic_hz) and 100.0 <= self.haptic_hz <= 10_000.0):
+            raise ThrsimInputError(f"must lie in [100, 10000] Hz, got {self.haptic_hz:g}", "haptic_hz")
+        if self.haptic_port is not None and not 0 <= self.haptic_port <= 65535:
+            raise ThrsimInputError(f"must lie in 0..65535, got {self.haptic_port}", "haptic_port")
         if not self.sessions_dir.is_dir():
             raise ThrsimInputError(f"sessions folder {self.sessions_dir} does not exist")
         if self.model is not None and not self.model.is_dir():
@@ -304,9 +315,12 @@ class TrainerHub:
         self._saving = threading.Lock()
         self.ticks = 0
         self.igtl_address: tuple[str, int] | None = None
+        self.haptic_address: tuple[str, int] | None = None
         #: with feedback on, hands what the peers get (thrsim.io.feedback) to the OpenIGTLink server, from any thread
         self.feedback: Callable[[list[tuple[str, str, bytes]]], None] | None = None
         self._ended_events: deque[dict] = deque()  # sessions ended since the last tick (feedback on); appends are atomic
+        #: with a haptic stream, the fast contact model it evaluates (thrsim.io.haptic), following every tick
+        self.contact_force: ContactForce | None = None if settings.haptic_port is None else ContactForce()
         self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
         self.ends_counted_at = clock()
 
@@ -370,6 +384,8 @@ class TrainerHub:
             seat.session.pose(device, pose, clock_time)
 
     def on_force(self, newton: float, clock_time: float) -> None:
+        if self.contact_force is not None:
+            self.contact_force.push(newton)  # felt at once, before the next frame reads it
         for seat in list(self.seats):
             seat.session.force(newton, clock_time)
 
@@ -400,6 +416,8 @@ class TrainerHub:
                 log.exception("%s step failed", seat.session.mode.name)
                 continue
             stepped.append((seat.session, [*heard, state]))
+        if self.contact_force is not None:
+            self.contact_force.follow(contact_of([states[-1] for _, states in stepped]))
         self._feed(stepped)
         return texts
 
@@ -410,12 +428,13 @@ class TrainerHub:
             return
         try:
             events = [self._ended_events.popleft() for _ in range(len(self._ended_events))]
-            reamers = []
+            reamers, forces = [], []
             for session, states in stepped:
                 events += feedback.step_events(session.id, states)
                 reamers.append(feedback.simulated_reamer(states[-1], session.trainer.scene))
+                forces += feedback.frame_forces(states)
             outgoing = [feedback.events_message(events)] if events else []
-            self.feedback(outgoing + [reamer for reamer in reamers if reamer is not None])
+            self.feedback(outgoing + [reamer for reamer in reamers if reamer is not None] + forces)
         except Exception:  # a bug of ours in the feedback must not stop the sessions
             log.exception("OpenIGTLink feedback failed")
 
@@ -620,6 +639,19 @@ def create_app(settings: ServeSettings) -> FastAPI:
                     f"cannot listen for OpenIGTLink on {igtl_config.host}:{settings.igtl_port}: {error.strerror or error}"
                 )
                 raise ThrsimInputError(app.state.startup_error) from None
+        haptic = None
+        if settings.haptic_port is not None and hub.contact_force is not None:
+            listen = settings.igtl_config()
+            haptic = HapticStream(
+                listen.host, settings.haptic_port, settings.haptic_hz, tuple(map(str, listen.allowed_peers)), hub.contact_force
+            )
+            try:
+                hub.haptic_address = await asyncio.to_thread(haptic.start)
+            except OSError as error:
+                app.state.startup_error = (
+                    f"cannot listen for the haptic stream on {listen.host}:{settings.haptic_port}: {error.strerror or error}"
+                )
+                raise ThrsimInputError(app.state.startup_error) from None
         ticker = asyncio.create_task(_ticker(hub, 1.0 / settings.tick_hz))
         saver = asyncio.create_task(_retry_saves(hub, settings.save_retry_s))
         app.state.ready = True
@@ -635,6 +667,8 @@ def create_app(settings: ServeSettings) -> FastAPI:
                     await task
             if igtl_server is not None:
                 await igtl_server.close()
+            if haptic is not None:
+                await asyncio.to_thread(haptic.close)
             for path in hub.save_all():
                 log.warning("session saved on shutdown: %s", path)
 

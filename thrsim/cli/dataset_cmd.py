@@ -282,7 +282,19 @@ def info(
         return
     per_frame = summary.pop("removed_fraction_per_frame")
     rates = summary.pop("solver_rates")
+    calibration = summary.pop("socket_calibration", None) or {}
     rows = {k: v for k, v in summary.items() if k not in ("split_rule",)}
+    if calibration.get("seated"):
+        seated = calibration["seated"]
+        rows["seated feed at a set-feed reaction"] = ", ".join(f"{push} N: {v['feed_mm_s']:.2f} mm/s" for push, v in seated.items())
+    if "pushed" in calibration:
+        pushed = calibration["pushed"]
+        rows["cutting threshold by polar band"] = ", ".join(
+            f"{b['polar_deg']:g}°: {b['bracket_n_mm2'][0]:.2f}–{b['bracket_n_mm2'][1]:.2f} N/mm²" for b in pushed["bands"]
+        )
+        rows["seated push to cut"] = ", ".join(
+            f"{size} mm: {low:.0f}–{high:.0f} N" for size, (low, high) in pushed["seated_push_n"].items()
+        )
     for key, group in rates.items():
         gamma, force = key.split("/")
         figures = [f"{group['cases']} case(s)", ", ".join(f"{n} {end}" for end, n in group["end_reasons"].items())]

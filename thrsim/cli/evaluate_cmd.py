@@ -101,6 +101,14 @@ def print_comparison(report: dict) -> None:
         if len(layers) > 1:
             layer_cells = ", ".join(f"{layer} {_pct(c['f1'])}" for layer, c in layers.items())
             console.print(f"{names[mode]}, F1 by bone layer at each window's longest horizon, %: {layer_cells}")
+    for mode, controls in report.get("by_control", {}).items():
+        if len(controls) > 1:
+            control_cells = ", ".join(
+                f"{name} {_pct(c['end']['f1'])}"
+                + ("" if c["cavity_depth_error_mean_mm"] is None else f" (depth error {c['cavity_depth_error_mean_mm']:.2f} mm)")
+                for name, c in controls.items()
+            )
+            console.print(f"{names[mode]}, F1 to the end by how the solver drove the reamer, %: {control_cells}")
     checks = report.get("physics_checks", {})
     if checks.get("checked"):
         held = ", ".join(f"{name.replace('_', ' ')} {count}/{checks['cases']}" for name, count in checks["held"].items())

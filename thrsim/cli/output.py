@@ -51,6 +51,7 @@ FLAGS = {
     "model_dir": "--model",
     "sessions_dir": "--sessions",
     "token": "--token-file or THRSIM_TOKEN",
+    "socket_element_size_mm": "--socket-element-size",
 }
 
 

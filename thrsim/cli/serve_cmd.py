@@ -14,7 +14,7 @@ from pathlib import Path
 
 import typer
 
-from thrsim.config import OPENIGTLINK_PORT
+from thrsim.config import HAPTIC_RATE_HZ, OPENIGTLINK_PORT
 from thrsim.errors import ThrsimInputError
 
 
@@ -81,6 +81,20 @@ def serve(
         "--igtl-feedback",
         help="send every OpenIGTLink peer the sessions' events (STRING thrsimEvent) and the simulated reamer (TRANSFORM SimReamerToBone)",
     ),
+    haptic_port: int | None = typer.Option(
+        None,
+        "--haptic-port",
+        help="also stream the force a haptic device renders (SENSOR ReamerReaction, ReamerTorque) on this port of the OpenIGTLink "
+        "listener's address, far faster than the frames (0: any free port; default: off)",
+        metavar="PORT",
+    ),
+    haptic_hz: float = typer.Option(HAPTIC_RATE_HZ, "--haptic-hz", help="the haptic stream's rate, 100 to 10000", metavar="HZ"),
+    socket_element_size: float | None = typer.Option(
+        None,
+        "--socket-element-size",
+        help="a whole-socket --model reams the case's socket meshed at this element size, 0.3 to 5 mm [default: 1.5]",
+        metavar="MM",
+    ),
     sessions: Path = typer.Option(
         Path("sessions"), "--sessions", help="folder where ended sessions are saved (created if absent)", metavar="DIR"
     ),
@@ -135,7 +149,8 @@ def serve(
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
         model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow), igtl_feedback=igtl_feedback,
-        plan=plan, thresholds=thresholds, phantom=phantom,
+        plan=plan, thresholds=thresholds, haptic_port=haptic_port, haptic_hz=haptic_hz,
+        socket_element_size_mm=socket_element_size, phantom=phantom,
     )  # fmt: skip
     # refusals are one line, before the ports are taken, the network compiled or the sessions folder made
     # (checked as the folder it will be made in, so that a refused start leaves nothing behind)
@@ -148,16 +163,18 @@ def serve(
         listener.listen(128)  # connections wait in the backlog until the app has started
     except OSError as error:
         raise ThrsimInputError(f"cannot listen on {host}:{port}: {error.strerror or error}") from None
-    if igtl_port != 0:
-        # Refuse a taken OpenIGTLink port here, as one line, before the app starts.
-        igtl_listen = settings.igtl_config().host
+    # Refuse a taken OpenIGTLink or haptic port here, as one line, before the app starts.
+    igtl_listen = settings.igtl_config().host
+    for what, wanted in (("OpenIGTLink", igtl_port), ("the haptic stream", haptic_port)):
+        if not wanted:  # off, or any free port
+            continue
         try:
             with socket.socket(socket.AF_INET6 if ":" in igtl_listen else socket.AF_INET, socket.SOCK_STREAM) as probe:
                 probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-                probe.bind((igtl_listen, igtl_port))
+                probe.bind((igtl_listen, wanted))
         except OSError as error:
             listener.close()
-            raise ThrsimInputError(f"cannot listen for OpenIGTLink on {igtl_listen}:{igtl_port}: {error.strerror or error}") from None
+            raise ThrsimInputError(f"cannot listen for {what} on {igtl_listen}:{wanted}: {error.strerror or error}") from None
     if compile:
         print(
             "thrsim serve: compiling the reaming network (about 10 s; 30 s or more the first time on a machine; --no-compile skips it)",
@@ -171,13 +188,16 @@ def serve(
     url = f"http://{shown_host}:{bound_port}/"
 
     def announce(igtl: tuple[str, int]) -> None:
+        haptic = app.state.hub.haptic_address
         if as_json:
             off = igtl[1] == 0
             where = {"igtl_host": None if off else igtl[0], "igtl_port": None if off else igtl[1]}
+            where |= {"haptic_port": None if haptic is None else haptic[1]}
             print(json.dumps({"url": url, "host": host, "port": bound_port, **where, "sessions": str(sessions)}))
         else:
             print(
                 f"thrsim trainer: {url}{'?token=…' if token else ''} · OpenIGTLink on {igtl[0]}:{igtl[1]} · sessions saved in {sessions}/"
+                + ("" if haptic is None else f" · haptic stream on {haptic[0]}:{haptic[1]}")
             )
         sys.stdout.flush()
 

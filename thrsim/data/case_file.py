@@ -407,12 +407,27 @@ def validate_case(path: str | os.PathLike) -> dict[str, Any]:
         "anteversion_deg": attrs.get("anteversion_deg"),
         "force_n": attrs.get("force_n"),
         "config_hash": attrs.get("config_hash"),
+        "solution_hash": solution_hash(attrs["config"]) if isinstance(attrs.get("config"), dict) else None,
         "thrsim_version": attrs.get("thrsim_version"),
     }
     for key in ("end_reason", "perforated_frame", "seconds_per_frame"):
         if key in attrs:
             summary[key] = attrs[key]
     return summary
+
+
+def solution_hash(config: dict) -> str:
+    """Hash of what decides a case's result: its configuration without the solver's thread count
+    (the solver's result does not depend on it), so a file solved on other threads is the same case."""
+    solver = {key: value for key, value in (config.get("solver") or {}).items() if key != "threads"}
+    return config_hash({**config, "solver": solver})
+
+
+def file_solution_hash(path: str | os.PathLike) -> str | None:
+    """:func:`solution_hash` of the configuration a case file was solved with (None if it records none)."""
+    with _open(Path(path)) as f:
+        config = decode_attrs(f.attrs).get("config")
+    return solution_hash(config) if isinstance(config, dict) else None
 
 
 def _check_format(f: h5py.File, path: Path) -> tuple[int, int, int, tuple[str, ...]]:

@@ -33,7 +33,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from thrsim import __version__
 from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
-from thrsim.data.case_file import data_digest, file_sha256, validate_case
+from thrsim.data.case_file import CaseReader, data_digest, file_sha256, file_solution_hash, solution_hash, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
 from thrsim.data.executor import Executor, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
@@ -129,7 +129,7 @@ def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Cal
             summary = solve(config, part) or {}
         wall = time.perf_counter() - started
         check = validate_case(part)
-        _check_matches(check, spec, part)
+        _check_matches(check, spec, part, template)
         sha = file_sha256(part)
         digest = data_digest(part)
         os.replace(part, final)
@@ -161,7 +161,10 @@ def _file_record(check: dict, sha: str, digest: str) -> dict:
     }
 
 
-def _check_matches(check: dict, spec: CaseSpec, path: Path) -> None:
+def _check_matches(check: dict, spec: CaseSpec, path: Path, template: dict) -> None:
+    """Refuse a case file that is not ``spec``'s case: its axes, its configuration (threads aside) or too many frames."""
+    if check.get("solution_hash") != solution_hash(spec.case_config(template).model_dump(mode="json")):
+        raise ThrsimInputError(f"{path}: solved with another configuration than case {spec.case_id}")
     for key, want in (("inclination_deg", spec.inclination_deg), ("anteversion_deg", spec.anteversion_deg), ("force_n", spec.force_n)):
         got = check.get(key)
         if got is None or abs(float(got) - want) > 1e-6:
@@ -242,16 +245,18 @@ def _differences(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [] if a == b else [f"{prefix[:-1]} ({a!r} there, {b!r} now)"]
 
 
-def check_directory(root: Path, identity: dict) -> dict | None:
-    """Refuse a directory that is not ours or was made by another configuration; return its manifest."""
+def check_directory(root: Path, identity: dict, case_files: frozenset[str] = frozenset()) -> dict | None:
+    """Refuse a directory that is not ours or was made by another configuration; return its manifest.
+    A new dataset's cases folder may hold files named as ``case_files`` (the plan's cases solved
+    elsewhere, e.g. by ``thrsim fem``): the run adopts each that was solved as its case, redoes the rest."""
     if root.exists() and not root.is_dir():
         raise ThrsimInputError(f"{root}: exists and is not a directory")
     manifest = read_manifest(root) if root.exists() else None
     if manifest is None:
         if root.exists() and any(p.name not in (LOCK, CASES_DIR) for p in root.iterdir()):
             raise ThrsimInputError(f"{root}: not empty and not a thrsim dataset (no {MANIFEST}); refusing to write into it")
-        if (root / CASES_DIR).exists() and any((root / CASES_DIR).glob("*.h5")):
-            raise ThrsimInputError(f"{root}: holds case files but no {MANIFEST}; refusing to mix")
+        if (root / CASES_DIR).exists() and any(path.name not in case_files for path in (root / CASES_DIR).glob("*.h5")):
+            raise ThrsimInputError(f"{root}: holds case files that are not the plan's cases and no {MANIFEST}; refusing to mix")
         return None
     if manifest.get("identity_hash") != config_hash(identity):
         diffs = _differences(manifest.get("identity", {}), identity)
@@ -341,21 +346,29 @@ def _entry(spec: CaseSpec, split: SplitRule | SocketSplitRule, solver: str) -> d
     }
 
 
-def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None) -> tuple[str, dict] | None:
+def _existing_complete(root: Path, spec: CaseSpec, entry: dict | None, template: dict) -> tuple[str, dict] | None:
     """('skipped', entry) when the manifest's checksum matches, ('adopted', fields) when a valid
-    file is there that the manifest missed, None when the case must run."""
+    file is there that the manifest missed, None when the case must run; a file solved with another
+    configuration than ``spec``'s (a changed plan) is neither."""
     path = root / CASES_DIR / f"{spec.case_id}.h5"
     if not path.exists():
         return None
     sha = file_sha256(path)
     if entry and entry.get("status") == "complete" and entry.get("sha256") == sha:
-        return "skipped", entry
+        same = file_solution_hash(path) == solution_hash(spec.case_config(template).model_dump(mode="json"))
+        return ("skipped", entry) if same else None
     try:
         check = validate_case(path)
-        _check_matches(check, spec, path)
+        _check_matches(check, spec, path, template)
     except ThrsimInputError:
         return None
-    return "adopted", {**_file_record(check, sha, data_digest(path)), "wall_s": None}
+    with CaseReader(path) as reader:  # what the solver said of the case, as its file keeps it
+        summary = {key: value for key, value in reader.attrs.items() if key not in ("config", "versions", "format")}
+    return "adopted", {
+        **_file_record(check, sha, data_digest(path)),
+        "wall_s": None,
+        "solver_summary": json.loads(json.dumps(summary, default=json_default)),
+    }
 
 
 @dataclass(frozen=True)
@@ -383,7 +396,7 @@ def check_sweep_target(
     template = template_of(frames.pop(), template_overrides)
     name = solver_name(solver)
     identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
-    manifest = check_directory(root, identity)
+    manifest = check_directory(root, identity, frozenset(f"{case.case_id}.h5" for case in plan.cases))
     check_folder_creatable(root, "dataset folder")
     if not callable(solver):
         resolve_solver(solver)  # an unknown solver is an input error, found before any work
@@ -500,7 +513,7 @@ class _Sweep:
         for spec in specs:
             old = cases.get(spec.case_id)
             entry = {**(old or {}), **_entry(spec, split, solver), "attempts": (old or {}).get("attempts", 0)}
-            found = _existing_complete(self.root, spec, old)
+            found = _existing_complete(self.root, spec, old, self.manifest["identity"]["template"])
             if found is None:
                 entry.pop("in_progress", None)
                 checkpoint = checkpoint_path(self.root / CASES_DIR / f"{spec.case_id}.h5")
@@ -575,7 +588,7 @@ class _Sweep:
                     del pending[spec.case_id]
         executor.stop()
         for case_id, spec in pending.items():
-            found = _existing_complete(self.root, spec, None)
+            found = _existing_complete(self.root, spec, None, self.manifest["identity"]["template"])
             if found is not None:
                 self.manifest["cases"][case_id].update(found[1], status="complete", adopted=True, finished=_now())
                 self.result.adopted += 1

@@ -47,7 +47,7 @@ def solver_rates(entries: dict) -> dict:
         for field in RATE_FIELDS:
             values = [float(v) for v in (summary.get(field) for summary in summaries) if v is not None]
             group[field] = float(np.median(values)) if values else None
-        group["worker_hours"] = sum(float(c.get("wall_s", 0.0)) for c in cases) / 3600.0
+        group["worker_hours"] = sum(float(c.get("wall_s") or 0.0) for c in cases) / 3600.0
         rates[key] = group
     return rates
 
@@ -128,7 +128,7 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
         "element_frames": totals,
         "alpha_below_threshold_fraction": {k: (below_threshold[k] / totals[k] if totals[k] else None) for k in totals},
         "split_rule": manifest.get("split_rule"),
-        "worker_hours": sum(float(e.get("wall_s", 0.0)) for e in complete.values()) / 3600.0,
+        "worker_hours": sum(float(e.get("wall_s") or 0.0) for e in complete.values()) / 3600.0,
         "size_mb": sum((root / e["file"]).stat().st_size for k, e in complete.items() if k not in missing) / 1e6,
         "solver_rates": solver_rates(complete),
     }

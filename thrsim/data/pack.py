@@ -162,7 +162,7 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
         source_file=str(entry.get("file", reader.path.name)),
         source_sha256=file_sha256(reader.path),
         source_data_digest=entry.get("data_digest") or data_digest(reader.path),
-        wall_s=float(entry.get("wall_s", float("nan"))),
+        wall_s=float("nan") if entry.get("wall_s") is None else float(entry["wall_s"]),  # None: a file adopted, not timed
     )
     group.attrs.update(attrs)
 

@@ -16,8 +16,9 @@ import random
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from thrsim.config import CANCELLOUS_PRESETS, ReamingCaseConfig, SocketSweepConfig, SweepConfig, head_diameter_for_size
+from thrsim.config import CANCELLOUS_PRESETS, ReamingCaseConfig, SocketSweepConfig, SweepConfig, head_diameter_for_size, teeth_for_diameter
 from thrsim.errors import ThrsimInputError
+from thrsim.geometry.socket import window_area_mm2
 
 DEFAULTS = SweepConfig()
 DEFAULT_INCLINATIONS = DEFAULTS.inclinations_deg
@@ -350,8 +351,11 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
     train_steps = [s for s in config.steps if s[2] not in config.test_reamer_sizes_mm]
     test_steps = [s for s in config.steps if s[2] in config.test_reamer_sizes_mm]
     tilted = [g for g in config.inclinations_deg if g > 0]
-    if not train_steps or not tilted:
-        raise ThrsimInputError("the socket sweep needs a reamer step to train on and a tilt above 0°")
+    fed_cases = config.train_cases + config.validation_cases + config.test_cases
+    if fed_cases and (not config.train_cases or not train_steps or not tilted):
+        raise ThrsimInputError("set-feed socket cases need train_cases, a reamer step to train on and a tilt above 0°")
+    if not fed_cases and not (config.pushed_windows and config.push_pressures_n_mm2):
+        raise ThrsimInputError("the socket plan has no case: give set-feed cases (train_cases) or pushed windows")
     axes = {
         "step": _Balanced(train_steps, rng),
         "polar": _Balanced(config.window_polars_deg, rng),
@@ -384,12 +388,47 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
                 continue  # a repeat draw: draw again
             cases[spec.case_id] = spec
             made += 1
+    pushed = [_pushed_case(config, window, pressure) for window in config.pushed_windows for pressure in config.push_pressures_n_mm2]
+    cases.update((spec.case_id, spec) for spec in pushed)
+    pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
-        f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})"
+        f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
+        f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
     ]
     return SweepPlan(
         cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
     )
+
+
+def window_push_n(config: SocketSweepConfig, socket_mm: float, pressure_n_mm2: float) -> float:
+    """The push (N, to 0.1 N) that puts ``pressure_n_mm2`` on a window of the native socket."""
+    return round(pressure_n_mm2 * window_area_mm2(socket_mm / 2.0, config.window_half_angle_deg), 1)
+
+
+def _reamer(reamer_mm: float) -> list[tuple[str, Any]]:
+    """The settings of a reamer of this size: its head and its teeth (by the size; stated, so a
+    template dumped from another size does not keep its tooth count)."""
+    head_mm = head_diameter_for_size(reamer_mm)
+    return [("reamer.head_diameter_mm", head_mm), ("reamer.tooth_count", teeth_for_diameter(head_mm))]
+
+
+def _pushed_case(config: SocketSweepConfig, window: tuple[float, float, float, float], pressure_n_mm2: float) -> CaseSpec:
+    """A pushed window: the reamer along the socket's axis, driven by a set pressure over the window."""
+    polar, azimuth, socket_mm, reamer_mm = (float(v) for v in window)
+    azimuth = 0.0 if polar == 0.0 else azimuth
+    settings: list[tuple[str, Any]] = [
+        ("socket.socket_diameter_mm", socket_mm),
+        ("socket.window_polar_deg", polar),
+        ("socket.window_azimuth_deg", azimuth),
+        ("socket.window_half_angle_deg", config.window_half_angle_deg),
+        *_reamer(reamer_mm),
+    ]
+    split = "test" if (polar, azimuth) in {(float(p), float(a)) for p, a in config.test_pushed_windows} else "train"
+    return CaseSpec(
+        inclination_deg=0.0, anteversion_deg=0.0, force_n=window_push_n(config, socket_mm, pressure_n_mm2),
+        frames=config.frames, settings=tuple(settings), label=f"s{socket_mm:g}_n_r{reamer_mm:g}_w{polar:g}a{azimuth:g}_push{pressure_n_mm2:g}",
+        split=split,
+    )  # fmt: skip
 
 
 def _socket_case(config: SocketSweepConfig, split: str, pick: dict) -> CaseSpec:
@@ -404,7 +443,7 @@ def _socket_case(config: SocketSweepConfig, split: str, pick: dict) -> CaseSpec:
         ("socket.window_polar_deg", polar),
         ("socket.window_azimuth_deg", azimuth),
         ("socket.window_half_angle_deg", config.window_half_angle_deg),
-        ("reamer.head_diameter_mm", head_diameter_for_size(float(reamer_mm))),
+        *_reamer(float(reamer_mm)),
         ("reamer_centre_mm", centre),
         ("feed_mm_s", float(pick["feed"])),
         ("cancellous", CANCELLOUS_PRESETS[pick["cancellous"]].model_dump()),

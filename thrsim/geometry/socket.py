@@ -42,6 +42,11 @@ def medial_wall_offset_mm(config: SocketConfig) -> float:
     return config.socket_radius_mm + config.fossa_depth_mm + config.medial_wall_distance_mm
 
 
+def window_area_mm2(radius_mm: float, half_angle_deg: float) -> float:
+    """The area (mm²) of a window of the socket's sphere: the cap 2πr²(1 − cos h) of half-angle h at radius r."""
+    return 2.0 * math.pi * radius_mm**2 * (1.0 - math.cos(math.radians(half_angle_deg)))
+
+
 def generate_socket(config: SocketConfig | None = None) -> TetMesh:
     """Mesh the layered socket with gmsh (OpenCASCADE kernel) and return it in metres, materials tagged."""
     config = config or SocketConfig()

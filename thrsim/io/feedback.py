@@ -1,7 +1,9 @@
 """What the trainer sends back to its OpenIGTLink peers (``thrsim serve --igtl-feedback``).
 
-Two device names, defined here once: :data:`EVENT_DEVICE`, a STRING of each trainer step's events,
-and :data:`SIM_REAMER_DEVICE`, a TRANSFORM of the simulated reamer. Sending is opt-in: a peer
+The device names, defined here once: :data:`EVENT_DEVICE`, a STRING of each trainer step's events,
+:data:`SIM_REAMER_DEVICE`, a TRANSFORM of the simulated reamer, and :data:`REACTION_DEVICE` and
+:data:`TORQUE_DEVICE`, SENSORs of each frame's force (a whole-socket model's; the haptic stream,
+:mod:`thrsim.io.haptic`, sends them too). Sending is opt-in: a peer
 written for the reply-per-message protocol (one ``NavigationState`` per TRANSFORM or SENSOR) would
 read an unsolicited message as that reply.
 """
@@ -31,6 +33,12 @@ EVENT_DEVICE = "thrsimEvent"
 SIM_REAMER_DEVICE = "SimReamerToBone"
 #: the event sent when a live session ends (its trainee ended it or left): not one of the trainers' own
 SESSION_ENDED = "session_ended"
+#: a SENSOR per simulated frame of a whole-socket model: one value, the bone's reaction along the
+#: reamer axis (N, unit field newton); a SENSOR has one unit field for all its values, so the torque,
+#: in N·m, is its own SENSOR (:data:`TORQUE_DEVICE`), sent right after it
+REACTION_DEVICE = "ReamerReaction"
+#: a SENSOR per simulated frame: one value, the reamer's motor torque (N·m, unit field newton·metre)
+TORQUE_DEVICE = "ReamerTorque"
 
 Outgoing = tuple[str, str, bytes]  # type, device name, content
 
@@ -68,6 +76,24 @@ def step_events(session_id: str, states: Iterable[dict]) -> list[dict]:
                 seen.add(id(fields))
                 events.append({**fields, "session": session_id, "mode": state["mode"]})
     return events
+
+
+def force_messages(reaction_n: float, motor_torque_n_m: float) -> list[Outgoing]:
+    """The ``ReamerReaction`` and ``ReamerTorque`` SENSORs of one force, in their units."""
+    return [
+        ("SENSOR", REACTION_DEVICE, igtl.pack_sensor([reaction_n], igtl.UNIT_NEWTON)),
+        ("SENSOR", TORQUE_DEVICE, igtl.pack_sensor([motor_torque_n_m], igtl.UNIT_NEWTON_METRE)),
+    ]
+
+
+def frame_forces(states: Iterable[dict]) -> list[Outgoing]:
+    """The force SENSORs of every frame a trainer step simulated, in order (none without a whole-socket model)."""
+    return [
+        message
+        for state in states
+        for frame in (state.get("reaming") or {}).get("frame_forces", ())
+        for message in force_messages(frame["reaction_n"], frame["motor_torque_n_m"])
+    ]
 
 
 def simulated_reamer(state: dict, scene: Callable[[], dict]) -> Outgoing | None:

@@ -41,6 +41,7 @@ STATUS_ILLEGAL_INSTRUCTION = 12
 
 # SENSOR unit field: prefix << 60, then per slot i: unit << (10(5−i) + 4), exponent << 10(5−i).
 UNIT_NEWTON = (0x0B << 54) | (1 << 50)
+UNIT_NEWTON_METRE = UNIT_NEWTON | (0x01 << 44) | (1 << 40)  # newton^1 · metre^1 (0x01 is the metre)
 
 
 def _crc_table() -> list[int]:
@@ -246,6 +247,7 @@ def unpack_string(content: bytes) -> str:
 
 
 def pack_sensor(values: list[float] | np.ndarray, unit: int = UNIT_NEWTON) -> bytes:
+    """SENSOR content: u8 count, u8 status (0), u64 unit (one unit for every value), count × f64."""
     values = [float(v) for v in values]
     if not 0 < len(values) <= 255:
         raise ValueError("SENSOR carries 1 to 255 values")

@@ -49,6 +49,12 @@ class CaseArrays:
     reaction_n: np.ndarray | None = None  # (T,) the bone's axial reaction on the reamer over each frame
     motor_torque_n_m: np.ndarray | None = None  # (T,) the torque spinning the reamer took over each frame
     hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
+    set_feed_mm_s: float | None = None  # the feed a rig set (None: the push drove the reamer against the bone)
+    reamer_centre_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # a point the reamer's axis passes through (bone frame)
+
+    def axis_offset_mm(self) -> float:
+        """How far (mm) the reamer's axis passes from the socket's centre."""
+        return axis_offset_mm(np.asarray(self.reamer_centre_mm) * 1e-3, self.axis)
 
     def recorded_push_n(self) -> float:
         """The push the bone and the hold took, median over the frames: the recorded reaction plus the
@@ -66,6 +72,12 @@ class CaseArrays:
     def advances(self) -> np.ndarray:
         """(T − 1,) m: how far the reamer moved along D from each frame to the next."""
         return np.diff(self.positions, axis=0) @ self.axis
+
+
+def axis_offset_mm(point_m: np.ndarray, axis: np.ndarray) -> float:
+    """The distance (mm) from the socket's centre (the bone frame's origin) to the line through ``point_m`` along ``axis``."""
+    point = np.asarray(point_m, dtype=np.float64)
+    return 1e3 * float(np.linalg.norm(point - (point @ axis) * axis))
 
 
 def require_damage(cases: list[CaseArrays], remedy: str) -> None:
@@ -124,6 +136,8 @@ def _case_arrays(
         reaction_n=None if reaction_n is None else np.asarray(reaction_n, dtype=np.float64),
         motor_torque_n_m=None if motor_torque_n_m is None else np.asarray(motor_torque_n_m, dtype=np.float64),
         hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
+        set_feed_mm_s=None if config.get("feed_mm_s") is None else float(config["feed_mm_s"]),
+        reamer_centre_mm=tuple(float(v) for v in config.get("reamer_centre_mm") or (0.0, 0.0, 0.0)),  # type: ignore[arg-type]
     )
 
 

@@ -160,6 +160,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
     reaction_sums: dict = defaultdict(lambda: np.zeros(4))
     by_layer: dict = {m: defaultdict(Counts) for m in MODES}
+    by_control: dict = {m: defaultdict(lambda: {"end": Counts(), "depth_error_mm": []}) for m in MODES}
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
         graph = graphs[case.case_id]
@@ -176,6 +177,8 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 for key in keys:
                     k = length if key == "end" else int(key)
                     counts[mode][g][key].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)
+                    if key == "end":
+                        by_control[mode][_control(case)]["end"].add(masks[k - 1] & ~initial, truth_removed[start + k] & ~initial)
                 if start % start_stride:
                     continue  # a one-step window: no longest horizon of its own
                 final_pred, final_true = masks[-1], truth_removed[start + length]
@@ -196,6 +199,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 depths = [cavity_depth_mm(graph, mask & ~initial, case.positions[start], case.axis) for mask in (final_pred, final_true)]
                 if depths[1] is not None:
                     errors[mode][g]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
+                    by_control[mode][_control(case)]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)
@@ -203,6 +207,12 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     report["physics_checks"] = physics_checks(model, cases)
     # per bone layer (material), at each full window's longest horizon
     report["by_layer"] = {mode: {layer: c.as_dict() for layer, c in layers.items()} for mode, layers in by_layer.items() if layers}
+    # pushed cases against set-feed ones: does the reamer advance as the solver's did under the same push?
+    report["by_control"] = {
+        mode: {name: {"end": c["end"].as_dict(), "cavity_depth_error_mean_mm": _summary(c["depth_error_mm"])} for name, c in rows.items()}
+        for mode, rows in by_control.items()
+        if rows
+    }
     # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
     report["reaction"] = {
         g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}
@@ -218,6 +228,11 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         for f, e in sorted(by_force.items(), key=lambda item: float(item[0]))
     }
     return report
+
+
+def _control(case: CaseArrays) -> str:
+    """How the solver drove the case's reamer: a set push ("pushed") or a rig's set feed ("set feed")."""
+    return "pushed" if case.set_feed_mm_s is None else "set feed"
 
 
 def _summary(values: list[float]) -> float | None:

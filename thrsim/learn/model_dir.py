@@ -129,6 +129,13 @@ class LoadedModel:
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
+    def trained_axis_offset_mm(self) -> tuple[float, float] | None:
+        """The nearest and farthest the training cases' reamer axis passed from the socket's centre (mm;
+        None on a card written before cards recorded it)."""
+        found = self.card.get("data", {}).get("axis_offset_range_mm")
+        return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
     def frame_dt_s(self) -> float:
         """Seconds of reaming one step of the model stands for: the training cases' frame time (cards
         written before cards recorded it: the thesis's frame rate, which every case then had)."""

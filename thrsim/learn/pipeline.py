@@ -118,8 +118,10 @@ def train_model(
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
             "force_range_n": [min(c.recorded_push_n() for c in train), max(c.recorded_push_n() for c in train)],
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
+            "axis_offset_range_mm": [min(c.axis_offset_mm() for c in train), max(c.axis_offset_mm() for c in train)],
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),
+            "reaction_cases": sorted(trainer.reaction_case_ids) if settings.arch.reaction_head else [],
         },
         "training": {
             "epochs": trainer.epoch,

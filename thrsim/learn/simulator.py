@@ -28,7 +28,7 @@ from thrsim.data.labels import alpha as alpha_label
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.reaming_path import INITIAL_GAP_M, bone_in_path, breach_faces, breach_reason, clear_start, tip_exit_depth
-from thrsim.learn.cases import element_cutting_energy
+from thrsim.learn.cases import axis_offset_mm, element_cutting_energy
 from thrsim.learn.compiled import compile_network
 from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import StaticGraph, attached_nodes
@@ -64,7 +64,7 @@ class StepResult:
     #: a socket model's bone reaction along the axis (N) and motor torque (N·m) over the frame
     reaction_n: float | None = None
     motor_torque_n_m: float | None = None
-    #: inputs outside what the model learned this frame ("push", "reamer size"), never silently extrapolated
+    #: inputs outside what the model learned this frame ("push", "tilt", "reamer size", "centre"), never silently extrapolated
     out_of_range: tuple[str, ...] = ()
 
 
@@ -99,6 +99,9 @@ def check_axis(reamer_axis) -> np.ndarray:
         raise ThrsimInputError("reamer axis has zero length")
     return axis / norm
 
+
+#: how far (mm) the reamer's axis may pass beyond the trained offsets from the socket's centre unflagged: a hand's tremor
+AXIS_OFFSET_SLACK_MM = 0.5
 
 #: a push no hand gives a reamer (the trainer takes up to 400 N); larger ones overflow the float32 features
 MAX_FORCE_N = 10_000.0
@@ -230,6 +233,13 @@ class ReamingSimulator:
         self._step.reaction_law = None  # the bone changed: the next step stands first to read its law
 
     @property
+    def reaction_law(self) -> np.ndarray | None:
+        """A socket model's reaction law for the next frame (A, B, A_torque, B_torque: R = A + B·feed,
+        N and N·s/m; torque likewise), a copy; None before it was read (a patch model: always)."""
+        law = self._step.reaction_law
+        return None if law is None else np.array(law, dtype=np.float64)
+
+    @property
     def alpha(self) -> np.ndarray:
         """α of every element now (the simulator's own array: copy before changing it)."""
         return self.bone.alpha
@@ -266,10 +276,17 @@ class ReamingSimulator:
             return float(reamer_mm)
         return min(sizes, key=lambda size: abs(size - reamer_mm))
 
-    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray) -> tuple[str, ...]:
+    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray, centre: np.ndarray) -> tuple[str, ...]:
         """What of a step's inputs lies outside what the model learned (its card's ranges): the push,
-        the reamer size, the tilt γ of the axis from the socket's (right-side frame)."""
+        the reamer size, the tilt γ of the axis from the socket's, the axis's offset from the socket's
+        centre (the reamer ``centre`` on it; right-side frame, m)."""
         flags = []
+        offsets = self.model.trained_axis_offset_mm
+        if (
+            offsets is not None
+            and not offsets[0] - AXIS_OFFSET_SLACK_MM <= axis_offset_mm(centre, axis) <= offsets[1] + AXIS_OFFSET_SLACK_MM
+        ):
+            flags.append("centre")
         pushes = self.model.trained_force_n
         if pushes is not None and not pushes[0] <= force_n <= pushes[1]:
             flags.append("push")
@@ -337,7 +354,7 @@ class ReamingSimulator:
             reamer_mm=size_mm,
             reaction_n=reaction,
             motor_torque_n_m=torque,
-            out_of_range=self.out_of_range(force, size_mm, axis) if self.socket else (),
+            out_of_range=self.out_of_range(force, size_mm, axis, new_centre) if self.socket else (),
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:

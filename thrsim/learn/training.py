@@ -77,6 +77,10 @@ class Trainer:
                 )
         if settings.features.damage:
             require_damage([*train, *validation], 'regenerate the data or train with the settings {"features": {"damage": false}}')
+        # the reaction law learns where the push drove the reamer (its feed is the bone's answer to a push);
+        # a rig's set feed shows the force a feed takes, not the push a feed needs (see the docs' benchmarks)
+        pushed = {case.case_id for case in train if case.set_feed_mm_s is None}
+        self.reaction_case_ids = pushed or {case.case_id for case in train}
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
         if len(self.samples) == 0:
             raise ThrsimInputError("the training cases hold no frame pairs")
@@ -184,7 +188,7 @@ class Trainer:
             damage_in,
             case.alpha[t + 1][sub.nodes],
             damage_next,
-            next_reaction(case, int(t) + 1),
+            next_reaction(case, int(t) + 1) if case.case_id in self.reaction_case_ids else (math.nan,) * 3,
             contact_weights(graph, sub),
         )
 

@@ -25,7 +25,16 @@ GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
 _ERROR_WORDS = {"perforated": "perforated", "medial_wall_breached": "medial wall breached", "rim_damaged": "rim damaged"}
 #: the events listed under errors and corrections
-_LISTED = (*BONE_ERRORS, "passed_through", "push_out_of_range", "undo", "restore")
+_LISTED = (
+    *BONE_ERRORS,
+    "passed_through",
+    "push_out_of_range",
+    "tilt_out_of_range",
+    "reamer_out_of_range",
+    "centre_out_of_range",
+    "undo",
+    "restore",
+)
 CLASSES = ("not reached", "under-reamed", "on plan", "over-reamed", "perforated")
 _CLASS_COLOURS = ("#e8e8e8", "#f2c14e", "#2ca25f", "#d7301f", "#000000")
 
@@ -431,7 +440,7 @@ def _errors_and_corrections(record: ReamingRecord) -> Section:
     body = (
         table(["time", "event", "what"], [[f"{e['time_s']:.1f} s", e["kind"].replace("_", " "), e["detail"]] for e in listed])
         if listed
-        else "<p>No perforation, no push outside the learned range, nothing undone or restored.</p>"
+        else "<p>No perforation, no push, tilt or reamer outside what the simulator learned, nothing undone or restored.</p>"
     )
     return Section("Reaming: errors and corrections", body)
 

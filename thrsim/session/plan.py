@@ -5,7 +5,9 @@ it in a case file (``thrsim serve --plan FILE``: JSON, or YAML for a ``.yaml``/`
 which the trainee cannot change. The report measures the session against it
 (:mod:`thrsim.report.reaming_metrics`). Angles are the radiographic cup angles the page shows
 (Murray), in the patient's anterior pelvic plane; the centre is the planned centre of rotation as
-a shift from the native socket's centre, medially and superiorly, in millimetres.
+a shift from the native socket's centre, medially and superiorly, in millimetres. The patient's
+socket (its native size and cancellous bone) is the case's: where the served model reams the whole
+socket, the trainer meshes that socket (:func:`thrsim.app.reaming.socket_in_patch`).
 """
 
 from __future__ import annotations
@@ -14,9 +16,9 @@ import json
 from pathlib import Path
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from thrsim.config import SafeZone
+from thrsim.config import CANCELLOUS_PRESETS, SafeZone, SocketConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.anatomy import local_axis_from_angles
 from thrsim.nav.bone_frame import patch_in_app
@@ -40,6 +42,26 @@ class Plan(BaseModel):
     superior_shift_mm: float = Field(0.0, ge=-10.0, le=10.0, description="planned centre of rotation, superior of the native centre")
     inclination_deg: float = Field(SafeZone().inclination_deg, ge=0.0, le=90.0, description="radiographic inclination of the cup")
     anteversion_deg: float = Field(SafeZone().anteversion_deg, ge=-90.0, le=90.0, description="radiographic anteversion of the cup")
+    native_socket_mm: float = Field(
+        SocketConfig().socket_diameter_mm, description="the patient's native socket diameter (a whole-socket model reams this socket)"
+    )
+    cancellous: str = Field("normal", description="the patient's cancellous bone, a preset: normal or osteoporotic")
+
+    @field_validator("native_socket_mm")
+    @classmethod
+    def _a_socket_size(cls, value: float) -> float:
+        try:
+            SocketConfig(socket_diameter_mm=value)  # the socket's own bounds
+        except ValidationError as error:
+            raise ValueError(error.errors()[0]["msg"]) from None
+        return value
+
+    @field_validator("cancellous")
+    @classmethod
+    def _known_cancellous(cls, value: str) -> str:
+        if value not in CANCELLOUS_PRESETS:
+            raise ValueError(f"unknown cancellous bone {value!r}: known {', '.join(sorted(CANCELLOUS_PRESETS))}")
+        return value
 
     def as_metric(self, source: str) -> dict:
         """The plan as the report's ``plan`` metric: cup diameter, centre, inclination, anteversion and who set it."""

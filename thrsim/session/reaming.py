@@ -26,7 +26,8 @@ _EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
 BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
-_SEQUENCE = ("reamer_mm", "cut_mm", "medial_wall_mm")  # trace columns files before the reamer sequence lack
+#: trace columns some files lack: those before the reamer sequence, a bone without a medial wall, a model without a reaction
+_SEQUENCE = ("reamer_mm", "cut_mm", "medial_wall_mm", "reaction_n", "motor_torque_n_m")
 
 
 @dataclass
@@ -54,6 +55,8 @@ class ReamingRecord:
     reamer_mm: np.ndarray | None = None  # per frame, the size held (None: a file before the reamer sequence)
     cut_mm: np.ndarray | None = None  # per frame, the size the simulator cut with
     medial_wall_mm: np.ndarray | None = None  # per frame, bone left before the medial wall (None: the bone has none)
+    reaction_n: np.ndarray | None = None  # per frame, the bone's reaction along the axis, N (None: a model without one, the patch's)
+    motor_torque_n_m: np.ndarray | None = None  # per frame, the reamer's motor torque, N·m (likewise)
     plan: dict | None = None  # the Plan's fields (None: a file before the plan)
     plan_source: str = "trainee"
 
@@ -78,12 +81,15 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
     (the size the simulator cut with: its model's, where the model learned one size; both absent
     from files before the reamer sequence), ``medial_wall_mm`` (bone left between the reamer's teeth
-    and the medial wall; only where the bone has one: the bone patch has none); ``events/`` ``time``,
+    and the medial wall; only where the bone has one: the bone patch has none), ``reaction_n`` and
+    ``motor_torque_n_m`` (the bone's reaction along the axis, N, and the motor torque, N·m, a
+    whole-socket model predicts each frame; only with such a model); ``events/`` ``time``,
     ``kind``, ``detail``, ``frame`` and ``data``
     (JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
     ``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
     (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
-    ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``plan_set`` (``plan``),
+    ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``tilt_out_of_range`` (``tilt_deg``,
+    ``trained_tilt_deg``), ``reamer_out_of_range`` (``reamer_mm``, ``trained_reamer_mm``), ``centre_out_of_range`` (``axis_offset_mm``, ``trained_axis_offset_mm``), ``plan_set`` (``plan``),
     ``reamer_changed`` (``from_mm``, ``to_mm``), ``cup_confirmed`` (``inclination_deg``,
     ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the
     simulator's end reasons

@@ -142,6 +142,7 @@ function receive(message) {
       if (document.visibilityState !== "visible") sendVisibility(); // a session that starts while the page is hidden holds too
       steer = { ...message.defaults.reamer };
       planEdited = false; // a new session: its plan
+      forces.torqueScale = 0;
       force = message.defaults.force_n;
       maxForce = message.defaults.max_force_n;
       $("force").max = maxForce;
@@ -180,12 +181,17 @@ function feedback(event) {
     start: "reaming", pause: "paused", restore: "bone restored (the report keeps what went before)",
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
     push_out_of_range: `push ${event.detail}`,
+    tilt_out_of_range: `tilt ${event.detail}`, reamer_out_of_range: `reamer ${event.detail}`,
+    centre_out_of_range: `centre: ${event.detail}`,
+    medial_wall_breached: `medial wall breached: the reamer went through into the pelvis; ${event.detail}`,
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
     cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
-  if (text) toast(text, event.kind === "start" ? "good" : event.kind === "perforated" || event.kind === "push_out_of_range" ? "error" : "");
+  const bad = ["perforated", "medial_wall_breached", "push_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
+    .includes(event.kind);
+  if (text) toast(text, event.kind === "start" ? "good" : bad ? "error" : "");
 }
 
 function showState(s) {
@@ -198,9 +204,32 @@ function showState(s) {
   setText("step-ms", r.step_ms === null ? "—" : `${r.step_ms.toFixed(1)} ms per frame`);
   setText("note", r.note || (s.zone ? s.note : ""));
   showPlanAndReamer(r);
+  showForces(r);
   running = r.running;
   setText("run", running ? "Pause reaming" : "Start reaming");
   showTools(s.tools);
+}
+
+// The bone's reaction along the shaft and the motor's torque, where the simulator predicts them (a
+// whole-socket model): numbers and bars, the reaction's against the most a hand pushes with the push
+// marked (a reaction above the push holds the reamer), the torque's against the most seen this session.
+// What the simulator is given outside what it learned is said beneath.
+const forces = { seen: false, torqueScale: 0 };
+function showForces(r) {
+  const known = r.reaction_n !== null;
+  if (known && !forces.seen) { forces.seen = true; for (const row of document.querySelectorAll(".force-row")) row.classList.remove("hidden"); }
+  if (forces.seen) {
+    const fraction = (x, scale) => `${(100 * clamp(scale > 0 ? x / scale : 0, 0, 1)).toFixed(1)}%`;
+    setText("reaction", known ? `${r.reaction_n.toFixed(0)} N` : "—");
+    setText("torque", known ? `${r.motor_torque_n_m.toFixed(2)} N·m` : "—");
+    if (known) forces.torqueScale = Math.max(forces.torqueScale, r.motor_torque_n_m);
+    $("reaction-bar").style.width = fraction(known ? r.reaction_n : 0, maxForce);
+    $("torque-bar").style.width = fraction(known ? r.motor_torque_n_m : 0, forces.torqueScale);
+    $("push-mark").style.left = fraction(r.force_n, maxForce);
+  }
+  const outside = r.out_of_range.length ? `Outside what the simulator learned: ${r.out_of_range.join(", ")}` : "";
+  setText("out-of-range", outside);
+  $("out-of-range").classList.toggle("hidden", !outside);
 }
 
 // The plan's fields follow the session's plan until the trainee edits them; once reaming has
@@ -217,7 +246,8 @@ function showPlanAndReamer(r) {
   }
   $("plan-set").disabled = locked;
   setText("plan-status", p.source === "case file" ? "Set by the instructor's case file." : p.fixed ? "Fixed: reaming has started." : "Set before reaming: the report measures the cavity against it.");
-  setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior`);
+  const patient = view.sceneInfo?.reaming.bone === "socket" ? ` · a ${p.native_socket_mm} mm socket, ${p.cancellous} bone` : "";
+  setText("plan-summary", `${p.cup_diameter_mm} mm cup · ${p.inclination_deg}° / ${p.anteversion_deg}° · centre ${p.medialisation_mm} mm medial, ${p.superior_shift_mm} mm superior${patient}`);
   const select = $("reamer-size");
   if (select.options.length !== r.reamer.sizes_mm.length) select.replaceChildren(...r.reamer.sizes_mm.map((size) => new Option(`${size} mm`, size)));
   if (document.activeElement !== select) select.value = r.reamer.size_mm;

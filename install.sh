@@ -4,7 +4,8 @@
 # renderer, thrsim.render), CalculiX (the solver cross-check), a C++ compiler
 # (torch.compile builds the trainer's reaming network with it), PyTorch's CPU
 # build (pinned), thrsim itself, and for the browser trainer Chromium (its
-# end-to-end tests) and three.js from the npm registry (npm ci, locked).
+# end-to-end tests) and three.js from the npm registry (npm ci, locked; with
+# the iwer WebXR emulator, a development dependency the headset tests load).
 set -euo pipefail
 cd "$(dirname "$0")"
 

@@ -5,9 +5,11 @@
   (the page's default aim and push), the cup's orientation confirmed;
 * docs/report_reaming.png: the reaming sections of that session's assessment report;
 * docs/sessions.png and docs/trainee.png: the session list and the trainee's page after a second
-  session of the same trainee, aimed 5° off the plan.
+  session of the same trainee, aimed 5° off the plan;
+* docs/headset_left.png and docs/headset_right.png: each eye of the reaming page in an emulated
+  Meta Quest 3 (the iwer runtime, as the headset tests use it), the controller reaming.
 
-    python3 docs/screenshots.py
+    python3 docs/screenshots.py [--headset-only]
 
 It starts `python -m thrsim serve` of this checkout (sessions in a temporary folder) and drives
 Debian's headless Chromium with Playwright, as the browser tests do. On failure it exits 1 with
@@ -26,6 +28,7 @@ DOCS = Path(__file__).resolve().parent
 sys.path.insert(0, str(DOCS.parent))  # this checkout's thrsim (the server child inherits it), whatever is installed
 
 from thrsim.app.drawing_bench import served_page  # noqa: E402
+from thrsim.app.headset_bench import emulate_headset, enter_headset  # noqa: E402
 
 WIDTH, HEIGHT = 1280, 720
 TRAINEE = "Trainee A"
@@ -97,7 +100,48 @@ def ream_a_session(page, aim: dict | None = None) -> dict:
     return page.evaluate("trainer.stats.last.reaming")
 
 
+# Each eye 640 × 640; the headset above the hip at a surgeon's eye height, the controller held as
+# the reamer along the plan's axis 25 cm out of the socket, pushing at half the largest push.
+EYE = 640
+HEADSET_POSE = """() => {
+  const d = window.emulatedHeadset, half = -30 * Math.PI / 360;
+  d.position.set(0.03, 1.4, -0.1);
+  d.quaternion.set(Math.sin(half), 0, 0, Math.cos(half));
+}"""
+REAMER_IN_HAND = """async () => {
+  const THREE = await import("three");
+  const plan = trainer.stats.last.reaming.plan, root = trainer.view.root.matrixWorld;
+  const axis = new THREE.Vector3(...plan.axis).transformDirection(root);
+  const grip = new THREE.Vector3(...plan.centre_m).applyMatrix4(root).addScaledVector(axis, 0.25);
+  const turn = new THREE.Quaternion().setFromUnitVectors(new THREE.Vector3(0, 0, 1), axis);
+  const c = emulatedHeadset.controllers.right;
+  c.position.set(grip.x, grip.y, grip.z);
+  c.quaternion.set(turn.x, turn.y, turn.z, turn.w);
+  c.updateButtonValue("trigger", 0.5);
+}"""
+
+
+def headset_eyes() -> None:
+    """Each eye of the reaming page in the emulated headset, after the controller reamed a little."""
+    with served_page("/reaming", 2 * EYE, EYE, prepare=emulate_headset) as (_, page):
+        page.wait_for_function(READY, timeout=WAIT_MS)
+        enter_headset(page, "immersive-vr")
+        page.evaluate(HEADSET_POSE)
+        page.evaluate(REAMER_IN_HAND)
+        page.wait_for_function("trainer.stats.last.reaming.removed > 50", timeout=WAIT_MS)
+        page.evaluate("emulatedHeadset.controllers.right.updateButtonValue('trigger', 0)")
+        page.wait_for_function(SETTLED, timeout=WAIT_MS)
+        page.wait_for_timeout(500)
+        for eye, left in (("left", 0), ("right", EYE)):
+            shot = page.screenshot(clip={"x": left, "y": 0, "width": EYE, "height": EYE})
+            print(f"docs/headset_{eye}.png: {save_png(shot, DOCS / f'headset_{eye}.png')} bytes")
+
+
 def main() -> None:
+    if "--headset-only" in sys.argv[1:]:
+        headset_eyes()
+        return
+    headset_eyes()
     # render-scale=1: full resolution (the page lowers it while it draws slower than the display).
     with served_page("/reaming?render-scale=1", WIDTH, HEIGHT) as (_, page):
         reaming = ream_a_session(page)

@@ -59,3 +59,18 @@ def test_reaming_page_benchmark_reams_and_times_the_page():
     assert figures["worst_tick_ms"] > 0 and figures["worst_tick_ms"] >= figures["step_ms_last"]
     lag = figures["drawn_bone_lag_s"]
     assert lag["drawings"] > 0 and 0 <= lag["mean"] <= lag["worst"]
+
+
+@pytest.mark.timeout(400)
+def test_headset_benchmark_times_each_eye_at_a_quest_3s_resolution():
+    """Figures only: the per-eye draw time is a relative figure (software WebGL), never asserted."""
+    from thrsim.app.headset_bench import IWER, QUEST3_EYE
+
+    if not IWER.exists():
+        pytest.skip("the iwer emulator is not installed (npm ci in thrsim/app/static)")
+    completed = run_thrsim("bench", "--browser-only", "--headset", "--browser-seconds", "1", timeout=380)
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    figures = json.loads(completed.stdout)["headset"]
+    assert figures["eye_pixels"] == list(QUEST3_EYE) and figures["page"] == "/reaming"
+    assert figures["frames"] > 0 and 0 < figures["draw_ms_per_eye"]["median"] <= figures["draw_ms_per_eye"]["p90"]
+    assert figures["draw_calls_per_eye"] > 0 and figures["triangles_per_eye"] > 0

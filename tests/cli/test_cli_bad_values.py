@@ -81,6 +81,7 @@ BAD_FLAGS = {
         ("serve", "--port", "0", "--igtl-port", "0", "--socket-element-size", "inf"),
         "--socket-element-size: must lie in",
     ),
+    "serve_phantom_missing": (("serve", "--port", "0", "--igtl-port", "0", "--phantom", "none.json"), "cannot read the phantom file"),
     "fem_threads_huge": ((*FEM, "--threads", HUGE), "solver.threads (--threads): Input should be less than or equal to 4096"),  # ran
     "fem_effective_mass_1e300": ((*FEM, "--effective-mass", "1e300"), "--effective-mass"),
     "fem_reamer_diameter_inf": ((*FEM, "--reamer-diameter", "inf"), "head_diameter_mm"),  # OverflowError: traceback

@@ -100,6 +100,37 @@ class CalibrationControl(_Control):
     action: Literal["start"]
 
 
+class HeadsetControl(_Control):
+    """A headset's calibration against the tracker: ``start``, one ``target`` per headset frame (``pose``:
+    the controller seated on the calibration target, T_headset←target, metres, 16 numbers row-major), ``clear``."""
+
+    type: Literal["headset"]
+    action: Literal["start", "target", "clear"]
+    pose: list[float] | None = Field(None, min_length=16, max_length=16)
+
+    @model_validator(mode="after")
+    def _pose_with_target(self) -> HeadsetControl:
+        if (self.action == "target") != (self.pose is not None):
+            raise ValueError("pose is given with action target, and only then")
+        if self.pose is not None and max(map(abs, self.pose)) > MAX_TIP_MM:
+            raise ValueError(f"pose beyond {MAX_TIP_MM:g} m of the headset's origin")
+        return self
+
+
+class ReamerAxisControl(_Control):
+    """Aim the reamer (no tracker) along its shaft: ``axis``, the scene frame's direction out of the socket
+    toward the hand (a headset's controller held as the reamer); the page's angle limits apply."""
+
+    type: Literal["reamer_axis"]
+    axis: list[float] = Field(..., min_length=3, max_length=3)
+
+    @model_validator(mode="after")
+    def _direction(self) -> ReamerAxisControl:
+        if not 1e-6 <= sum(x * x for x in self.axis) <= 1e6:
+            raise ValueError("axis must be a direction of length between 1e-3 and 1e3")
+        return self
+
+
 class ConfirmControl(_Control):
     """Lock the current reamer orientation as the planned cup orientation."""
 
@@ -175,6 +206,8 @@ _NAVIGATION = (
     OccluderControl,
     ViewerControl,
     CalibrationControl,
+    HeadsetControl,
+    ReamerAxisControl,
     ConfirmControl,
     EndSessionControl,
     TraineeControl,

@@ -130,8 +130,9 @@ def check_browser(chromium: str = CHROMIUM) -> None:
 
 
 @contextlib.contextmanager
-def served_page(path: str, width: int, height: int, *serve_args: str, chromium: str = CHROMIUM):
-    """A ``thrsim serve`` child and a headless Chromium page on ``path`` of it: yields (browser, page)."""
+def served_page(path: str, width: int, height: int, *serve_args: str, chromium: str = CHROMIUM, prepare=None):
+    """A ``thrsim serve`` child and a headless Chromium page on ``path`` of it: yields (browser, page).
+    ``prepare(page)`` runs before the page loads (a benchmark's init scripts)."""
     from playwright.sync_api import sync_playwright
 
     check_browser(chromium)
@@ -142,6 +143,8 @@ def served_page(path: str, width: int, height: int, *serve_args: str, chromium: 
                 browser = playwright.chromium.launch(executable_path=chromium, args=CHROMIUM_FLAGS)
                 try:
                     page = browser.new_page(viewport={"width": width, "height": height})
+                    if prepare is not None:
+                        prepare(page)
                     page.goto(url + path, timeout=60_000)
                     yield browser, page
                 finally:

@@ -75,10 +75,22 @@ class Mode:
     health: Callable[[Trainer], dict] = _none
 
 
+def _phantom(settings: dict) -> Any:
+    """The lab's phantom a session's settings name (``thrsim serve --phantom``), or None."""
+    from thrsim.nav.phantom import PhantomFile, phantom_from_file
+
+    return None if settings.get("phantom") is None else phantom_from_file(PhantomFile(**settings["phantom"]))
+
+
+def _phantom_settings(serve: Any) -> dict:
+    """The phantom file every session records (a replay rebuilds the same frames from it)."""
+    return {} if serve.phantom is None else {"phantom": serve.phantom.model_dump()}
+
+
 def _navigation(settings: dict) -> Trainer:
     from thrsim.app.navigation import NavigationTrainer
 
-    return NavigationTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0))
+    return NavigationTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), phantom=_phantom(settings))
 
 
 def _parse_navigation(message: Any) -> Any:
@@ -140,13 +152,17 @@ def _reaming(settings: dict) -> Trainer:
             model = _on_socket(key, case, float(settings.get("socket_element_size_mm", SOCKET_ELEMENT_SIZE_MM)))
         simulator = ReamingSimulator(model=model, threads=1, compile=compile_wanted, cancellous=case.cancellous)
     except ThrsimInputError as error:  # the navigation mode still serves; the page says why reaming cannot
-        return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error), plan=plan)
+        return ReamingTrainer(
+            side=settings.get("side", "right"), seed=settings.get("seed", 0), unavailable=str(error), plan=plan, phantom=_phantom(settings)
+        )
     if compile_wanted:
         if simulator.compile_error is not None:
             log.warning("the reaming network runs uncompiled (slower steps): %s", simulator.compile_error)
         # the session records what ran, so that its replay runs the same network (rounding differs)
         settings["compile"] = simulator.compiled
-    return ReamingTrainer(side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator, plan=plan)
+    return ReamingTrainer(
+        side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator, plan=plan, phantom=_phantom(settings)
+    )
 
 
 def _parse_reaming(message: Any) -> Any:
@@ -178,6 +194,7 @@ def _reaming_settings(serve: Any) -> dict:
     settings: dict = {} if serve.model is None else {"model": str(serve.model)}
     settings |= {} if serve.plan is None else {"plan": serve.plan.model_dump()}
     settings |= {} if serve.socket_element_size_mm is None else {"socket_element_size_mm": serve.socket_element_size_mm}
+    settings |= _phantom_settings(serve)
     return settings | ({"compile": True} if serve.compile else {})
 
 
@@ -225,7 +242,15 @@ def _reaming_health(trainer: Trainer) -> dict:
 
 MODES: dict[str, Mode] = {
     "navigation": Mode(
-        "navigation", "/", "navigation.html", "Navigation skills", _navigation, _parse_navigation, _read_navigation, _navigation_report
+        "navigation",
+        "/",
+        "navigation.html",
+        "Navigation skills",
+        _navigation,
+        _parse_navigation,
+        _read_navigation,
+        _navigation_report,
+        session_settings=_phantom_settings,
     ),
     "reaming": Mode(
         "reaming",

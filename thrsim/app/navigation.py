@@ -25,6 +25,7 @@ from thrsim.config import SafeZone, TrackingVolumeConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.nav.anatomy import (
     DEFINITIONS,
+    angles_from_local,
     angles_in_frame,
     app_frame,
     local_axis_from_angles,
@@ -36,6 +37,7 @@ from thrsim.nav.pelvis import (
     acetabulum_centre,
     synthetic_pelvis_landmarks,
 )
+from thrsim.nav.phantom import Phantom, headset_from_model
 from thrsim.nav.registration import LandmarkRegistration, RegistrationResult
 from thrsim.nav.rigid import check_pose, invert, make_pose, transform_points
 from thrsim.nav.safe_zone import safe_zone_status
@@ -146,8 +148,10 @@ class NavigationTrainer:
         tracking: TrackingVolumeConfig = TrackingVolumeConfig(),
         stale_after_s: float = 0.5,
         reamer_start: dict[str, float] = DEFAULT_REAMER,
+        phantom: Phantom | None = None,
     ):
         self.seed = seed
+        self.phantom = phantom  # a lab's physical pelvis: its marker array is the reference (None: the simulated one's)
         self.reamer_start = dict(reamer_start)
         self.zone = zone
         self.tracking = tracking
@@ -161,6 +165,10 @@ class NavigationTrainer:
         self._pending_events: list[dict] = []
         self._calibration: dict = {"state": "idle", "samples": 0, "message": "", "result": None}
         self._calibration_pairs: tuple[list, list] = ([], [])
+        # the headset's calibration (the controller seated on the target) and its result, T_headset←tracker
+        self._headset: dict = {"state": "idle", "samples": 0, "message": "", "result": None}
+        self._headset_pairs: tuple[list, list] = ([], [])
+        self.headset_from_tracker: np.ndarray | None = None
         self._set_side(side, time_s=0.0)
 
     # ---- set-up -----------------------------------------------------------------------------
@@ -175,7 +183,7 @@ class NavigationTrainer:
         camera = dict(DEFAULT_CAMERA, azimuth_deg=math.degrees(math.atan2(facing[1], facing[0])))
         # T_model←array: the array on the crest, its markers facing the default camera.
         array_in_model = make_pose(_frame_with_z(facing, np.array([0.0, 0.0, 1.0])), crest)
-        self.model_to_reference = invert(array_in_model)
+        self.model_to_reference = invert(array_in_model) if self.phantom is None else self.phantom.reference_from_model
         self.targets = {name: transform_points(self.model_to_reference, p[None])[0] for name, p in self.model_landmarks.items()}
         self._place_page_camera(camera)
         self.true_app = app_frame(self.targets, side=side)
@@ -304,9 +312,76 @@ class NavigationTrainer:
             self._calibration_pairs = ([], [])
             self._event(time_s, "calibration_started")
             return "calibration started"
+        if isinstance(control, c.HeadsetControl):
+            return self._headset_control(control, time_s)
+        if isinstance(control, c.ReamerAxisControl):
+            return self._aim_reamer(np.array(control.axis, dtype=float), time_s)
         if isinstance(control, c.ConfirmControl):
             return self._confirm(time_s)
         raise ThrsimInputError(f"{control.type} is not a navigation-trainer control")
+
+    def _aim_reamer(self, axis_scene: np.ndarray, time_s: float) -> str:
+        """The page's reamer along a shaft direction (scene frame, out of the socket): a headset's
+        controller held as the reamer. Aimed into the pelvis, or beyond the angles the page offers,
+        it stops at the nearest it can take."""
+        local = self.true_app_model.to_local(axis_scene / np.linalg.norm(axis_scene))
+        local[0] = max(local[0], 0.0)  # lateral: a shaft pointing into the pelvis stops in the APP's sagittal plane
+        local /= max(float(np.linalg.norm(local)), 1e-9)
+        inclination, anteversion = angles_from_local(local)
+        self._reamer_angles = {"inclination_deg": min(inclination, 90.0), "anteversion_deg": anteversion}
+        self._set_page_reamer(time_s)
+        return "reamer aimed"
+
+    def _headset_target(self) -> np.ndarray:
+        """T_reference←target: the cradle the controller sits in while the headset is calibrated."""
+        if self.phantom is not None:
+            return self.phantom.target
+        return self.model_to_reference @ make_pose(np.eye(3), _CALIBRATION_TARGET_MODEL)
+
+    def _headset_control(self, control: c.HeadsetControl, time_s: float) -> str:
+        """The headset's calibration: ``start`` it, one ``target`` pose per headset frame (the
+        controller's grip on the target, T_headset←target), ``clear`` the result. Each target pose is
+        paired with the tracker's view of the same target; once a second's worth is in, the robust
+        average gives T_headset←tracker (the display calibration of the thesis's §3.3)."""
+        if control.action == "clear":
+            self.headset_from_tracker = None
+            self._headset = {"state": "idle", "samples": 0, "message": "", "result": None}
+            return "headset calibration cleared"
+        if control.action == "start":
+            self._headset = {"state": "sampling", "samples": 0, "message": "hold the controller still on the target", "result": None}
+            self._headset_pairs = ([], [])
+            self._event(time_s, "headset_calibration_started")
+            return "headset calibration started"
+        if self._headset["state"] != "sampling":
+            return "not calibrating the headset"
+        heads, trackers = self._headset_pairs
+        heads.append(check_pose(np.array(control.pose, dtype=float).reshape(4, 4), "headset target pose"))
+        trackers.append(invert(self.camera_pose) @ self._headset_target())
+        self._headset["samples"] = len(heads)
+        if len(heads) < CALIBRATION_SAMPLES:
+            return "headset sample"
+        try:
+            result = calibrate_frames(np.array(heads), np.array(trackers))
+        except ThrsimInputError as error:
+            self._headset.update(state="refused", message=str(error), result=None)
+            self._event(time_s, "headset_calibration_refused", detail=str(error))
+            return "headset calibration refused"
+        self.headset_from_tracker = result.transform
+        summary = result.as_dict()
+        summary.pop("transform")
+        self._headset.update(state="done", message="calibrated", result=summary)
+        detail = f"{summary['rotation_residual_rms_deg']:.2f}° / {summary['translation_residual_rms_mm']:.2f} mm"
+        self._event(time_s, "headset_calibrated", detail=detail)
+        return "headset calibrated"
+
+    def _headset_state(self) -> dict:
+        """The headset's calibration and, once done, where it draws the scene (T_headset←scene, row-major):
+        it follows the tracker's view of the reference array, so the bone stays on a phantom that moves."""
+        placement = None
+        if self.headset_from_tracker is not None:
+            pose = headset_from_model(self.headset_from_tracker, invert(self.camera_pose), self.scene_to_reference)
+            placement = pose.ravel().tolist()
+        return {**self._headset, "needed": CALIBRATION_SAMPLES, "placement": placement}
 
     def _probe(self, control: c.ProbeControl, time_s: float) -> str:
         if control.action == "lift":
@@ -510,6 +585,7 @@ class NavigationTrainer:
             "tool_tips": {name: geometry.tip.tolist() for name, geometry in TOOLS.items()},
             "tool_markers": {name: geometry.markers.tolist() for name, geometry in TOOLS.items()},
             "reamer_head_diameter_m": 0.045,
+            "phantom": None if self.phantom is None else self.phantom.summary(),
         }
 
     def _box_in_scene(self, box: Box) -> dict:
@@ -569,6 +645,7 @@ class NavigationTrainer:
             "zone": None if zone is None else zone.as_dict(),
             "note": note,
             "calibration": {k: v for k, v in self._calibration.items()} | {"needed": CALIBRATION_SAMPLES},
+            "headset": self._headset_state(),
             "confirmed": self.log.confirmations[-1] if self.log.confirmations else None,
             "force_n": self.force_n,
             "events": events,

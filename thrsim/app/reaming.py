@@ -26,6 +26,7 @@ from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER, TetMesh
 from thrsim.learn.cases import axis_offset_mm
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
+from thrsim.nav.phantom import Phantom
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.session.plan import REAMER_SIZES_MM, Plan
 from thrsim.session.reaming import ReamingRecord, write_reaming
@@ -121,10 +122,15 @@ class ReamingTrainer:
         undo_s: float = 1.0,
         zone: SafeZone = SafeZone(),
         plan: Plan | None = None,
+        phantom: Phantom | None = None,
     ):
         # the reamer starts at the zone's centre, γ = 0 (the module docstring), where the page's aim starts too
         self.navigation = NavigationTrainer(
-            side=side, seed=seed, zone=zone, reamer_start={"inclination_deg": zone.inclination_deg, "anteversion_deg": zone.anteversion_deg}
+            side=side,
+            seed=seed,
+            zone=zone,
+            reamer_start={"inclination_deg": zone.inclination_deg, "anteversion_deg": zone.anteversion_deg},
+            phantom=phantom,
         )
         self.simulator = simulator
         self.unavailable = unavailable if simulator is None else None

@@ -46,6 +46,7 @@ from thrsim.io import feedback
 from thrsim.io.haptic import ContactForce, HapticStream, contact_of
 from thrsim.nav.bone_frame import check_side
 from thrsim.nav.pelvis_surface import pelvis_surface, surface_payload
+from thrsim.nav.phantom import PhantomFile
 from thrsim.nav.tracker_state import TrackerState
 from thrsim.report.thresholds import Thresholds
 from thrsim.session.file import is_interrupted
@@ -128,6 +129,7 @@ class ServeSettings:
     socket_element_size_mm: float | None = None  # a whole-socket model's socket is meshed at this size (mm; None: thrsim ream's)
     haptic_port: int | None = None  # the haptic stream's port on the OpenIGTLink listener's address (None: off; 0: any)
     haptic_hz: float = HAPTIC_RATE_HZ  # the haptic stream's rate (thrsim.io.haptic)
+    phantom: PhantomFile | None = None  # a lab's physical pelvis the headset shows the bone on (None: the simulated one)
 
     def check(self) -> None:
         if not is_loopback(self.host) and not self.token:

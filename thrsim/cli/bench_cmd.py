@@ -33,6 +33,12 @@ def bench(
         "--reaming-page",
         help="also time the reaming page (simulator frames delivered, bytes per frame, pose-to-page latency, drawing) with --model or the shipped model",
     ),
+    headset: bool = typer.Option(
+        False,
+        "--headset",
+        help="also time the reaming page's two eyes in an emulated Meta Quest 3 at its per-eye resolution (iwer, software WebGL), "
+        "with its draw calls and triangles",
+    ),
     as_json: bool = typer.Option(True, "--json", help="print one JSON object on stdout (bench's only output, so the default)"),
 ) -> None:
     """Time mesh generation and the explicit solver (and the trainer pages); print one JSON object."""
@@ -49,6 +55,8 @@ def bench(
         result = {"machine": machine, "versions": versions(), "browser": time_drawing(browser_seconds)}
         if reaming_page:
             result["reaming_page"] = _reaming_page(model, browser_seconds)
+        if headset:
+            result["headset"] = _headset(browser_seconds)
         print_json(result)
         return
     from thrsim.bench import run_benchmarks  # Numba and gmsh: loaded only when benchmarking
@@ -76,7 +84,19 @@ def bench(
         result["learned"] = run_learned_benchmarks(loaded, solver_seconds_per_frame=result["solver"]["seconds_per_frame"])
     if reaming_page:
         result["reaming_page"] = _reaming_page(model, browser_seconds)
+    if headset:
+        result["headset"] = _headset(browser_seconds)
     print_json(result)
+
+
+def _headset(seconds: float) -> dict:
+    from thrsim.app.drawing_bench import check_browser
+    from thrsim.app.headset_bench import IWER, time_headset
+
+    check_browser()
+    if not IWER.exists():
+        raise ThrsimInputError(f"--headset needs the iwer emulator ({IWER}): run npm ci in thrsim/app/static (./install.sh does)")
+    return time_headset(seconds)
 
 
 def _reaming_page(model: Path | None, seconds: float) -> dict:

@@ -117,6 +117,12 @@ def serve(
         help="competency thresholds the served reports score against (JSON or YAML; default: the shipped ones)",
         metavar="FILE",
     ),
+    phantom_file: Path | None = typer.Option(
+        None,
+        "--phantom",
+        help="a lab's 3-D printed pelvis: its landmarks and headset calibration target in its marker array's frame (JSON; see the docs' Headset page)",
+        metavar="FILE",
+    ),
     as_json: bool = typer.Option(
         False,
         "--json",
@@ -127,6 +133,7 @@ def serve(
     import uvicorn
 
     from thrsim.app.server import ServeSettings, create_app
+    from thrsim.nav.phantom import read_phantom_file
     from thrsim.report.thresholds import load_thresholds
     from thrsim.session.plan import load_plan
 
@@ -138,11 +145,12 @@ def serve(
         raise ThrsimInputError(f"cannot create sessions folder {sessions}: {sessions.parent} does not exist")
     plan = None if plan_file is None else load_plan(plan_file)
     thresholds = load_thresholds(thresholds_file)
+    phantom = None if phantom_file is None else read_phantom_file(phantom_file)
     settings = ServeSettings(
         host=host, port=port, igtl_port=igtl_port, token=_access_token(token, token_file), sessions_dir=sessions, side=side, seed=seed,
         model=model, compile=compile, allowed_hosts=tuple(allow_host), igtl_host=igtl_host, igtl_allow=tuple(igtl_allow), igtl_feedback=igtl_feedback,
         plan=plan, thresholds=thresholds, haptic_port=haptic_port, haptic_hz=haptic_hz,
-        socket_element_size_mm=socket_element_size,
+        socket_element_size_mm=socket_element_size, phantom=phantom,
     )  # fmt: skip
     # refusals are one line, before the ports are taken, the network compiled or the sessions folder made
     # (checked as the folder it will be made in, so that a refused start leaves nothing behind)

@@ -4,6 +4,7 @@ import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
 import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene, cameraViews } from "./scene.js";
+import { attachHeadset } from "./xr.js";
 
 const canvas = $("view");
 const view = new NavigationScene(canvas);
@@ -307,3 +308,4 @@ function frame(now) {
 }
 requestAnimationFrame(frame);
 const send = connectMode("navigation", stats, { onText: receive, onOpen: () => sendViewer() });
+attachHeadset(view, stats, send, "probe"); // a controller is the probe in a headset (xr.js)

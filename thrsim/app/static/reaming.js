@@ -7,6 +7,7 @@ import { BonePatch, parseMesh } from "./bone.js";
 import { CavityView } from "./cavity.js";
 import { $, askTrainee, commonMessage, connectMode, setText, showAngles, showHello, showTools, toast } from "./page.js";
 import { NavigationScene, cameraViews } from "./scene.js";
+import { attachHeadset } from "./xr.js";
 
 const canvas = $("view");
 const view = new NavigationScene(canvas);
@@ -338,6 +339,7 @@ function drawInset(renderer, size) {
 }
 
 function render() {
+  if (view.renderer.xr.isPresenting) return; // in a headset, xr.js draws
   const renderer = view.renderer;
   const width = window.innerWidth, height = window.innerHeight;
   renderer.setScissorTest(false);
@@ -438,3 +440,4 @@ function frame(now) {
 requestAnimationFrame(frame);
 // The page sends its aim and push when the hello (or a new scene) arrives.
 const send = connectMode("reaming", stats, { onText: receive, onBinary: receiveBone });
+attachHeadset(view, stats, send, "reamer"); // a controller is the reamer in a headset (xr.js)

@@ -376,7 +376,10 @@ export class NavigationScene {
     return inModel.clone().transpose().toArray();
   }
 
-  render() { this.renderer.render(this.scene, this.camera); }
+  // The flat view (in a headset, xr.js draws each eye instead).
+  render() {
+    if (!this.renderer.xr.isPresenting) this.renderer.render(this.scene, this.camera);
+  }
 }
 
 // The camera-view buttons (reset, surgeon's eye) and their keys (Home, E), on either page.

@@ -243,7 +243,9 @@ def test_thrsim_ream_reams_the_whole_socket_with_a_sequence_of_reamers(socket_mo
         refused = run_thrsim("ream", "--bone", "socket", "--model", str(socket_model.path), *bad, "--out", str(tmp_path / "bad"))
         assert refused.returncode == 2 and says in refused.stderr and len(refused.stderr.strip().splitlines()) == 1
         assert not (tmp_path / "bad").exists()
-    patch = run_thrsim("ream", "--bone", "socket", "--out", str(tmp_path / "patch"))  # the shipped model reams the patch
+    from thrsim.learn.model_dir import SHIPPED_MODEL
+
+    patch = run_thrsim("ream", "--bone", "socket", "--model", str(SHIPPED_MODEL), "--out", str(tmp_path / "patch"))  # a patch model
     assert patch.returncode == 2 and "socket feature set" in patch.stderr
 
 

@@ -132,7 +132,7 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
         assert all(math.isfinite(f) for f in feeds) and feeds[0] < feeds[1] < feeds[2]
     # and the pushed window, between the pressures that stalled and cut
     pushed = calibration["pushed"]
-    assert pushed["cases_used"] == 1 and 0.8 in [round(v, 3) for v in pushed["windows"][0]["bracket_n_mm2"]]
+    assert pushed["cases_used"] == 1 and 0.8 in [round(v, 2) for v in pushed["windows"][0]["bracket_n_mm2"]]  # the push to 0.1 N
     # the pack keeps each window's own mesh beside its frames
     pack = tmp_path / "socket-pack.h5"
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)

@@ -120,9 +120,10 @@ def test_the_force_goes_to_the_tracker_client_and_the_haptic_stream_as_recorded(
     record = read_reaming(read_session(saved["file"]).groups["reaming"])
     assert record.reaction_n is not None and len(record.reaction_n) > 10
     recorded_reactions, recorded_torques = set(record.reaction_n.tolist()), set(record.motor_torque_n_m.tolist())
-    # every frame's force went out as the session records it, both reamers' (their laws differ)
-    assert len(reactions) >= 5 and set(reactions) <= recorded_reactions and len(set(reactions)) >= 2
-    assert len(torques) >= 5 and set(torques) <= recorded_torques
+    # every frame's force went out as the session records it, both reamers' (their laws, and so their torques, differ);
+    # the bone takes no more than the 400 N pushed (the tiny model's stiff law stalls the reamer: it takes all of it)
+    assert len(reactions) >= 5 and set(reactions) <= recorded_reactions and max(reactions) <= 400.0
+    assert len(torques) >= 5 and set(torques) <= recorded_torques and len(set(torques)) >= 2
     # the haptic stream: at least 1000 force messages in a second (counted from half a second in)
     forces = [(at, value) for at, device, value, unit in haptic.received if device == REACTION_DEVICE and unit == UNIT_NEWTON]
     assert forces, haptic.received[:5]

@@ -2,10 +2,10 @@
 
 A HIPS-style haptic loop runs at 1 kHz and needs an answer within a millisecond; the simulator
 steps a frame each 1/60 s. Between frames :class:`ContactForce` evaluates the reaction law the
-whole-socket model predicted for the next frame, R = A + B·v (torque likewise), at the feed the
-newest push F gives against it and the hold's damping c, v = max(0, F − A) / (B + c), the very
-rule that frame's feed follows (:mod:`thrsim.learn.reaction_feed`): so a frame records what the
-stream sent before it, and a change of push is felt within one period instead of a frame. Nothing
+whole-socket model predicted for the next frame at the newest push, as that frame records it
+(:func:`thrsim.learn.reaction_feed.felt_at_push`: the law's R = A + B·v at the balanced feed, the
+push itself at a stall): so a frame records what the stream sent before it, and a change of push
+is felt within one period instead of a frame. Nothing
 reams (paused, hidden, a patch model): zero. :class:`HapticStream` sends the pair of SENSORs of
 :mod:`thrsim.io.feedback` from a process of its own (the simulator's thread holds this one's
 interpreter lock for milliseconds) once a period; a late wake sends what it owes, up to
@@ -22,8 +22,11 @@ import os
 import socket
 import time
 
+import numpy as np
+
 from thrsim.io import igtl
 from thrsim.io.feedback import force_messages
+from thrsim.learn.reaction_feed import felt_at_push
 
 log = logging.getLogger(__name__)
 
@@ -66,9 +69,7 @@ class ContactForce:
         if not figures[_ACTIVE]:
             return 0.0, 0.0
         force = figures[_SENSOR] if figures[_SENSOR_NEWER] else figures[_FORCE]
-        a, b, a_torque, b_torque = figures[_LAW]
-        feed = max(0.0, force - a) / (b + figures[_DAMPING])
-        return a + b * feed, a_torque + b_torque * feed
+        return felt_at_push(np.asarray(figures[_LAW]), force, figures[_DAMPING])
 
 
 class HapticStream:

@@ -30,6 +30,14 @@ def feed_m_s(law: np.ndarray, force_n: float, damping_n_s_m: float) -> float:
     return max(0.0, force_n - reaction_n) / (per_feed + damping_n_s_m)
 
 
+def felt_at_push(law: np.ndarray, force_n: float, damping_n_s_m: float) -> tuple[float, float]:
+    """The reaction (N) and motor torque (N·m) under ``force_n``, at the feed v it balances
+    (:func:`feed_m_s`): the hold's balance F − c·v, which is the law's A + B·v while the reamer
+    cuts and the whole push while it stalls (the bone takes no more than is pushed), and the law's torque."""
+    feed = feed_m_s(law, force_n, damping_n_s_m)
+    return max(0.0, force_n - damping_n_s_m * feed), float(law[2] + law[3] * feed)
+
+
 class ReactionFeed:
     """The advance of one autonomous frame of a socket model (see the module)."""
 

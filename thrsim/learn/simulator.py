@@ -33,7 +33,7 @@ from thrsim.learn.compiled import compile_network
 from thrsim.learn.features import GraphBatch
 from thrsim.learn.graph import StaticGraph, attached_nodes
 from thrsim.learn.model_dir import LoadedModel, load_model, reads_any_mesh
-from thrsim.learn.reaction_feed import ReactionFeed
+from thrsim.learn.reaction_feed import ReactionFeed, felt_at_push
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.rollout import BoneState, LearnedStep
 from thrsim.nav.bone_frame import angles_of, check_side, on_side
@@ -334,10 +334,11 @@ class ReamingSimulator:
         law = self._step.reaction_law
         reaction = torque = None
         if self.socket and law is not None:
-            feed = max(advance / self.model.frame_dt_s, 0.0)
-            reaction, torque = float(law[0] + law[1] * feed), float(law[2] + law[3] * feed)
-            if reamer_position is None and isinstance(self._feed, ReactionFeed):  # pushed: what the hold balances (a stall takes the push)
-                reaction = max(0.0, force - self._feed.damping_n_s_m * feed)
+            if reamer_position is None and isinstance(self._feed, ReactionFeed):  # pushed: the force the push balances
+                reaction, torque = felt_at_push(law, force, self._feed.damping_n_s_m)
+            else:  # moved by the caller: the law at the frame's feed
+                feed = max(advance / self.model.frame_dt_s, 0.0)
+                reaction, torque = float(law[0] + law[1] * feed), float(law[2] + law[3] * feed)
         before = self.removed
         self.bone = self._step(self.bone, new_centre, axis, force, advance, self.model.omega_rad_s)
         after = self.removed

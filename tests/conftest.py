@@ -46,26 +46,23 @@ def synthetic_dataset(tmp_path_factory) -> Path:
     return out
 
 
-@pytest.fixture(scope="session")
-def tiny_model(synthetic_dataset, tmp_path_factory) -> Path:
+def _trained(data: Path, folder: Path, settings) -> Path:
+    """A model trained on ``data`` with ``settings`` into ``folder``/model, on one thread."""
     import torch
 
     from thrsim.learn.pipeline import train_model
 
     torch.set_num_threads(1)
-    out = tmp_path_factory.mktemp("learn-model") / "model"
-    train_model(synthetic_dataset, out, tiny_settings())
-    return out
+    train_model(data, folder / "model", settings)
+    return folder / "model"
+
+
+@pytest.fixture(scope="session")
+def tiny_model(synthetic_dataset, tmp_path_factory) -> Path:
+    return _trained(synthetic_dataset, tmp_path_factory.mktemp("learn-model"), tiny_settings())
 
 
 @pytest.fixture(scope="session")
 def tiny_socket_model(synthetic_dataset, tmp_path_factory) -> Path:
     """A whole-socket model (the socket features and reaction head) trained as :func:`tiny_model` is."""
-    import torch
-
-    from thrsim.learn.pipeline import train_model
-
-    torch.set_num_threads(1)
-    out = tmp_path_factory.mktemp("learn-socket-model") / "model"
-    train_model(synthetic_dataset, out, tiny_socket_settings())
-    return out
+    return _trained(synthetic_dataset, tmp_path_factory.mktemp("learn-socket-model"), tiny_socket_settings())

@@ -26,15 +26,8 @@ from thrsim.learn.rollout import BoneState, LearnedStep, rollout
 
 
 @pytest.fixture(scope="module")
-def socket_model(synthetic_dataset, tmp_path_factory):
-    import torch
-
-    from thrsim.learn.pipeline import train_model
-
-    torch.set_num_threads(1)
-    out = tmp_path_factory.mktemp("socket-model") / "model"
-    train_model(synthetic_dataset, out, tiny_socket_settings())
-    return load_model(out)
+def socket_model(tiny_socket_model):
+    return load_model(tiny_socket_model)
 
 
 @pytest.fixture(scope="module")

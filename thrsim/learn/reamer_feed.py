@@ -8,7 +8,8 @@ by the regressor's prediction or, where that would leave it clear of the bone, b
 brings at least ``support_nodes`` nodes of the remaining bone into the teeth's dome (the
 half-ball of the teeth's reach in front of the head's equatorial plane), whichever is more.
 ``SUPPORT_NODES`` = 20 never moves the reamer further than the solver did on the solver's own
-bone (measured on the training cases: the docs' Learned simulator page).
+bone (measured on the training cases: the docs' Learned simulator page). With no push there is
+nothing to rest on the bone with: the reamer stays where it is.
 """
 
 from __future__ import annotations
@@ -68,6 +69,9 @@ class ReamerFeed:
     ) -> float:
         """Advance along ``axis`` (m) for the next frame, from the bone state ``alpha``, the reamer
         centre and the push impulse since the reamer was placed at ``start``."""
+        if not force_n > 0.0:
+            self.last_rested = False
+            return 0.0
         row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, force_n, impulse_n_s)
         predicted = float(self.regressor.predict(row)[0]) * 1e-3
         attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))

@@ -61,7 +61,8 @@ class LearnedStep:
     ):
         """``cutting_energy_j_m3``: every element's u_c, which the socket feature set reads. A socket
         model cuts only while the reamer advances: standing or pulled back, the teeth find no
-        uncut bone in their path (the solver's cut follows the feed), so its step keeps the bone."""
+        uncut bone in their path (the solver's cut follows the feed), so its step keeps the bone. Any
+        model's teeth neither pushed nor advancing press on nothing: the step keeps the bone."""
         self.model = model.eval()
         self.graph = graph
         self.features = features
@@ -123,7 +124,7 @@ class LearnedStep:
             prediction = self.model.predict(inputs)
         if prediction.reaction is not None:
             self.reaction_law = prediction.reaction[0].numpy().astype(np.float64)
-        if self.cuts_only_advancing and not advance_m > 0.0:
+        if not advance_m > 0.0 and (self.cuts_only_advancing or not force_n > 0.0):
             return out
         region, n = sub.region, sub.n_region
         out.alpha[region] = prediction.alpha[:n].numpy()

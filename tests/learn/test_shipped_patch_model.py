@@ -1,0 +1,43 @@
+"""The shipped patch model: the physics its autonomous feed must obey, on the simulator and in ``evaluate``'s checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from learn_helpers import REPO
+
+from thrsim.learn.cases import load_cases
+from thrsim.learn.evaluation import physics_checks
+from thrsim.learn.model_dir import SHIPPED_MODEL, load_model
+from thrsim.learn.simulator import ReamingSimulator
+
+# off the training grid: γ 22.5°, θ 100°
+AXIS = np.array(
+    [np.sin(np.radians(22.5)) * np.cos(np.radians(100)), np.sin(np.radians(22.5)) * np.sin(np.radians(100)), -np.cos(np.radians(22.5))]
+)
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_model(SHIPPED_MODEL)
+
+
+def _ream(model, force_n: float, frames: int = 30) -> tuple[float, float]:
+    simulator = ReamingSimulator(model=model)
+    results = [simulator.step(AXIS, force_n) for _ in range(frames)]
+    return results[-1].removed_volume_m3, float(sum(r.advance_m for r in results))
+
+
+def test_no_push_no_cut_and_more_push_never_less(model):
+    assert _ream(model, 0.0) == (0.0, 0.0)
+    reamed = [_ream(model, force) for force in (100.0, 150.0, 230.0, 310.0)]
+    volumes, depths = zip(*reamed, strict=True)
+    assert list(volumes) == sorted(volumes) and list(depths) == sorted(depths) and volumes[0] > 0.0
+
+
+def test_evaluates_physics_checks_hold_on_a_held_out_case(model):
+    _, cases = load_cases(REPO / "datasets" / "default-0.4.0", splits=("test",), one_mesh=False)
+    checks = physics_checks(model, cases[:1], frames=20)
+    assert checks["held"] == {"no_push_no_cut": 1, "no_push_no_advance": 1, "more_push_never_less": 1}
+    by_share = checks["removed_volume_mm3_mean_by_push_share"]
+    assert by_share["0"] == 0.0 and by_share["0.5"] > 0.0

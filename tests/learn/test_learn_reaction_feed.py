@@ -178,7 +178,10 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
     assert all(result.advance_m >= 0.0 for result in pushed) and sum(result.advance_m for result in pushed) > 0
     assert all(result.reaction_n is not None and result.reaction_n >= 0.0 for result in pushed)
     assert all(result.motor_torque_n_m is not None and result.motor_torque_n_m >= 0.0 for result in pushed)
-    assert set(pushed[-1].out_of_range) <= {"push", "tilt"}
+    assert "push" not in pushed[-1].out_of_range and set(pushed[-1].out_of_range) <= {"feed", "tilt"}  # it reads the feed
+    fastest = socket_model.trained_feed_mm_s[1]
+    lunge = pushed[-1].reamer_position + 2e-3 * fastest * socket_model.frame_dt_s * np.asarray(case.axis)  # twice the fastest
+    assert "feed" in simulator.step(case.axis, 230.0, reamer_position=lunge, reamer_mm=trained).out_of_range
     sideways = np.cross(case.axis, (1.0, 0.0, 0.0) if abs(case.axis[0]) < 0.9 else (0.0, 1.0, 0.0))
     aside = pushed[-1].reamer_position + 3e-3 * sideways / np.linalg.norm(sideways)  # its axis 3 mm off the centre
     assert "centre" in simulator.step(case.axis, 230.0, reamer_position=aside, reamer_mm=trained).out_of_range

@@ -41,3 +41,11 @@ def test_evaluates_physics_checks_hold_on_a_held_out_case(model):
     assert checks["held"] == {"no_push_no_cut": 1, "no_push_no_advance": 1, "more_push_never_less": 1}
     by_share = checks["removed_volume_mm3_mean_by_push_share"]
     assert by_share["0"] == 0.0 and by_share["0.5"] > 0.0
+
+
+def test_a_push_or_a_reamer_the_patch_model_did_not_learn_is_flagged(model):
+    simulator = ReamingSimulator(model=model)
+    low, high = model.trained_force_n
+    assert simulator.step(AXIS, 0.5 * (low + high)).out_of_range == ()
+    assert "push" in simulator.step(AXIS, 0.5 * low).out_of_range
+    assert "reamer size" in simulator.step(AXIS, 0.5 * (low + high), reamer_mm=model.trained_reamer_mm[0] + 4.0).out_of_range

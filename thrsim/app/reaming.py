@@ -37,7 +37,7 @@ DISPLAY_LEVELS = 32
 SENSOR_FRESH_S = 0.5
 #: the events of a frame's inputs leaving what the model learned, by the simulator's flag (once per stretch outside)
 OUT_OF_RANGE_EVENTS = {
-    "push": "push_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
+    "push": "push_out_of_range", "feed": "feed_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
 }  # fmt: skip
 #: the whole socket's axes (columns) in the bone patch's frame: the socket frame's +x (anterior) and
 #: +y (superior, the dome) are the patch frame's +y (anterior) and −x (the patch's +x is inferior),
@@ -401,7 +401,7 @@ class ReamingTrainer:
         trace.motor_torque_n_m.append(math.nan if reaction is None else reaction[1])
         if reaction is not None:
             self._frame_forces.append({"frame": result.frame, "reaction_n": reaction[0], "motor_torque_n_m": reaction[1]})
-        self._check_ranges(simulator, time_s, force, axis, result.out_of_range)
+        self._check_ranges(simulator, time_s, force, axis, result.advance_m / simulator.model.frame_dt_s, result.out_of_range)
         if result.end_reason is not None:
             self.running = False
             self._event(
@@ -415,14 +415,15 @@ class ReamingTrainer:
             return False
         return True
 
-    def _check_ranges(self, simulator: ReamingSimulator, time_s: float, force: float, axis: np.ndarray, flags: tuple[str, ...]) -> None:
-        """An event where a frame's input leaves what the model learned (once per stretch outside): a
-        whole-socket model flags the push, the tilt, the reamer size and the axis's offset in every step
-        (:attr:`~thrsim.learn.simulator.StepResult.out_of_range`); a patch model's push is checked here."""
+    def _check_ranges(
+        self, simulator: ReamingSimulator, time_s: float, force: float, axis: np.ndarray, feed_m_s: float, flags: tuple[str, ...]
+    ) -> None:
+        """An event where a frame's input leaves what the model learned (once per stretch outside), as
+        every step flags it (:attr:`~thrsim.learn.simulator.StepResult.out_of_range`). A patch model cuts
+        with its one reamer whatever the sequence, as the page shows beside the size held: no event."""
         model = simulator.model
         if not simulator.socket:
-            trained = model.trained_force_n
-            flags = ("push",) if trained is not None and not trained[0] <= force <= trained[1] else ()
+            flags = tuple(flag for flag in flags if flag != "reamer size")
         for flag in flags:
             if flag in self._outside:
                 continue
@@ -430,6 +431,10 @@ class ReamingTrainer:
                 low, high = model.trained_force_n
                 words = f"{force:g} N: outside the {low:g}–{high:g} N the simulator learned"
                 self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, force_n=force, trained_force_n=[low, high])
+            elif flag == "feed" and model.trained_feed_mm_s is not None:
+                feed, high = 1e3 * feed_m_s, model.trained_feed_mm_s[1]
+                words = f"the reamer advancing {feed:.1f} mm/s: faster than the {high:.1f} mm/s the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, feed_mm_s=feed, trained_feed_mm_s=[0.0, high])
             elif flag == "tilt" and model.trained_inclination_deg is not None:
                 low, high = model.trained_inclination_deg
                 gamma = angles_of(axis)[0]
@@ -600,7 +605,8 @@ class ReamingTrainer:
                 "path": str(sim.model.path),
                 "mesh_digest": sim.model.graph.digest,
                 "data_digest": sim.model.card["data"]["digest"],
-                "trained_force_n": sim.model.trained_force_n,
+                "trained_force_n": None if sim.socket else sim.model.trained_force_n,  # a socket model reads the feed, not the push
+                "trained_feed_mm_s": sim.model.trained_feed_mm_s,
                 "trained_inclination_deg": sim.model.trained_inclination_deg,
                 "trained_reamer_mm": list(sim.model.trained_reamer_mm),
                 "frame_dt_s": sim.model.frame_dt_s,
@@ -631,7 +637,7 @@ class ReamingTrainer:
             reaction_n=np.array(t.reaction_n, dtype=float) if sim is not None and sim.socket else None,
             motor_torque_n_m=np.array(t.motor_torque_n_m, dtype=float) if sim is not None and sim.socket else None,
             events=list(self.events),
-            trained_force_n=None if sim is None else sim.model.trained_force_n,
+            trained_force_n=None if sim is None or sim.socket else sim.model.trained_force_n,
             frame_dt_s=1.0 / self.frame_rate_hz,
             final_alpha=np.zeros(0, dtype=np.float32) if sim is None else sim.alpha.copy(),
             behind_frames=self.behind_frames,

@@ -74,6 +74,13 @@ class CaseArrays:
         return np.diff(self.positions, axis=0) @ self.axis
 
 
+def feed_range_mm_s(cases: list[CaseArrays]) -> list[float]:
+    """The slowest and fastest the reamer advanced from one frame to the next (mm/s) over ``cases``:
+    the feeds a model trained on them has seen (a pulled-back frame counts as no feed)."""
+    feeds = np.concatenate([np.maximum(case.advances(), 0.0) / case.frame_dt_s for case in cases]) * 1e3
+    return [float(feeds.min()), float(feeds.max())]
+
+
 def axis_offset_mm(point_m: np.ndarray, axis: np.ndarray) -> float:
     """The distance (mm) from the socket's centre (the bone frame's origin) to the line through ``point_m`` along ``axis``."""
     point = np.asarray(point_m, dtype=np.float64)

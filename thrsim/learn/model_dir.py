@@ -117,6 +117,13 @@ class LoadedModel:
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
+    def trained_feed_mm_s(self) -> tuple[float, float] | None:
+        """The slowest and fastest frame-to-frame feed (mm/s) of the training cases (None on a card
+        written before cards recorded it)."""
+        found = self.card.get("data", {}).get("feed_range_mm_s")
+        return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
     def trained_reamer_mm(self) -> tuple[float, ...]:
         """The reamer sizes (mm, the diameter the teeth cut) of the training cases: the card's
         ``reamer.sizes_mm`` where it lists them, else the one reamer its teeth radius says."""

@@ -22,7 +22,7 @@ import torch
 from thrsim.config import LabelConfig
 from thrsim.data.pack import ALPHA_LEVELS, is_pack
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.cases import CaseArrays, load_cases
+from thrsim.learn.cases import CaseArrays, feed_range_mm_s, load_cases
 from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.learn.model_dir import CARD, load_model, read_card, read_mesh, save_advance, save_model
 from thrsim.learn.settings import ModelSettings
@@ -119,6 +119,7 @@ def train_model(
             "force_range_n": [min(c.recorded_push_n() for c in train), max(c.recorded_push_n() for c in train)],
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
             "axis_offset_range_mm": [min(c.axis_offset_mm() for c in train), max(c.axis_offset_mm() for c in train)],
+            "feed_range_mm_s": feed_range_mm_s(train),
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),
             "reaction_cases": sorted(trainer.reaction_case_ids) if settings.arch.reaction_head else [],

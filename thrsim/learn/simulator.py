@@ -64,7 +64,7 @@ class StepResult:
     #: a socket model's bone reaction along the axis (N) and motor torque (N·m) over the frame
     reaction_n: float | None = None
     motor_torque_n_m: float | None = None
-    #: inputs outside what the model learned this frame ("push", "tilt", "reamer size", "centre"), never silently extrapolated
+    #: inputs outside what the model learned this frame ("push", "feed", "tilt", "reamer size", "centre"), never silently extrapolated
     out_of_range: tuple[str, ...] = ()
 
 
@@ -277,10 +277,11 @@ class ReamingSimulator:
             return float(reamer_mm)
         return min(sizes, key=lambda size: abs(size - reamer_mm))
 
-    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray, centre: np.ndarray) -> tuple[str, ...]:
-        """What of a step's inputs lies outside what the model learned (its card's ranges): the push,
-        the reamer size, the tilt γ of the axis from the socket's, the axis's offset from the socket's
-        centre (the reamer ``centre`` on it; right-side frame, m)."""
+    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray, centre: np.ndarray, feed_mm_s: float) -> tuple[str, ...]:
+        """What of a step's inputs lies outside what the model learned (its card's ranges): the push (a
+        model whose network reads it: a socket model's reads the feed the push balances instead), the
+        frame's feed, the reamer size asked for, the tilt γ of the axis from the socket's, the axis's
+        offset from the socket's centre (the reamer ``centre`` on it; right-side frame, m)."""
         flags = []
         offsets = self.model.trained_axis_offset_mm
         if (
@@ -289,8 +290,11 @@ class ReamingSimulator:
         ):
             flags.append("centre")
         pushes = self.model.trained_force_n
-        if pushes is not None and not pushes[0] <= force_n <= pushes[1]:
+        if not self.socket and pushes is not None and not pushes[0] <= force_n <= pushes[1]:
             flags.append("push")
+        feeds = self.model.trained_feed_mm_s
+        if feeds is not None and feed_mm_s > feeds[1]:
+            flags.append("feed")
         tilts = self.model.trained_inclination_deg
         if tilts is not None and not tilts[0] - 1e-6 <= angles_of(axis)[0] <= tilts[1] + 1e-6:
             flags.append("tilt")
@@ -361,7 +365,9 @@ class ReamingSimulator:
             reamer_mm=size_mm,
             reaction_n=reaction,
             motor_torque_n_m=torque,
-            out_of_range=self.out_of_range(force, size_mm, axis, new_centre) if self.socket else (),
+            out_of_range=self.out_of_range(
+                force, size_mm if reamer_mm is None else reamer_mm, axis, new_centre, 1e3 * advance / self.model.frame_dt_s
+            ),
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:

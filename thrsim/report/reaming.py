@@ -29,6 +29,7 @@ _LISTED = (
     *BONE_ERRORS,
     "passed_through",
     "push_out_of_range",
+    "feed_out_of_range",
     "tilt_out_of_range",
     "reamer_out_of_range",
     "centre_out_of_range",

@@ -46,7 +46,7 @@ class ReamingRecord:
     depth_mm: np.ndarray
     angles: np.ndarray
     events: list[dict]  # time_s, kind, detail, frame and the event's data
-    trained_force_n: tuple[float, float] | None  # the push the model learned (settings' model), None when unknown
+    trained_force_n: tuple[float, float] | None  # the push the model learned (a patch model), None when unknown or not read (socket)
     final_alpha: np.ndarray
     behind_frames: int
     navigation: NavigationRecord
@@ -88,7 +88,8 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     (JSON object per event: its figures, e.g. ``frames`` undone, ``force_n``; files before it read as
     ``{}``), every one kept whatever was undone or restored after it: ``start``, ``pause``, ``undo``
     (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
-    ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``tilt_out_of_range`` (``tilt_deg``,
+    ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``feed_out_of_range`` (``feed_mm_s``,
+    ``trained_feed_mm_s``), ``tilt_out_of_range`` (``tilt_deg``,
     ``trained_tilt_deg``), ``reamer_out_of_range`` (``reamer_mm``, ``trained_reamer_mm``), ``centre_out_of_range`` (``axis_offset_mm``, ``trained_axis_offset_mm``), ``plan_set`` (``plan``),
     ``reamer_changed`` (``from_mm``, ``to_mm``), ``cup_confirmed`` (``inclination_deg``,
     ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the

@@ -180,7 +180,7 @@ function feedback(event) {
   const text = {
     start: "reaming", pause: "paused", restore: "bone restored (the report keeps what went before)",
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
-    push_out_of_range: `push ${event.detail}`,
+    push_out_of_range: `push ${event.detail}`, feed_out_of_range: `feed: ${event.detail}`,
     tilt_out_of_range: `tilt ${event.detail}`, reamer_out_of_range: `reamer ${event.detail}`,
     centre_out_of_range: `centre: ${event.detail}`,
     medial_wall_breached: `medial wall breached: the reamer went through into the pelvis; ${event.detail}`,
@@ -189,7 +189,7 @@ function feedback(event) {
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
   }[event.kind];
-  const bad = ["perforated", "medial_wall_breached", "push_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
+  const bad = ["perforated", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
     .includes(event.kind);
   if (text) toast(text, event.kind === "start" ? "good" : bad ? "error" : "");
 }

@@ -22,10 +22,21 @@ _BISECTIONS = 80
 def clear_start(nodes: np.ndarray, line_point: np.ndarray, axis: np.ndarray, reach_m: float) -> float:
     """The axial coordinate s on the line ``line_point + s·axis`` (the last before the sphere of radius
     ``reach_m`` about it touches ``nodes``, approached from behind); ValueError when none exists."""
-    farthest = float(np.linalg.norm(nodes - line_point, axis=1).max()) + reach_m
+    relative = nodes - line_point
+    farthest = float(np.linalg.norm(relative, axis=1).max()) + reach_m
+    # only nodes within reach of the line can touch the sphere, and in the bisection only those whose
+    # touching stretch of the line meets the bracket; the margins keep every sign below exactly as
+    # over all nodes (the others stay farther than reach_m from any centre tried, by far more than rounding)
+    along = along_axis(relative, axis)
+    across_sq = np.einsum("ij,ij->i", relative, relative) - along * along
+    within = across_sq <= (reach_m + 1e-9) ** 2
+    near, near_along = relative[within], along[within]
+    near_half = np.sqrt(np.maximum(reach_m * reach_m - across_sq[within], 0.0))
 
     def clearance(s: float) -> float:
-        return float(np.linalg.norm(nodes - line_point - s * axis, axis=1).min()) - reach_m
+        if len(near) == 0:
+            return float("inf")
+        return float(np.linalg.norm(near - s * axis, axis=1).min()) - reach_m
 
     lo, hi = -2.0 * reach_m, 0.0
     if clearance(lo) <= 0:
@@ -36,6 +47,8 @@ def clear_start(nodes: np.ndarray, line_point: np.ndarray, axis: np.ndarray, rea
             if hi > farthest:
                 raise ValueError("the reamer axis misses the bone: its teeth never reach it")
             hi += 0.25 * reach_m
+    meets = (near_along - near_half <= hi + 1e-6) & (near_along + near_half >= lo - 1e-6)
+    near = near[meets]
     for _ in range(_BISECTIONS):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if clearance(mid) > 0 else (lo, mid)

@@ -162,6 +162,28 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     )
     errors = report["reaction"][size]
     assert 0.0 <= errors["force_error"] < 10.0 and 0.0 <= errors["torque_error"] < 10.0
+    # every test case was pushed: what the simulator reports under the push, against the solver's reaction
+    assert errors["pushed_cases"] == len(cases)
+    for name in ("felt_force_error", "felt_torque_error", "felt_force_step_mean_error", "felt_torque_step_mean_error"):
+        assert 0.0 <= errors[name] < 10.0
+
+
+def test_the_reaction_report_weighs_frames_and_steps_apart():
+    from thrsim.learn.evaluation import reaction_report
+
+    # a pushed case 10 N over and 10 N under in its two frames of 100 N: 10 % a frame, none in the step's mean;
+    # a set-feed case counts in the law's error only
+    pushed = {
+        "law": np.array([20.0, 200.0, 2.0, 4.0]),
+        "felt": np.array([20.0, 200.0, 1.0, 4.0]),
+        "felt_step": np.array([0.0, 200.0, -1.0, 4.0]),
+    }
+    set_feed = {"law": np.array([60.0, 200.0, 0.0, 4.0])}
+    row = reaction_report({"48": [pushed, set_feed]})["48"]
+    assert row["force_error"] == pytest.approx(0.2) and row["torque_error"] == pytest.approx(0.25) and row["pushed_cases"] == 1
+    assert row["felt_force_error"] == pytest.approx(0.1) and row["felt_force_step_mean_error"] == 0.0
+    assert row["felt_torque_error"] == pytest.approx(0.25) and row["felt_torque_step_mean_error"] == pytest.approx(0.25)
+    assert "felt_force_error" not in reaction_report({"48": [set_feed]})["48"]
 
 
 def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(socket_model, case):

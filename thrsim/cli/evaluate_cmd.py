@@ -118,4 +118,11 @@ def print_comparison(report: dict) -> None:
         console.print(f"physics checks: not run ({checks['why']})")
     for size, errors in report.get("reaction", {}).items():
         force, torque = errors["force_error"], errors["torque_error"]
-        console.print(f"reamer {size} mm: reaction error {_pct(force)} %, motor torque error {_pct(torque)} % (Σ|error| / Σ|solver's|)")
+        line = f"reamer {size} mm: the law at the solver's feeds: reaction error {_pct(force)} %, motor torque {_pct(torque)} %"
+        if errors["pushed_cases"]:
+            line += (
+                f"; felt under the push ({errors['pushed_cases']} pushed cases): reaction {_pct(errors['felt_force_error'])} %,"
+                f" torque {_pct(errors['felt_torque_error'])} % per frame, {_pct(errors['felt_force_step_mean_error'])} % and"
+                f" {_pct(errors['felt_torque_step_mean_error'])} % of the step's mean"
+            )
+        console.print(line + " (Σ|error| / Σ|solver's|)")

@@ -21,7 +21,7 @@ from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.metrics import Counts, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
-from thrsim.learn.reaction_feed import ReactionFeed
+from thrsim.learn.reaction_feed import ReactionFeed, felt_at_push
 from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
 from thrsim.learn.training import next_reaction
 
@@ -94,21 +94,55 @@ def group_key(model: LoadedModel, case: CaseArrays) -> str:
     return gamma_key(case.inclination_deg)
 
 
-def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> tuple[float, float, float, float] | None:
-    """Σ|R̂ − R|, Σ|R|, Σ|T̂ − T|, Σ|T| over a tool-forced pass through ``case``: each frame's law
-    at the next recorded feed against the recorded reaction R and torque T (None: nothing to compare)."""
+def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict[str, np.ndarray] | None:
+    """Sums over a tool-forced pass through ``case`` against the solver's reaction R and torque T of
+    each frame (None: nothing to compare): ``law`` Σ|R̂ − R|, Σ|R|, Σ|T̂ − T|, Σ|T| with the law read
+    at the next recorded feed; for a pushed case also ``felt``, the same with what the simulator
+    reports under the case's push (:func:`~thrsim.learn.reaction_feed.felt_at_push`), and ``felt_step``
+    Σ(R̂ − R), Σ|R|, Σ(T̂ − T), Σ|T|: the error of the mean over the step."""
     if not model.settings.arch.reaction_head or case.reaction_n is None or case.motor_torque_n_m is None:
         return None
     step = LearnedStep(model.gn, graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
     state = BoneState.start(case.alpha[0], None if case.damage is None else case.damage[0])
-    sums = np.zeros(4)
+    pushed, push, damping = case.set_feed_mm_s is None, case.recorded_push_n(), case.hold.axial_damping_n_s_m
+    sums = {"law": np.zeros(4), **({"felt": np.zeros(4), "felt_step": np.zeros(4)} if pushed else {})}
     for frame in range(1, case.frames - 1):
         moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
-        state = step(state, case.positions[frame], case.axis, case.recorded_push_n(), moved, case.omega_rad_s)
+        state = step(state, case.positions[frame], case.axis, push, moved, case.omega_rad_s)
         reaction, torque, feed = next_reaction(case, frame)
         law = step.reaction_law if step.reaction_law is not None else np.zeros(4)
-        sums += [abs(law[0] + law[1] * feed - reaction), abs(reaction), abs(law[2] + law[3] * feed - torque), abs(torque)]
-    return tuple(float(v) for v in sums)  # type: ignore[return-value]
+        sums["law"] += [abs(law[0] + law[1] * feed - reaction), abs(reaction), abs(law[2] + law[3] * feed - torque), abs(torque)]
+        if pushed:
+            felt, felt_torque = felt_at_push(law, push, damping)
+            sums["felt"] += [abs(felt - reaction), abs(reaction), abs(felt_torque - torque), abs(torque)]
+            sums["felt_step"] += [felt - reaction, abs(reaction), felt_torque - torque, abs(torque)]
+    return sums
+
+
+def reaction_report(per_case: dict[str, list[dict[str, np.ndarray]]]) -> dict:
+    """Per row: the law's error at the recorded feeds (Σ|error| / Σ|solver's|, every case); over the
+    pushed cases, the error of what the simulator reports under the push, per frame and of the mean
+    over each case (averaged over cases)."""
+
+    def ratio(total: np.ndarray, k: int) -> float | None:
+        return float(abs(total[k]) / total[k + 1]) if total[k + 1] > 0 else None
+
+    report = {}
+    for g, rows in sorted(per_case.items(), key=lambda item: float(item[0])):
+        law = np.sum([r["law"] for r in rows], axis=0)
+        felt = [r for r in rows if "felt" in r]
+        row = {"force_error": ratio(law, 0), "torque_error": ratio(law, 2), "pushed_cases": len(felt)}
+        if felt:
+            total = np.sum([r["felt"] for r in felt], axis=0)
+            steps = [(ratio(r["felt_step"], 0), ratio(r["felt_step"], 2)) for r in felt]
+            row |= {
+                "felt_force_error": ratio(total, 0),
+                "felt_torque_error": ratio(total, 2),
+                "felt_force_step_mean_error": _summary([f for f, _ in steps if f is not None]),
+                "felt_torque_step_mean_error": _summary([t for _, t in steps if t is not None]),
+            }
+        report[g] = row
+    return report
 
 
 #: the share of each case's push the physics checks ream at: none, less, as recorded, more
@@ -158,7 +192,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": [], "depth_error_mm": []}) for m in MODES
     }
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
-    reaction_sums: dict = defaultdict(lambda: np.zeros(4))
+    reaction_rows: dict = defaultdict(list)
     by_layer: dict = {m: defaultdict(Counts) for m in MODES}
     by_control: dict = {m: defaultdict(lambda: {"end": Counts(), "depth_error_mm": []}) for m in MODES}
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
@@ -168,7 +202,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         g = group_key(model, case)
         compared = reaction_errors(model, case, graph)
         if compared is not None:
-            reaction_sums[g] += np.array(compared)
+            reaction_rows[g].append(compared)
         truth_removed = case.alpha < threshold
         for start, keys, length in windows(case.frames, start_stride, one_step_stride):
             initial = truth_removed[start]
@@ -213,11 +247,8 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
         for mode, rows in by_control.items()
         if rows
     }
-    # the reaction law at the recorded feeds against the solver's reaction and torque: Σ|error| / Σ|recorded|
-    report["reaction"] = {
-        g: {"force_error": float(v[0] / v[1]) if v[1] > 0 else None, "torque_error": float(v[2] / v[3]) if v[3] > 0 else None}
-        for g, v in sorted(reaction_sums.items(), key=lambda item: float(item[0]))
-    }
+    # the reaction and torque against the solver's: the law at the recorded feeds, and what the simulator reports under the push
+    report["reaction"] = reaction_report(reaction_rows)
     # force response (autonomous): relative volume error at the longest horizon and mean removed volume per push force
     report["by_force"] = {
         f: {

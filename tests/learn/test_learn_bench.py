@@ -30,3 +30,17 @@ def test_the_socket_model_s_step_is_timed_on_the_whole_socket():
     assert row["element_size_mm"] == 2.5 and row["elements"] > 1000 and row["weights"] == "initial"
     assert row["step_ms_median"] > 0 and row["step_ms_max"] >= row["step_ms_median"]
     assert row["region_elements_max"] > 0  # the reamer reached the articular face
+
+
+def test_the_socket_model_is_timed_pushed_with_its_reamers_one_after_another(tiny_socket_model):
+    from thrsim.learn.bench import SOCKET_BENCH_REAMERS_MM, time_socket_steps
+    from thrsim.learn.model_dir import load_model
+
+    (row,) = time_socket_steps(load_model(tiny_socket_model), frames=3, element_sizes_mm=(2.5,))
+    pushed = row["pushed"]
+    assert row["weights"] == "trained" and pushed["reamers_mm"] == list(SOCKET_BENCH_REAMERS_MM)
+    assert (
+        pushed["frames"] == 3 * len(SOCKET_BENCH_REAMERS_MM)
+        and pushed["step_ms_max"] >= pushed["step_ms_p99"] >= pushed["step_ms_median"] > 0
+    )
+    assert pushed["depth_mm"] >= 0.0 and pushed["removed_volume_mm3"] >= 0.0

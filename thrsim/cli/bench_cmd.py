@@ -23,7 +23,8 @@ def bench(
         False,
         "--socket",
         help="also time the socket: a window at a set feed and the whole socket at 1.5 mm, per active element against the patch; "
-        "with --learned, the socket model's step on the whole socket at 1.5 and 1.0 mm (--model: a socket model to time)",
+        "with --learned, the socket model's step on the whole socket at 1.5 and 1.0 mm, tool-forced and pushed with two reamers "
+        "(the shipped socket model, or --model: a socket model to time)",
     ),
     browser: bool = typer.Option(False, "--browser", help="also time the trainer page's drawing in headless Chromium (software WebGL)"),
     browser_only: bool = typer.Option(False, "--browser-only", help="time only the trainer page's drawing (no mesh, no solver)"),
@@ -76,10 +77,10 @@ def bench(
         loaded = load_model(model) if model is not None else None
         if socket:
             from thrsim.learn.bench import time_socket_steps
-            from thrsim.learn.model_dir import reads_any_mesh
+            from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL, reads_any_mesh
 
-            socket_model = loaded if loaded is not None and reads_any_mesh(loaded.settings) else None
-            loaded = None if socket_model is not None else loaded
+            socket_model = loaded if loaded is not None and reads_any_mesh(loaded.settings) else load_model(SHIPPED_SOCKET_MODEL)
+            loaded = None if loaded is socket_model else loaded
             result["learned_socket"] = {"whole_socket": time_socket_steps(socket_model)}
         result["learned"] = run_learned_benchmarks(loaded, solver_seconds_per_frame=result["solver"]["seconds_per_frame"])
     if reaming_page:

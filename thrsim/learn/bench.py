@@ -194,12 +194,21 @@ def _four_times_area(half_angle_deg: float) -> float:
 SOCKET_ELEMENT_SIZES_MM = (1.5, 1.0)
 
 
+#: the pushed chain the socket bench reams on the whole default socket: reamer sizes (mm) one after
+#: another, each for the bench's frames, at the trainer's largest push (N)
+SOCKET_BENCH_REAMERS_MM = (48.0, 50.0)
+SOCKET_BENCH_PUSH_N = 310.0
+
+
 def time_socket_steps(
     model: LoadedModel | None, frames: int = 40, element_sizes_mm: tuple[float, ...] = SOCKET_ELEMENT_SIZES_MM
 ) -> list[dict]:
-    """ms per step of a socket model (``model``, or initial socket weights) on the whole default socket
-    at each element size: the reamer reamed straight in along the socket's axis at 3 mm/s one size up
-    (tool-forced, so every size times the same path), the first five steps left out as warm-up."""
+    """ms per step of a socket model (``model``; None: untrained socket weights) on the whole default
+    socket at each element size: tool-forced, the reamer reamed straight in along the socket's axis
+    at 3 mm/s one size up (so every size times the same path; the first five steps left out as
+    warm-up), and pushed, as a trainee reams (a model with a reaction head): each reamer of
+    :data:`SOCKET_BENCH_REAMERS_MM` ``frames`` frames at :data:`SOCKET_BENCH_PUSH_N`, every step
+    counted, a new reamer's start and its approach in free air included."""
     from thrsim.config import SocketConfig
     from thrsim.geometry.socket import generate_socket
 
@@ -222,10 +231,24 @@ def time_socket_steps(
             times.append(result.seconds * 1e3)
             regions.append(simulator._step.last.region)
         steps = np.array(times[5:])
-        rows.append({
+        row = {
             "element_size_mm": size, "elements": mesh.n_tets, "meshing_s": meshing_s, "reamer_mm": reamer_mm,
             "step_ms_median": float(np.median(steps)), "step_ms_max": float(steps.max()),
             "frames_per_s_median": 1e3 / float(np.median(steps)), "region_elements_max": int(max(regions)),
             "weights": "trained" if model is not None else "initial",
-        })  # fmt: skip
+        }  # fmt: skip
+        if used.settings.arch.reaction_head:
+            simulator.reset()
+            pushed = []
+            for reamer in SOCKET_BENCH_REAMERS_MM:
+                simulator.withdraw()
+                pushed += [simulator.step(axis, SOCKET_BENCH_PUSH_N, reamer_mm=reamer).seconds * 1e3 for _ in range(frames)]
+            ms = np.array(pushed)
+            row["pushed"] = {
+                "reamers_mm": list(SOCKET_BENCH_REAMERS_MM), "push_n": SOCKET_BENCH_PUSH_N, "frames": len(ms),
+                "step_ms_median": float(np.median(ms)), "step_ms_p99": float(np.percentile(ms, 99)), "step_ms_max": float(ms.max()),
+                "frames_per_s_worst": 1e3 / float(ms.max()), "depth_mm": simulator.depth_m * 1e3,
+                "removed_volume_mm3": simulator.removed_volume_m3 * 1e9,
+            }  # fmt: skip
+        rows.append(row)
     return rows

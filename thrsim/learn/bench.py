@@ -231,7 +231,7 @@ def time_socket_steps(
             times.append(result.seconds * 1e3)
             regions.append(simulator._step.last.region)
         steps = np.array(times[5:])
-        row = {
+        row: dict[str, object] = {
             "element_size_mm": size, "elements": mesh.n_tets, "meshing_s": meshing_s, "reamer_mm": reamer_mm,
             "step_ms_median": float(np.median(steps)), "step_ms_max": float(steps.max()),
             "frames_per_s_median": 1e3 / float(np.median(steps)), "region_elements_max": int(max(regions)),

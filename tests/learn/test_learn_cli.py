@@ -40,6 +40,16 @@ def test_advance_only_refits_the_regressor_and_keeps_the_networks(tiny_model, sy
     assert json.loads((model / "card.json").read_text()) == card
     other = run_thrsim("train", "--data", str(real_case.parent), "--out", str(model), "--advance-only")
     assert other.returncode == 2 and other.stderr.count("\n") == 1
+    # another kind by name: kept whatever its error, and the card's settings say so
+    ridge = run_thrsim(
+        "train", "--data", str(synthetic_dataset), "--out", str(model), "--advance-only", "--advance-kind", "ridge", "--json"
+    )
+    assert ridge.returncode == 0, ridge.stderr
+    card = json.loads(ridge.stdout)
+    assert card["advance"]["chosen"] == "ridge" and card["settings"]["train"]["advance_kind"] == "ridge"
+    assert card["advance"]["chosen_by"] == "the training settings' advance_kind"
+    unknown = run_thrsim("train", "--data", str(synthetic_dataset), "--out", str(model), "--advance-only", "--advance-kind", "tree")
+    assert unknown.returncode == 2 and unknown.stderr.count("\n") == 1 and "--advance-kind" in unknown.stderr
 
 
 def test_train_init_from_starts_from_a_trained_models_networks(tiny_model, synthetic_dataset, settings_file, tmp_path):

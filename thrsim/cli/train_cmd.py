@@ -39,6 +39,13 @@ def train(
     advance_only: bool = typer.Option(
         False, "--advance-only", help="refit only the reamer regressor of the trained model in MODEL_DIR, on the data it was trained on"
     ),
+    advance_kind: str | None = typer.Option(
+        None,
+        "--advance-kind",
+        help="the reamer regressor to keep: svr (the default setting), random_forest, ridge, linear, or lowest_cv "
+        "(the lowest cross-validated error of one frame's advance)",
+        metavar="KIND",
+    ),
     as_json: bool = typer.Option(False, "--json", help="print the model card as one JSON object on stdout"),
 ) -> None:
     """Train the learned simulator on a dataset's training split; write weights, regressor, mesh and card."""
@@ -56,11 +63,17 @@ def train(
     for key, value in (("epochs", epochs), ("max_samples_per_epoch", samples_per_epoch), ("max_minutes", max_minutes), ("seed", seed)):
         if value is not None:
             settings["train"][key] = value
+    if advance_kind is not None:
+        from thrsim.learn.advance import KINDS, LOWEST_CV
+
+        if advance_kind not in (*KINDS, LOWEST_CV):
+            raise ThrsimInputError(f"--advance-kind must be one of {', '.join((*KINDS, LOWEST_CV))}, got {advance_kind!r}")
+        settings["train"]["advance_kind"] = advance_kind
     model_settings = ModelSettings.model_validate(settings)
     if advance_only:
         from thrsim.learn.pipeline import refit_advance
 
-        card = refit_advance(data, out)
+        card = refit_advance(data, out, advance_kind)
         if as_json:
             print_json(card)
         else:

@@ -22,6 +22,8 @@ from thrsim.config import PUSH_FORCE_N
 FEATURES = ("depth_mm", "inclination_deg", "anteversion_deg", "force_n", "impulse_n_s")
 Kind = Literal["random_forest", "svr", "ridge", "linear"]
 KINDS: tuple[Kind, ...] = get_args(Kind)
+#: choose the kind with the lowest cross-validated error of one frame's advance
+LOWEST_CV = "lowest_cv"
 #: the arrays each kind's prediction reads (besides target_range)
 _KIND_ARRAYS = {
     "random_forest": ("left", "right", "feature", "threshold", "value", "roots"),
@@ -250,10 +252,17 @@ def _mse_of_advance(estimator, X: np.ndarray, y_scaled: np.ndarray) -> float:
 
 
 def fit_advance(
-    X: np.ndarray, y: np.ndarray, groups: np.ndarray, held_X: np.ndarray | None, held_y: np.ndarray | None, seed: int = 0, trees: int = 100
+    X: np.ndarray,
+    y: np.ndarray,
+    groups: np.ndarray,
+    held_X: np.ndarray | None,
+    held_y: np.ndarray | None,
+    seed: int = 0,
+    trees: int = 100,
+    keep: str = LOWEST_CV,
 ) -> tuple[ArrayRegressor, dict]:
-    """Grid-search the four kinds on the advance scaled to the reference push, keep the lowest
-    cross-validated MSE of the advance; (regressor, error table)."""
+    """Grid-search the four kinds on the advance scaled to the reference push and keep ``keep``, or
+    with :data:`LOWEST_CV` the lowest cross-validated MSE of the advance; (regressor, error table)."""
     from sklearn.model_selection import GridSearchCV, GroupKFold, KFold
 
     n_groups = len(np.unique(groups))
@@ -276,9 +285,10 @@ def fit_advance(
                 held_out_mse_mm2=float(np.mean(error**2)), held_out_mae_mm=float(np.mean(np.abs(error))), held_out_samples=int(len(held_y))
             )
         table[kind] = row
-    chosen = min(table, key=lambda k: table[k]["cv_mse_mm2"])
+    chosen = min(table, key=lambda k: table[k]["cv_mse_mm2"]) if keep == LOWEST_CV else keep
     return exported[chosen], {
         "chosen": chosen,
+        "chosen_by": "lowest cross-validated error" if keep == LOWEST_CV else "the training settings' advance_kind",
         "features": list(FEATURES),
         "target": f"advance along D per frame, mm, learned × {REFERENCE_FORCE_N:g} N / push and scaled back",
         "models": table,

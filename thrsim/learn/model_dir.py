@@ -157,7 +157,7 @@ class LoadedModel:
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""
-        return ReamerFeed(self.advance, self.mesh, self.teeth_radius_m, self.threshold)
+        return ReamerFeed(self.advance, self.mesh, self.teeth_radius_m, self.threshold, force_range_n=self.trained_force_n)
 
 
 def mesh_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:

@@ -94,7 +94,7 @@ def train_model(
         )
     trainer.run(checkpoint, on_epoch, on_batch)
     started = time.perf_counter()
-    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees)
+    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees, settings.train.advance_kind)
     advance_seconds = time.perf_counter() - started
     history = trainer.history
     card = {
@@ -156,9 +156,10 @@ def train_model(
     return card
 
 
-def refit_advance(data: str | os.PathLike, out: str | os.PathLike) -> dict:
+def refit_advance(data: str | os.PathLike, out: str | os.PathLike, kind: str | None = None) -> dict:
     """Refit the reamer regressor of the trained model in ``out`` on the data it was trained on,
-    keeping its networks (minutes of training) untouched; return the updated card."""
+    keeping its networks (minutes of training) untouched, as its settings' ``advance_kind`` or
+    ``kind`` (which the card's settings then record); return the updated card."""
     out = Path(out)
     card = read_card(out)
     mesh = read_mesh(out)
@@ -170,11 +171,14 @@ def refit_advance(data: str | os.PathLike, out: str | os.PathLike) -> dict:
         raise ThrsimInputError(f"{data}: not the data the model in {out} was trained on (its card names {card['data']['source']})")
     train = [c for c in cases if c.split == "train"]
     held_out = [c for c in cases if c.split in ("validation", "test")]
+    if kind is not None:
+        card["settings"]["train"]["advance_kind"] = kind
     settings = ModelSettings.model_validate(card["settings"])
     started = time.perf_counter()
-    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees)
+    advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees, settings.train.advance_kind)
     card = {
         **card,
+        "settings": settings.model_dump(mode="json"),
         "advance": advance_table,
         "advance_refit_utc": datetime.now(UTC).isoformat(timespec="seconds"),
         "thrsim_version": package_versions()["thrsim"],

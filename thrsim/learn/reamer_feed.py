@@ -47,9 +47,17 @@ class ReamerFeed:
     """The advance of one autonomous frame: regressor, then rest on the bone (see the module)."""
 
     def __init__(
-        self, regressor: ArrayRegressor, mesh: TetMesh, teeth_radius_m: float, threshold: float, support_nodes: int = SUPPORT_NODES
+        self,
+        regressor: ArrayRegressor,
+        mesh: TetMesh,
+        teeth_radius_m: float,
+        threshold: float,
+        support_nodes: int = SUPPORT_NODES,
+        force_range_n: tuple[float, float] | None = None,
     ):
+        """``force_range_n``: the pushes the regressor learned (None: read it at any push)."""
         self.regressor = regressor
+        self.force_range_n = force_range_n
         self.tets, self.nodes = np.asarray(mesh.tets), np.asarray(mesh.nodes)
         self.teeth_radius_m = teeth_radius_m
         self.threshold = threshold
@@ -72,8 +80,10 @@ class ReamerFeed:
         if not force_n > 0.0:
             self.last_rested = False
             return 0.0
-        row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, force_n, impulse_n_s)
-        predicted = float(self.regressor.predict(row)[0]) * 1e-3
+        # outside the pushes it learned the regressor reads the nearest and the push scales its advance
+        learned = force_n if self.force_range_n is None else min(max(force_n, self.force_range_n[0]), self.force_range_n[1])
+        row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, learned, impulse_n_s * learned / force_n)
+        predicted = float(self.regressor.predict(row)[0]) * 1e-3 * force_n / learned
         attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
         rest = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, self.support_nodes)
         # no bone left to rest on: the case ends there (passed through), the regressor's advance stands

@@ -9,6 +9,8 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from thrsim.learn.advance import Kind
+
 FeatureSet = Literal["full", "thesis", "socket"]
 
 
@@ -113,6 +115,11 @@ class TrainSettings(_Frozen):
     validation_horizon: int = Field(30, ge=1, description="frames of the validation rollouts run after each epoch")
     max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
     advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
+    advance_kind: Kind | Literal["lowest_cv"] = Field(
+        "svr",
+        description="the advance regressor kept: svr, whose rollouts hold off the training grid where the forest's (the "
+        "lowest per-frame error, lowest_cv) under-advance (the benchmarks page), or any kind by name",
+    )
     pushforward_steps: int = Field(
         0, ge=0, description="longest rollout of the network itself that makes a training input (0: ground-truth inputs only)"
     )

@@ -28,7 +28,7 @@ from safetensors.torch import save as tensor_bytes
 
 from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
-from thrsim.learn.advance import case_samples, fit_advance
+from thrsim.learn.advance import LOWEST_CV, case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, select_subgraph
 from thrsim.learn.graph import StaticGraph
@@ -351,7 +351,7 @@ def next_reaction(case: CaseArrays, frame: int) -> tuple[float, float, float]:
     return (float(case.reaction_n[window].mean()), float(case.motor_torque_n_m[window].mean()), feed)
 
 
-def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100):
+def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int, trees: int = 100, kind: str = LOWEST_CV):
     """Fit the advance regressor on the training cases; the table scores the held-out ones."""
     parts = [case_samples(c) for c in train]
     X = np.concatenate([p[0] for p in parts])
@@ -364,4 +364,4 @@ def train_advance(train: list[CaseArrays], held_out: list[CaseArrays], seed: int
         held_X, held_y = np.concatenate([h[0] for h in held]), np.concatenate([h[1] for h in held])
     else:
         held_X = held_y = None
-    return fit_advance(X, y, groups, held_X, held_y, seed, trees)
+    return fit_advance(X, y, groups, held_X, held_y, seed, trees, kind)

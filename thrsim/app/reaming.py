@@ -22,7 +22,7 @@ from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone, SocketConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import MEDIAL_WALL, OUTER, REAMED_FACES, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, OUTER, REAMED_FACES, TetMesh
 from thrsim.geometry.reaming_path import breach_faces
 from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.learn.cases import axis_offset_mm
@@ -173,6 +173,7 @@ class ReamingTrainer:
         self._last_step_ms = math.nan
         self._reamer_position: np.ndarray | None = None  # patch frame, m
         self._cutting_layer: str | None = None
+        self._through_plate: set[float] = set()  # the reamers that have cut from the plate into cancellous bone (an event each)
         self._reaction: tuple[float, float] | None = None  # the last frame's reaction (N) and motor torque (N·m)
         self._frame_forces: list[dict] = []  # frames stepped since the last state: their reaction and torque
         if self.simulator is not None:
@@ -268,6 +269,7 @@ class ReamingTrainer:
         self.simulator.restore(back)
         self._reamer_position = None if back.centre is None else back.centre.copy()
         self._cutting_layer = None
+        self._through_plate.clear()  # the plate undone: reaching cancellous bone again is said again
         self._reaction = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
@@ -381,7 +383,11 @@ class ReamingTrainer:
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
-        self._cutting_layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
+        layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
+        if self._cutting_layer == CORTICAL and layer == CANCELLOUS and self.reamer_mm not in self._through_plate:
+            self._through_plate.add(self.reamer_mm)  # once per reamer: a coarse mesh's layers alternate frame by frame at the plate
+            self._event(time_s, "cancellous_reached", f"the {self.reamer_mm:g} mm reamer left the subchondral plate for cancellous bone")
+        self._cutting_layer = layer
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)

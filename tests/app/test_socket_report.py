@@ -164,3 +164,26 @@ def test_the_reamer_reaching_cancellous_bone_is_an_event_once_a_reamer(session):
     assert layers.count("cancellous") >= 1 and [e["detail"] for e in said] == [
         "the 48 mm reamer left the subchondral plate for cancellous bone"
     ]
+
+
+def test_a_socket_perforated_and_undone_still_counts_and_scores(tmp_path):
+    """Pushed at the most a hand pushes, the 48 mm reamer goes through the coarse socket's bone; undone,
+    the bone is whole again, the record is not: the criterion says when, and scores nothing."""
+    from thrsim.report.reaming import criteria
+
+    now = [0.0]
+    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
+    live = LiveSession(MODES["reaming"], settings, lambda: now[0], tmp_path)
+    for message in ({"type": "reamer_size", "size_mm": 48}, {"type": "force", "newton": 400}, {"type": "run", "action": "start"}):
+        live.control(json.dumps(message))
+    while live.trainer.running and now[0] < 5.0:
+        now[0] += STEP
+        live.tick()
+    breach = [e for e in live.trainer.events if e["kind"] in ("perforated", "medial_wall_breached")]
+    assert len(breach) == 1, [e["kind"] for e in live.trainer.events]
+    live.control(json.dumps({"type": "run", "action": "undo"}))
+    record = read_reaming(read_session(live.save(tmp_path)).groups["reaming"])
+    assert cavity_map(record)["fractions"]["perforated"] == 0.0  # the final bone, undone, is whole
+    first = criteria(record)[0]
+    assert first.name == "no perforation or breach" and first.points == 0.0
+    assert first.measured.endswith(f"at {breach[0]['time_s']:.1f} s, then undone")

@@ -1,7 +1,7 @@
 """A whole-socket session end to end: a real ``thrsim serve`` on 127.0.0.1 with the shipped socket
 model (the native 46 mm socket meshed coarse) and a headless Chromium trainee who reams with the
 46 mm reamer and then the 48 mm one (keys), hears the cue as the 48 mm reamer reaches cancellous
-bone, reads the bone left before the medial wall, sees native bone beyond the plan apart from
+bone, reads the bone left before the medial wall (and its warning), sees native bone beyond the plan apart from
 reamed bone, ends the session and reads a report whose figures are those of the saved file."""
 
 from __future__ import annotations
@@ -72,6 +72,16 @@ def test_a_socket_session_from_the_page_to_its_report(served, browser):
     wall = page.inner_text("#medial-wall")
     left = page.evaluate("trainer.stats.last.reaming.bone_left_mm")
     assert page.evaluate("trainer.stats.last.reaming.medial_wall_modelled") and wall == f"Medial wall: {left:.1f} mm of bone left"
+    # the warning before the medial wall: the socket's own words, from the state's bone left (0.6 mm: a state the page is given)
+    warned = page.evaluate(
+        """(() => {
+          const last = trainer.stats.last;
+          trainer.cavityView.apply({ ...last, reaming: { ...last.reaming, bone_left_mm: 0.6, events: [] } });
+          const warning = document.getElementById("wall-warning");
+          return [warning.classList.contains("hidden"), warning.textContent];
+        })()"""
+    )
+    assert warned == [False, "Medial wall close: 0.6 mm of bone left"]
     # every drawn face knows whether a reamer made it (the bone across it removed) or it is native bone: both are drawn
     faces = page.evaluate(
         """(() => {

@@ -371,7 +371,7 @@ def _cavity(record: ReamingRecord) -> Section:
     found = cavity_map(record)
     fractions = found["fractions"]
     tolerance = found["tolerance_mm"]  # the green band is the map's on-plan tolerance: the two maps agree
-    stops = [(x + np.sign(x) * (tolerance - 0.45), colour) for x, colour in _ERROR_STOPS]
+    stops = [(x + np.sign(x) * (tolerance - _ERROR_STOPS[3][0]), colour) for x, colour in _ERROR_STOPS]
     low, high = stops[0][0], stops[-1][0]
     palette = LinearSegmentedColormap.from_list("against_plan", [((x - low) / (high - low), c) for x, c in stops])
     figure, axes = plt.subplots(1, 2, figsize=(11.5, 4.4), gridspec_kw={"wspace": 0.55})

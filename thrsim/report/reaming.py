@@ -349,19 +349,34 @@ def _course(record: ReamingRecord) -> Section:
     pushed = in_range(record)
     rate = record.removed_volume_mm3[-1] / (frames * record.frame_dt_s)
     body = figure_png(figure) + table(
-        ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
+        [
+            "reaming time",
+            "removed",
+            "last reamer's advance",
+            "mean removal rate",
+            "push in the learned range",
+            "frames the simulation fell behind",
+        ],
         [
             [
                 f"{frames * record.frame_dt_s:.1f} s",
                 f"{record.removed_volume_mm3[-1]:.1f} mm³",
                 f"{record.depth_mm[-1]:.2f} mm",
                 f"{rate:.0f} mm³/s",
-                "— (not recorded)" if pushed is None else f"{100 * np.mean(pushed):.0f} %",
+                _push_in_range_words(record, pushed),
                 record.behind_frames,
             ]
         ],
     )
     return Section("Reaming: removal, depth and push", body)
+
+
+def _push_in_range_words(record: ReamingRecord, pushed: np.ndarray | None) -> str:
+    """The share of reaming time pushed within the learned range; a whole-socket model reads the feed the
+    push balances, not the push (it has no learned push), and older files do not say the range."""
+    if pushed is not None:
+        return f"{100 * np.mean(pushed):.0f} %"
+    return "— (the simulator reads the feed, not the push)" if record.reaction_n is not None else "— (not recorded)"
 
 
 def _cavity(record: ReamingRecord) -> Section:

@@ -326,10 +326,10 @@ def _course(record: ReamingRecord) -> Section:
     figure, axes = plt.subplots(1, 2, figsize=(11.5, 3.4), gridspec_kw={"wspace": 0.45})
     axes[0].plot(t, record.removed_volume_mm3, color="tab:brown", label="removed volume")
     axes[0].set_xlabel("reaming time (s)")
-    axes[0].set_ylabel("removed volume (mm³)")
+    axes[0].set_ylabel("removed volume (mm³)", color="tab:brown")  # each axis in its line's colour
     depth_axis = axes[0].twinx()
     depth_axis.plot(t, record.depth_mm, color="tab:blue", label="depth")
-    depth_axis.set_ylabel("reamer advance since placed (mm)")
+    depth_axis.set_ylabel("reamer advance since placed (mm)", color="tab:blue")
     axes[0].set_title("Bone removed and reamer depth")
     if record.reamer_mm is not None:  # each reamer of the sequence, where the trainee took it up
         for row in np.flatnonzero(np.diff(record.reamer_mm, prepend=np.nan) != 0):

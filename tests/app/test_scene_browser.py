@@ -201,16 +201,19 @@ def test_the_bone_left_is_shown_and_warned_of_and_the_patch_has_no_medial_wall(r
 
 
 def test_the_sound_cue_follows_the_layer_the_reamer_cuts_when_switched_on(reaming):
-    """The patch has one layer (its cutting_layer is null), so the cue's rule is driven here with the
-    layered socket's values: cortical (the subchondral plate) then cancellous, while reaming."""
-    cue = """(layers) => {
+    """The patch has one layer (no reamer of it reaches cancellous bone), so the cue is driven here with
+    the states of the layered socket: the server's cancellous_reached event, once a reamer."""
+    cue = """(kinds) => {
       const base = trainer.stats.last;
-      for (const layer of layers) trainer.cavityView.apply({ ...base, reaming: { ...base.reaming, running: true, cutting_layer: layer } });
+      for (const kind of kinds) {
+        const events = kind ? [{ kind, time_s: 1, frame: 1, detail: "the 46 mm reamer left the subchondral plate for cancellous bone" }] : [];
+        trainer.cavityView.apply({ ...base, reaming: { ...base.reaming, running: true, events } });
+      }
       return trainer.stats.cues;
     }"""
-    assert reaming.evaluate(cue, ["cortical", "cancellous"]) == 0  # off by default: no sound
+    assert reaming.evaluate(cue, ["cancellous_reached"]) == 0  # off by default: no sound
     reaming.check("#cue-sound")
-    assert reaming.evaluate(cue, ["cortical", "cancellous"]) == 1
-    assert reaming.evaluate(cue, ["cancellous", "cancellous", "cortical"]) == 1  # only on leaving the plate for cancellous bone
-    assert reaming.evaluate(cue, [None, "cancellous"]) == 1
+    assert reaming.evaluate(cue, ["cancellous_reached"]) == 1
+    assert reaming.evaluate(cue, [None, "start", None]) == 1  # only on the event
+    assert reaming.evaluate(cue, [None, "cancellous_reached"]) == 2
     reaming.uncheck("#cue-sound")

@@ -22,7 +22,9 @@ from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone, SocketConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import INNER, MEDIAL_WALL, OUTER, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, OUTER, REAMED_FACES, TetMesh
+from thrsim.geometry.reaming_path import breach_faces
+from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.learn.cases import axis_offset_mm
 from thrsim.learn.simulator import ReamingSimulator, SimulatorSnapshot
 from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
@@ -39,6 +41,8 @@ SENSOR_FRESH_S = 0.5
 OUT_OF_RANGE_EVENTS = {
     "push": "push_out_of_range", "feed": "feed_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
 }  # fmt: skip
+#: the report's element size is read over the bone this far beyond the articular surface: where the reamers cut
+CUTTING_ZONE_M = 3e-3
 #: the whole socket's axes (columns) in the bone patch's frame: the socket frame's +x (anterior) and
 #: +y (superior, the dome) are the patch frame's +y (anterior) and −x (the patch's +x is inferior),
 #: +z (out of the socket) is shared: a quarter turn about z
@@ -169,6 +173,7 @@ class ReamingTrainer:
         self._last_step_ms = math.nan
         self._reamer_position: np.ndarray | None = None  # patch frame, m
         self._cutting_layer: str | None = None
+        self._through_plate: set[float] = set()  # the reamers that have cut from the plate into cancellous bone (an event each)
         self._reaction: tuple[float, float] | None = None  # the last frame's reaction (N) and motor torque (N·m)
         self._frame_forces: list[dict] = []  # frames stepped since the last state: their reaction and torque
         if self.simulator is not None:
@@ -264,6 +269,7 @@ class ReamingTrainer:
         self.simulator.restore(back)
         self._reamer_position = None if back.centre is None else back.centre.copy()
         self._cutting_layer = None
+        self._through_plate.clear()  # the plate undone: reaching cancellous bone again is said again
         self._reaction = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
@@ -377,7 +383,11 @@ class ReamingTrainer:
         self.frames_run = result.frame
         self._last_step_ms = result.seconds * 1e3
         self._reamer_position = result.reamer_position
-        self._cutting_layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
+        layer = cutting_layer(simulator.right_mesh, result.newly_removed, self._cutting_layer)
+        if self._cutting_layer == CORTICAL and layer == CANCELLOUS and self.reamer_mm not in self._through_plate:
+            self._through_plate.add(self.reamer_mm)  # once per reamer: a coarse mesh's layers alternate frame by frame at the plate
+            self._event(time_s, "cancellous_reached", f"the {self.reamer_mm:g} mm reamer left the subchondral plate for cancellous bone")
+        self._cutting_layer = layer
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)
@@ -429,7 +439,7 @@ class ReamingTrainer:
                 continue
             if flag == "push" and model.trained_force_n is not None:
                 low, high = model.trained_force_n
-                words = f"{force:g} N: outside the {low:g}–{high:g} N the simulator learned"
+                words = f"{force:g} N: outside the {low:.0f}–{high:.0f} N the simulator learned"
                 self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, force_n=force, trained_force_n=[low, high])
             elif flag == "feed" and model.trained_feed_mm_s is not None:
                 feed, high = 1e3 * feed_m_s, model.trained_feed_mm_s[1]
@@ -648,20 +658,32 @@ class ReamingTrainer:
         )
 
     def _cavity(self, simulator: ReamingSimulator) -> dict:
-        """The patch's geometry as the report's depth map reads it (computed once per model)."""
+        """The bone's geometry as the report's depth map reads it (computed once per model): the faces
+        a reamer breaks through (the patch's outer face; the socket's medial wall and supported
+        boundary, where the simulator ends a session), the native articular sphere, and the mesh's
+        element size where the reamer cuts (the report's measures are good to about half of it)."""
         if self._cavity_geometry is None:
             mesh = simulator.right_mesh
             radii = np.linalg.norm(mesh.nodes, axis=1)
             outer_nodes = np.zeros(mesh.n_nodes, dtype=bool)
             outer_nodes[mesh.node_sets.get(OUTER, np.flatnonzero(radii >= radii.max() - 1e-9))] = True
-            inner = mesh.node_sets.get(INNER)
+            if simulator.socket:
+                through = np.zeros(mesh.n_tets, dtype=bool)
+                for elements in breach_faces(mesh).values():
+                    through[elements] = True
+            else:
+                through = outer_nodes[mesh.tets].sum(axis=1) >= 3  # a face on the outer surface
+            reamed = next((mesh.node_sets[name] for name in REAMED_FACES if len(mesh.node_sets.get(name, ()))), None)
+            inner = float(np.median(radii[reamed])) if reamed is not None else float(radii.min())
+            near = np.linalg.norm(mesh.centroids, axis=1) <= inner + CUTTING_ZONE_M
             self._cavity_geometry = {
                 "centroids_m": mesh.centroids,
-                "outer": outer_nodes[mesh.tets].sum(axis=1) >= 3,  # a face on the outer surface
-                "inner_radius_m": float(np.median(radii[inner])) if inner is not None and len(inner) else float(radii.min()),
+                "outer": through,
+                "inner_radius_m": inner,
                 "outer_radius_m": float(np.median(radii[outer_nodes])),
                 "teeth_radius_m": simulator.model.teeth_radius_m,
                 "threshold": simulator.model.threshold,
+                "element_size_m": float(np.median(rms_edge_lengths(mesh.nodes, mesh.tets[near] if near.any() else mesh.tets))),
             }
         return self._cavity_geometry
 

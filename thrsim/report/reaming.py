@@ -15,11 +15,19 @@ import math
 import numpy as np
 
 from thrsim.report.parts import Criterion, Part, Section, figure_png, table
-from thrsim.report.reaming_metrics import cavity_axis_angles, confirmed_cup_angles, cut_sizes_mm, in_range, metrics
+from thrsim.report.reaming_metrics import (
+    cavity_axis_angles,
+    confirmed_cup_angles,
+    cut_sizes_mm,
+    cuts_trainees_reamers,
+    in_range,
+    metrics,
+    planned_hemisphere,
+)
 from thrsim.report.thresholds import AtLeast, AtMost, Thresholds, default_thresholds
 from thrsim.session.file import SessionFile
 from thrsim.session.plan import Plan
-from thrsim.session.reaming import BONE_ERRORS, ReamingRecord, read_reaming
+from thrsim.session.reaming import BONE_ERRORS, PATCH_ELEMENT_SIZE_M, ReamingRecord, read_reaming
 
 GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
@@ -36,55 +44,88 @@ _LISTED = (
     "undo",
     "restore",
 )
-CLASSES = ("not reached", "under-reamed", "on plan", "over-reamed", "perforated")
-_CLASS_COLOURS = ("#e8e8e8", "#f2c14e", "#2ca25f", "#d7301f", "#000000")
+#: the depth map's classes of cell; the last, a native hollow beyond the plan (the socket's fossa), is shown, never counted
+CLASSES = ("not reached", "under-reamed", "on plan", "over-reamed", "perforated", "native hollow")
+#: the depth map's colours of the cut surface against the plan (mm), as the reaming page colours the bone (static/bone.js);
+#: on a mesh coarser than 0.9 mm the green band widens to its on-plan tolerance (half an element)
+_ERROR_STOPS = ((-2.0, "#e3dccb"), (-1.0, "#f2c14e"), (-0.45, "#2ca25f"), (0.45, "#2ca25f"), (1.0, "#d7301f"), (2.0, "#5a0d0d"))
+_CLASS_COLOURS = ("#e8e8e8", "#f2c14e", "#2ca25f", "#d7301f", "#000000", "#9ecae1")
+
+
+def map_axes(axis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The depth map's in-plane directions across ``axis`` (patch frame): anterior and superior, the
+    patch frame's +y and −x (its +x is inferior, :data:`thrsim.app.reaming.SOCKET_IN_PATCH`) made
+    square to the axis, so the map reads as the socket seen from outside (anterior right, superior up)."""
+    anterior = np.array([0.0, 1.0, 0.0]) - axis[1] * axis
+    anterior /= np.linalg.norm(anterior)
+    return anterior, np.cross(axis, anterior)
 
 
 def cavity_map(record: ReamingRecord) -> dict:
-    """Per grid cell: depth reamed below the articular surface (mm, NaN where intact) and class.
+    """Per grid cell: the cut surface against the planned hemisphere (mm, + beyond it) and its class.
 
-    The planned cavity is the reamer's hemisphere (the teeth's reach) centred at the acetabular
-    centre, where the cup is meant to sit. The final cavity is read per cell of a 0.5 mm grid over
-    the patch seen along its axis: the cut surface lies between the deepest removed element and the
-    nearest kept one beyond it (midway between their centroids' distances from the acetabular
-    centre; at the outer surface when none is kept beyond). A cell is on plan when that lies within
-    one element (0.45 mm, the mesh's resolution) of the planned radius, under-reamed short of it,
-    over-reamed beyond it, and perforated when a removed element had a face on the bone's outer
-    surface."""
+    The planned hemisphere (:func:`~thrsim.report.reaming_metrics.planned_hemisphere`) is seen along
+    its axis from outside the socket, on a grid of cells the mesh's element size across (0.5 mm at
+    the least) over the cup's footprint. Down each cell's column from the cup's rim, the cut surface
+    lies midway between the deepest removed element and the nearest kept one beyond it (half an
+    element beyond the deepest removed when none is kept: through the bone); where nothing was
+    removed it is the native surface, half an element before the first kept element. A cell is on
+    plan when its surface lies within half an element (at least 0.45 mm) of the planned sphere,
+    under-reamed short of it (not reached when nothing was removed there), over-reamed beyond it (a
+    native hollow when nothing was removed: the socket's fossa, left out of the fractions), and
+    perforated when a removed element lay on a face the reamer breaks through (the patch's outer
+    face; the socket's medial wall or supported boundary)."""
     cavity = record.cavity
-    centroids = cavity["centroids_m"]
-    removed = record.final_alpha < cavity["threshold"]
-    radius = np.linalg.norm(centroids, axis=1)
-    lo = centroids[:, :2].min(axis=0)
-    cells = np.floor((centroids[:, :2] - lo) / GRID_M).astype(int)
-    shape = tuple(cells.max(axis=0) + 1)
-    flat = np.ravel_multi_index(cells.T, shape)
-    bone = np.zeros(np.prod(shape), dtype=bool)
-    bone[flat] = True
-    deepest = np.full(np.prod(shape), -np.inf)
-    np.maximum.at(deepest, flat[removed], radius[removed])
-    beyond = ~removed & (radius > deepest[flat])  # kept elements deeper than the cut in their cell
-    nearest_kept = np.full(np.prod(shape), cavity["outer_radius_m"])
-    np.minimum.at(nearest_kept, flat[beyond], radius[beyond])
-    surface = np.where(np.isfinite(deepest), 0.5 * (deepest + nearest_kept), -np.inf)
-    perforated = np.zeros(np.prod(shape), dtype=bool)
-    perforated[flat[removed & cavity["outer"]]] = True
-    planned = cavity["teeth_radius_m"]
-    classes = np.zeros(np.prod(shape), dtype=np.int8)
-    reached = np.isfinite(surface)
-    classes[reached & (surface < planned - ON_PLAN_TOLERANCE_M)] = 1
-    classes[reached & (np.abs(surface - planned) <= ON_PLAN_TOLERANCE_M)] = 2
-    classes[reached & (surface > planned + ON_PLAN_TOLERANCE_M)] = 3
-    classes[perforated] = 4
-    depth = np.where(reached, (surface - cavity["inner_radius_m"]) * 1e3, np.nan)
-    fractions = {name: float(np.mean(classes[bone] == k)) for k, name in enumerate(CLASSES)}
+    centre, axis, planned = planned_hemisphere(record)
+    element = float(cavity.get("element_size_m", PATCH_ELEMENT_SIZE_M))
+    grid, tolerance = max(GRID_M, element), max(ON_PLAN_TOLERANCE_M, element / 2)
+    offset = cavity["centroids_m"] - centre
+    anterior, superior = map_axes(axis)
+    across = np.column_stack([offset @ anterior, offset @ superior])
+    depth = -(offset @ axis)  # into the bone from the cup's rim
+    cells_across = int(np.ceil(planned / grid))
+    cells = np.floor(across / grid).astype(int) + cells_across
+    n = 2 * cells_across
+    shown = (depth > -element) & (cells >= 0).all(axis=1) & (cells < n).all(axis=1)
+    flat = np.where(shown, cells[:, 0] * n + cells[:, 1], 0)
+    removed = (record.final_alpha < cavity["threshold"]) & shown
+    kept = ~removed & shown
+    bone = np.zeros(n * n, dtype=bool)
+    bone[flat[shown]] = True
+    deepest = np.full(n * n, -np.inf)
+    np.maximum.at(deepest, flat[removed], depth[removed])
+    reached = np.isfinite(deepest)
+    beyond = kept & (depth > deepest[flat])  # kept elements deeper than the cut in their column
+    nearest_kept = np.full(n * n, np.inf)
+    np.minimum.at(nearest_kept, flat[beyond], depth[beyond])
+    through = np.zeros(n * n, dtype=bool)
+    through[flat[removed & cavity["outer"]]] = True
+    with np.errstate(invalid="ignore"):  # a column without bone: no surface (NaN), never shown
+        surface = np.where(
+            reached,
+            np.where(np.isfinite(nearest_kept), 0.5 * (deepest + nearest_kept), deepest + element / 2),
+            nearest_kept - element / 2,
+        )
+    middle = (np.arange(n) - cells_across + 0.5) * grid
+    radial = np.hypot(middle[:, None], middle[None, :]).ravel()
+    error = np.hypot(radial, surface) - planned
+    footprint = bone & (radial <= planned) & np.isfinite(surface)
+    classes = np.where(reached, 1, 0).astype(np.int8)
+    classes[np.abs(error) <= tolerance] = 2
+    classes[(error > tolerance) & reached] = 3
+    classes[(error > tolerance) & ~reached] = 5
+    classes[through] = 4
+    counted = footprint & (classes != 5)  # the native hollow is no bone to ream
+    fractions = {name: float(np.mean(classes[counted] == k)) if counted.any() else 0.0 for k, name in enumerate(CLASSES)}
+    edge = cells_across * grid * 1e3
     return {
-        "depth_mm": np.where(bone, depth, np.nan).reshape(shape),
-        "classes": np.where(bone, classes, -1).reshape(shape),
-        "extent_mm": (lo[0] * 1e3, (lo[0] + shape[0] * GRID_M) * 1e3, lo[1] * 1e3, (lo[1] + shape[1] * GRID_M) * 1e3),
+        "error_mm": np.where(footprint & (classes != 5), error * 1e3, np.nan).reshape(n, n),
+        "classes": np.where(footprint, classes, -1).reshape(n, n),
+        "extent_mm": (-edge, edge, -edge, edge),
         "fractions": fractions,
-        "planned_depth_mm": (planned - cavity["inner_radius_m"]) * 1e3,
-        "shell_mm": (cavity["outer_radius_m"] - cavity["inner_radius_m"]) * 1e3,
+        "planned_radius_mm": planned * 1e3,
+        "tolerance_mm": tolerance * 1e3,
+        "against_cup": bool(record.plan is not None and cuts_trainees_reamers(record)),
     }
 
 
@@ -146,11 +187,11 @@ def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> lis
         prepared = found["on plan"] + found["over-reamed"]
         over, ready = t.over_reaming_fraction, t.prepared_fraction
         out += [
-            Criterion("over-reaming", f"{100 * beyond:.0f} % of the patch beyond the plan" + (f"; {failed}" if failed else ""),
+            Criterion("over-reaming", f"{100 * beyond:.0f} % of the cavity beyond the plan" + (f"; {failed}" if failed else ""),
                       f"never through; ≤ {100 * over.full:g} %: 1; ≤ {100 * over.partial:g} %: 0.5", 0.0 if failed else _tier_at_most(beyond, over), 1.0),
             Criterion("cavity prepared",
                       f"not a prepared cavity: {failed} (the final bone {100 * prepared:.0f} % reamed to the plan)" if failed
-                      else f"{100 * prepared:.0f} % of the patch reamed to the plan",
+                      else f"{100 * prepared:.0f} % of the cavity reamed to the plan",
                       "never through; " + _rule_at_least(ready, 1.0), 0.0 if failed else _tier(prepared, ready), 1.0),
         ]  # fmt: skip
     pushed = in_range(record)
@@ -160,7 +201,7 @@ def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> lis
         out.append(
             Criterion(
                 "push force",
-                f"{100 * share:.0f} % of reaming time in {low:g}–{high:g} N",
+                f"{100 * share:.0f} % of reaming time in {low:.0f}–{high:.0f} N",
                 _rule_at_least(t.push_in_range_fraction, 1.0),
                 _tier(share, t.push_in_range_fraction),
                 1.0,
@@ -285,14 +326,20 @@ def _course(record: ReamingRecord) -> Section:
     figure, axes = plt.subplots(1, 2, figsize=(11.5, 3.4), gridspec_kw={"wspace": 0.45})
     axes[0].plot(t, record.removed_volume_mm3, color="tab:brown", label="removed volume")
     axes[0].set_xlabel("reaming time (s)")
-    axes[0].set_ylabel("removed volume (mm³)")
+    axes[0].set_ylabel("removed volume (mm³)", color="tab:brown")  # each axis in its line's colour
     depth_axis = axes[0].twinx()
     depth_axis.plot(t, record.depth_mm, color="tab:blue", label="depth")
-    depth_axis.set_ylabel("depth along the reamer axis (mm)")
+    depth_axis.set_ylabel("reamer advance since placed (mm)", color="tab:blue")
     axes[0].set_title("Bone removed and reamer depth")
+    if record.reamer_mm is not None:  # each reamer of the sequence, where the trainee took it up
+        for row in np.flatnonzero(np.diff(record.reamer_mm, prepend=np.nan) != 0):
+            for ax in axes:
+                ax.axvline(t[row], color="0.6", lw=0.8, ls=":")
+            axes[0].annotate(f"{record.reamer_mm[row]:g} mm", (t[row], 1.0), xycoords=("data", "axes fraction"), xytext=(2, -10),
+                             textcoords="offset points", fontsize=8, color="0.35")  # fmt: skip
     if record.trained_force_n is not None:
         low, high = record.trained_force_n
-        axes[1].axhspan(low, high, color="tab:green", alpha=0.12, label=f"learned range {low:g}–{high:g} N")
+        axes[1].axhspan(low, high, color="tab:green", alpha=0.12, label=f"learned range {low:.0f}–{high:.0f} N")
     axes[1].plot(t, record.force_n, color="tab:red", lw=1.2, label="push")
     axes[1].set_xlabel("reaming time (s)")
     axes[1].set_ylabel("push force (N)")
@@ -302,14 +349,21 @@ def _course(record: ReamingRecord) -> Section:
     pushed = in_range(record)
     rate = record.removed_volume_mm3[-1] / (frames * record.frame_dt_s)
     body = figure_png(figure) + table(
-        ["reaming time", "removed", "final depth", "mean removal rate", "push in the learned range", "frames the simulation fell behind"],
+        [
+            "reaming time",
+            "removed",
+            "last reamer's advance",
+            "mean removal rate",
+            "push in the learned range",
+            "frames the simulation fell behind",
+        ],
         [
             [
                 f"{frames * record.frame_dt_s:.1f} s",
                 f"{record.removed_volume_mm3[-1]:.1f} mm³",
                 f"{record.depth_mm[-1]:.2f} mm",
                 f"{rate:.0f} mm³/s",
-                "— (not recorded)" if pushed is None else f"{100 * np.mean(pushed):.0f} %",
+                _push_in_range_words(record, pushed),
                 record.behind_frames,
             ]
         ],
@@ -317,16 +371,31 @@ def _course(record: ReamingRecord) -> Section:
     return Section("Reaming: removal, depth and push", body)
 
 
+def _push_in_range_words(record: ReamingRecord, pushed: np.ndarray | None) -> str:
+    """The share of reaming time pushed within the learned range; a whole-socket model reads the feed the
+    push balances, not the push (it has no learned push), and older files do not say the range."""
+    if pushed is not None:
+        return f"{100 * np.mean(pushed):.0f} %"
+    return "— (the simulator reads the feed, not the push)" if record.reaction_n is not None else "— (not recorded)"
+
+
 def _cavity(record: ReamingRecord) -> Section:
     import matplotlib.pyplot as plt
-    from matplotlib.colors import ListedColormap
+    from matplotlib.colors import LinearSegmentedColormap, ListedColormap
 
     found = cavity_map(record)
     fractions = found["fractions"]
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4.4))
-    image = axes[0].imshow(found["depth_mm"].T, origin="lower", extent=found["extent_mm"], cmap="viridis", vmin=0, vmax=found["shell_mm"])
-    figure.colorbar(image, ax=axes[0], label="reamed below the articular surface (mm)")
-    axes[0].set_title(f"Final cavity depth (plan {found['planned_depth_mm']:.2f} mm)")
+    tolerance = found["tolerance_mm"]  # the green band is the map's on-plan tolerance: the two maps agree
+    stops = [(x + np.sign(x) * (tolerance - _ERROR_STOPS[3][0]), colour) for x, colour in _ERROR_STOPS]
+    low, high = stops[0][0], stops[-1][0]
+    palette = LinearSegmentedColormap.from_list("against_plan", [((x - low) / (high - low), c) for x, c in stops])
+    figure, axes = plt.subplots(1, 2, figsize=(11.5, 4.4), gridspec_kw={"wspace": 0.55})
+    image = axes[0].imshow(found["error_mm"].T, origin="lower", extent=found["extent_mm"], cmap=palette, vmin=low, vmax=high)
+    hollow = np.ma.masked_not_equal(found["classes"].T, 5)  # no surface of bone to measure: drawn as the class map draws it
+    axes[0].imshow(hollow, origin="lower", extent=found["extent_mm"], cmap=ListedColormap([_CLASS_COLOURS[5]]), interpolation="nearest")
+    bar = figure.colorbar(image, ax=axes[0], extend="both")
+    bar.set_label("cut surface against the planned cup (mm)\n− short of it · + beyond it")
+    axes[0].set_title(f"Cavity against the {2 * found['planned_radius_mm']:g} mm plan")
     classes = np.ma.masked_less(found["classes"].T, 0)
     axes[1].imshow(
         classes,
@@ -337,17 +406,27 @@ def _cavity(record: ReamingRecord) -> Section:
         vmax=len(CLASSES) - 0.5,
         interpolation="nearest",
     )
-    handles = [plt.Rectangle((0, 0), 1, 1, color=c) for c in _CLASS_COLOURS]
-    axes[1].legend(handles, [f"{n} ({100 * fractions[n]:.0f} %)" for n in CLASSES], fontsize=8, loc="upper right")
-    axes[1].set_title("Against the planned hemisphere")
+    shown = [k for k in range(len(CLASSES)) if k < 5 or (found["classes"] == k).any()]
+    handles = [plt.Rectangle((0, 0), 1, 1, color=_CLASS_COLOURS[k]) for k in shown]
+    words = [CLASSES[k] + ("" if k == 5 else f" ({100 * fractions[CLASSES[k]]:.0f} %)") for k in shown]
+    axes[1].legend(handles, words, fontsize=8, loc="upper left", bbox_to_anchor=(1.02, 1.0))
+    axes[1].set_title("Cells against the plan")
+    edge = found["planned_radius_mm"]
     for ax in axes:
-        ax.set_xlabel("x (mm, patch frame)")
-        ax.set_ylabel("y (mm)")
+        ax.add_patch(plt.Circle((0, 0), edge, fill=False, color="0.3", lw=0.8, ls="--"))
+        ax.set_xlabel("posterior ← → anterior (mm)")
+        ax.set_ylabel("inferior ← → superior (mm)")
         ax.set_aspect("equal")
     restored = any(e["kind"] in ("undo", "restore") for e in record.events)
+    planned = (
+        f"the planned {2 * edge:g} mm cup at its planned centre and angles"
+        if found["against_cup"]
+        else f"the hemisphere of the simulator's one {2 * edge:g} mm reamer at the native centre (its model cuts that size whatever is held)"
+    )
     body = figure_png(figure) + (
-        "<p>Seen along the acetabular opening. The plan is the reamer's hemisphere at the acetabular centre; a cell is "
-        "on plan within one element (0.45 mm) of it."
+        f"<p>The cavity seen from outside the socket along the planned cup's axis, within the cup's rim (dashed). The plan is "
+        f"{html.escape(planned)}; a cell is on plan within {found['tolerance_mm']:.2f} mm of it (half the mesh's element)."
+        + (" A native hollow (the fossa, bone never there) is shown but not counted." if found["classes"].max() == 5 else "")
         + (" This is the bone as the session ended: what was undone or restored is gone from it, not from the record "
            "(see errors and corrections).</p>" if restored else "</p>")
     )  # fmt: skip
@@ -386,13 +465,13 @@ def _against_plan(record: ReamingRecord) -> Section:
         ["cavity axis inclination", f"{plan.inclination_deg:g}°", shown(axis[0], "°"), shown(found["inclination_error_deg"], "°")],
         ["cavity axis anteversion", f"{plan.anteversion_deg:g}°", shown(axis[1], "°"), shown(found["anteversion_error_deg"], "°")],
         [
-            "centre, medial",
+            "centre, medial (− lateral)",
             f"{plan.medialisation_mm:g} mm",
             shown(medial, " mm"),
             shown(None if medial is None else medial - plan.medialisation_mm, " mm"),
         ],
         [
-            "centre, superior",
+            "centre, superior (− inferior)",
             f"{plan.superior_shift_mm:g} mm",
             shown(superior, " mm"),
             shown(None if superior is None else superior - plan.superior_shift_mm, " mm"),
@@ -418,7 +497,8 @@ def _against_plan(record: ReamingRecord) -> Section:
         body += "<p>No cup orientation was confirmed (Enter on the reaming page).</p>"
     body += (
         "<p>The cavity floor's error is positive where the cavity goes deeper than the planned cup, negative where it stops short; "
-        "over- and under-reaming are measured at the final bone's elements (to within half an element, 0.45 mm).</p>"
+        f"over- and under-reaming are measured at the final bone's elements (to within half an element, {_half_element_mm(record):.2f} mm). "
+        "The centre is the reamer's at its deepest with the largest reamer that cut.</p>"
     )
     if five is not None:
         body += f"<p>Reaming time with both angles within 5° of the plan: {100 * five:.0f} %; within 10°: {100 * ten:.0f} %.</p>"
@@ -434,6 +514,11 @@ def _against_plan(record: ReamingRecord) -> Section:
             "was trained on that size only. The cavity diameter is what it cut; the sequence is the trainee's choice.</p>"
         )
     return Section("Reaming: against the plan", body)
+
+
+def _half_element_mm(record: ReamingRecord) -> float:
+    """Half the mesh's element where the reamers cut (mm): how closely the final bone's elements place a surface."""
+    return float(record.cavity.get("element_size_m", PATCH_ELEMENT_SIZE_M)) * 0.5e3 if record.cavity else PATCH_ELEMENT_SIZE_M * 0.5e3
 
 
 def _errors_and_corrections(record: ReamingRecord) -> Section:

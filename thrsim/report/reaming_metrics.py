@@ -126,12 +126,32 @@ def confirmed_cup_angles(record: ReamingRecord) -> tuple[float, float] | None:
     return None if not confirmed else (float(confirmed[-1]["inclination_deg"]), float(confirmed[-1]["anteversion_deg"]))
 
 
+def cuts_trainees_reamers(record: ReamingRecord) -> bool:
+    """Whether the simulator cut with the reamers the trainee held (a whole-socket model), so that the
+    cavity is the plan's to measure; a model of one size (the patch's) cuts its own whatever is held."""
+    return record.reamer_mm is not None and bool(np.allclose(record.reamer_mm, cut_sizes_mm(record)))
+
+
+def planned_hemisphere(record: ReamingRecord) -> tuple[np.ndarray, np.ndarray, float]:
+    """The hemisphere the final cavity is mapped against (patch frame: centre m, unit axis out of the
+    socket, radius m): the planned cup where the simulator cut the trainee's reamers; else (a model of
+    one reamer, files before the plan) that reamer's teeth at the native centre, along the opening."""
+    if record.plan is not None and cuts_trainees_reamers(record):
+        plan = Plan(**record.plan)
+        centre, axis = plan.cup_in_patch(SafeZone(**record.zone))
+        return centre, axis, plan.cup_diameter_mm / 2e3
+    return np.zeros(3), np.array([0.0, 0.0, 1.0]), float(record.cavity["teeth_radius_m"])
+
+
 def cavity_against_plan_mm(record: ReamingRecord, plan: Plan) -> dict | None:
     """The final cavity against the planned cup, from the final bone's elements (their centres: to
-    within half an element, the mesh's 0.45 mm): ``cavity_depth_error_mm``, the cavity's floor
-    along the plan's axis beyond (+) or short of (−) the planned cup's floor; ``over_reaming_mm``,
-    the furthest bone removed beyond the planned hemisphere; ``under_reaming_mm``, the thickest
-    bone left inside it, below its rim. None without the cavity's geometry or when no bone was removed."""
+    within half an element): ``cavity_depth_error_mm``, the cavity's floor along the plan's axis
+    beyond (+) or short of (−) the planned cup's floor, the floor being the deepest removed element
+    or the native articular sphere's floor, whichever is deeper (a whole socket's native cavity is
+    hollow before any reaming; the fossa's recess behind it is not the cavity's floor);
+    ``over_reaming_mm``, the furthest bone removed beyond the planned hemisphere;
+    ``under_reaming_mm``, the thickest bone left inside it, below its rim. None without the
+    cavity's geometry or when no bone was removed."""
     cavity = record.cavity
     if not cavity or len(record.final_alpha) != len(cavity["centroids_m"]):
         return None
@@ -142,7 +162,8 @@ def cavity_against_plan_mm(record: ReamingRecord, plan: Plan) -> dict | None:
     offset = cavity["centroids_m"] - centre
     distance = np.linalg.norm(offset, axis=1)
     radius = plan.cup_diameter_mm / 2e3
-    floor = float(np.max(-(offset[removed] @ axis)))
+    native_floor = cavity["inner_radius_m"] + float(centre @ axis)  # the articular sphere's deepest point along −axis
+    floor = max(float(np.max(-(offset[removed] @ axis))), native_floor)
     inside = ~removed & (distance < radius) & (offset @ axis < 0.0)
     return {
         "cavity_depth_error_mm": (floor - radius) * 1e3,

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import h5py
 import numpy as np
 
-from thrsim.config import FRAME_RATE_HZ
+from thrsim.config import FRAME_RATE_HZ, BonePatchConfig
 from thrsim.errors import ThrsimInputError
 from thrsim.session.navigation import NavigationRecord, read_navigation, write_navigation
 
@@ -27,6 +27,10 @@ BONE_ERRORS = ("perforated", "medial_wall_breached", "rim_damaged")
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
 #: trace columns some files lack: those before the reamer sequence, a bone without a medial wall, a model without a reaction
+#: the cavity group's sizes every file holds
+_CAVITY_SIZES = ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")
+#: files before ``element_size_m`` were all reamed on the bone patch, meshed at its default size
+PATCH_ELEMENT_SIZE_M = BonePatchConfig().element_size_mm * 1e-3
 _SEQUENCE = ("reamer_mm", "cut_mm", "medial_wall_mm", "reaction_n", "motor_torque_n_m")
 
 
@@ -50,7 +54,7 @@ class ReamingRecord:
     final_alpha: np.ndarray
     behind_frames: int
     navigation: NavigationRecord
-    cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold (empty without a model)
+    cavity: dict  # centroids_m, outer, inner_radius_m, outer_radius_m, teeth_radius_m, threshold, element_size_m (empty without a model)
     frame_dt_s: float = 1.0 / FRAME_RATE_HZ  # seconds of reaming per frame: the model's (settings' model; files before it: 1/60 s)
     reamer_mm: np.ndarray | None = None  # per frame, the size held (None: a file before the reamer sequence)
     cut_mm: np.ndarray | None = None  # per frame, the size the simulator cut with
@@ -91,14 +95,18 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``feed_out_of_range`` (``feed_mm_s``,
     ``trained_feed_mm_s``), ``tilt_out_of_range`` (``tilt_deg``,
     ``trained_tilt_deg``), ``reamer_out_of_range`` (``reamer_mm``, ``trained_reamer_mm``), ``centre_out_of_range`` (``axis_offset_mm``, ``trained_axis_offset_mm``), ``plan_set`` (``plan``),
-    ``reamer_changed`` (``from_mm``, ``to_mm``), ``cup_confirmed`` (``inclination_deg``,
+    ``reamer_changed`` (``from_mm``, ``to_mm``), ``cancellous_reached`` (a reamer first cut from the
+    subchondral plate into cancellous bone: once a reamer, a layered bone's only), ``cup_confirmed`` (``inclination_deg``,
     ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the
     simulator's end reasons
     (``passed_through`` and the :data:`BONE_ERRORS`, with ``depth_mm``, ``removed``, ``angles_deg``);
     ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
-    needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element has a
-    face on the bone's outer surface), attrs ``inner_radius_m``, ``outer_radius_m`` (the shell),
-    ``teeth_radius_m`` (the reamer), ``threshold`` (α below it is removed); ``navigation/`` the
+    needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element lies on
+    a face the reamer breaks through: the patch's outer face, the socket's medial wall and supported
+    boundary), attrs ``inner_radius_m`` (the native articular sphere), ``outer_radius_m`` (the
+    patch's outer face), ``teeth_radius_m`` (the model's reamer), ``threshold`` (α below it is
+    removed), ``element_size_m`` (the mesh's RMS edge length where the reamers cut; files before it
+    were the 0.45 mm patch's); ``navigation/`` the
     composed navigation trainer's group (:mod:`thrsim.session.navigation`).
     """
     group.attrs.update(
@@ -129,7 +137,7 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     if record.cavity:
         cavity.create_dataset("centroids_m", data=np.asarray(record.cavity["centroids_m"], dtype=np.float32), compression="gzip")
         cavity.create_dataset("outer", data=np.asarray(record.cavity["outer"], dtype=bool), compression="gzip")
-        cavity.attrs.update({k: float(record.cavity[k]) for k in ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")})
+        cavity.attrs.update({k: float(record.cavity[k]) for k in (*_CAVITY_SIZES, "element_size_m") if k in record.cavity})
     write_navigation(group.create_group("navigation"), record.navigation, settings)
 
 
@@ -163,7 +171,8 @@ def read_reaming(group: dict) -> ReamingRecord:
             else {
                 "centroids_m": np.asarray(group["cavity"]["centroids_m"], dtype=float),
                 "outer": np.asarray(group["cavity"]["outer"], dtype=bool),
-                **{k: float(group["cavity"]["attrs"][k]) for k in ("inner_radius_m", "outer_radius_m", "teeth_radius_m", "threshold")},
+                **{k: float(group["cavity"]["attrs"][k]) for k in _CAVITY_SIZES},
+                "element_size_m": float(group["cavity"]["attrs"].get("element_size_m", PATCH_ELEMENT_SIZE_M)),
             },
         )
     except (KeyError, TypeError, ValueError) as error:

@@ -6,8 +6,8 @@
 // server streams (thrsim/app/bone_stream.py). A face is drawn when its tet remains and the tet
 // across it does not (or there is none): the same boundary the offscreen renderer draws.
 // Colours: by depth against the planned hemisphere (DEPTH_STOPS, computed per pixel from the
-// plan's centre and radius, so a new plan recolours nothing on the CPU), or by the bone's layer
-// (its elements' materials, LAYER_COLOURS).
+// plan's centre and radius, so a new plan recolours nothing on the CPU; native faces beyond the
+// plan, NATIVE_COLOUR), or by the bone's layer (its elements' materials, LAYER_COLOURS).
 import * as THREE from "three";
 
 // Outward faces of a positively oriented tet, opposite vertex 0, 1, 2, 3 (thrsim.geometry.tet_metrics).
@@ -20,6 +20,10 @@ export const DEPTH_STOPS = [[-2, "#e3dccb"], [-1, "#f2c14e"], [-0.45, "#2ca25f"]
 // The bone's layers (thrsim.geometry.mesh's material names): cortical ivory, cancellous the red of
 // bleeding cancellous bone; a name not listed is grey.
 export const LAYER_COLOURS = { cortical: "#efe6cf", cancellous: "#c8645a" };
+// Native bone (a face no reamer made) beyond the plan is no depth to show: the whole socket's rim,
+// fossa and outer faces, drawn plain grey with depth colours on. Beyond this (mm) a native face is grey.
+export const NATIVE_COLOUR = "#b9b9b9";
+const NATIVE_BEYOND_MM = DEPTH_STOPS[3][0];
 const OTHER_LAYER = "#9a9a9a";
 
 // GLSL: the depth colour of a distance beyond the plan (mm), piecewise linear between the stops
@@ -41,15 +45,20 @@ function depthColourGlsl() {
 function boneMaterial() {
   const material = new THREE.MeshLambertMaterial({ vertexColors: true, side: THREE.FrontSide });
   const plan = { planCentre: { value: new THREE.Vector3() }, planRadius: { value: 0 }, depthColours: { value: 1 } };
+  const native = `vec3(${new THREE.Color(NATIVE_COLOUR).toArray().map((x) => x.toFixed(4)).join(", ")})`;
   material.userData.plan = plan;
   material.onBeforeCompile = (shader) => {
     Object.assign(shader.uniforms, plan);
     shader.vertexShader = shader.vertexShader
-      .replace("#include <common>", "#include <common>\nvarying vec3 vBonePoint;")
-      .replace("#include <begin_vertex>", "#include <begin_vertex>\nvBonePoint = transformed;");
+      .replace("#include <common>", "#include <common>\nvarying vec3 vBonePoint;\nattribute float cutFace;\nvarying float vCut;")
+      .replace("#include <begin_vertex>", "#include <begin_vertex>\nvBonePoint = transformed;\nvCut = cutFace;");
     shader.fragmentShader = shader.fragmentShader
-      .replace("#include <common>", `#include <common>\nvarying vec3 vBonePoint;\nuniform vec3 planCentre;\nuniform float planRadius;\nuniform float depthColours;\n${depthColourGlsl()}`)
-      .replace("#include <color_fragment>", "#include <color_fragment>\nif (depthColours > 0.5) diffuseColor.rgb = depthColour(length(vBonePoint - planCentre) - planRadius);");
+      .replace("#include <common>", `#include <common>\nvarying vec3 vBonePoint;\nvarying float vCut;\nuniform vec3 planCentre;\nuniform float planRadius;\nuniform float depthColours;\n${depthColourGlsl()}`)
+      .replace("#include <color_fragment>", `#include <color_fragment>
+if (depthColours > 0.5) {
+  float d = length(vBonePoint - planCentre) - planRadius;
+  diffuseColor.rgb = vCut > 0.5 || d <= ${NATIVE_BEYOND_MM.toFixed(3)} ? depthColour(d) : ${native};
+}`);
   };
   return material;
 }
@@ -100,10 +109,12 @@ export class BonePatch {
     this.positions = new Float32Array(capacity * 9);
     this.normals = new Float32Array(capacity * 9);
     this.rgb = new Float32Array(capacity * 9);
+    this.cut = new Float32Array(capacity * 3); // 1 on a face a reamer made (the tet across it removed), 0 on a native face
     const geometry = new THREE.BufferGeometry();
     geometry.setAttribute("position", new THREE.BufferAttribute(this.positions, 3).setUsage(THREE.DynamicDrawUsage));
     geometry.setAttribute("normal", new THREE.BufferAttribute(this.normals, 3).setUsage(THREE.DynamicDrawUsage));
     geometry.setAttribute("color", new THREE.BufferAttribute(this.rgb, 3).setUsage(THREE.DynamicDrawUsage));
+    geometry.setAttribute("cutFace", new THREE.BufferAttribute(this.cut, 1).setUsage(THREE.DynamicDrawUsage));
     geometry.setDrawRange(0, 0);
     // Front faces only: the faces are the remaining bone's outward boundary, so a back face is
     // always behind a front one (culling halves SwiftShader's shading of the patch).
@@ -232,6 +243,7 @@ export class BonePatch {
     const length = Math.hypot(nx, ny, nz) || 1;
     nx /= length; ny /= length; nz /= length;
     const pos = this.positions, nor = this.normals, rgb = this.rgb;
+    this.cut.fill(this.mesh.neighbours[face] >= 0 ? 1 : 0, 3 * slot, 3 * slot + 3);
     let w = 9 * slot;
     for (const node of [a, b, c]) {
       pos[w] = nodes[node]; pos[w + 1] = nodes[node + 1]; pos[w + 2] = nodes[node + 2];
@@ -247,9 +259,9 @@ export class BonePatch {
     const geometry = this.object.geometry;
     geometry.setDrawRange(0, 3 * this.slotsUsed);
     if (!ranges.length) return;
-    for (const name of ["position", "normal", "color"]) {
-      const attribute = geometry.attributes[name];
-      for (const [first, end] of ranges) attribute.addUpdateRange(9 * first, 9 * (end - first));
+    for (const name of ["position", "normal", "color", "cutFace"]) {
+      const attribute = geometry.attributes[name], per = 3 * attribute.itemSize; // values a face slot holds
+      for (const [first, end] of ranges) attribute.addUpdateRange(per * first, per * (end - first));
       attribute.needsUpdate = true;
     }
   }

@@ -2,11 +2,11 @@
 // hemisphere of the planned cup's size at its centre and orientation, drawn over the bone, in the
 // main view and the inset), the bone coloured by depth against it (or by its layers) with a legend
 // in mm and a scale beside the inset, the medial wall's closeness with a warning before it, and an
-// optional sound cue (off by default) when the reamer leaves the subchondral plate for cancellous
-// bone. It reads the state the server sends (reaming.plan: its cup_diameter_mm, centre_m and axis
-// in the pelvis model frame; bone_left_mm, medial_wall_modelled, cutting_layer); the page's own panels stay the page's.
+// optional sound cue (off by default) when a reamer leaves the subchondral plate for cancellous
+// bone (the server's cancellous_reached event, once a reamer). It reads the state the server sends (reaming.plan: its
+// cup_diameter_mm, centre_m and axis in the pelvis model frame; bone_left_mm, medial_wall_modelled, events); the page's own panels stay the page's.
 import * as THREE from "three";
-import { DEPTH_STOPS, LAYER_COLOURS } from "./bone.js";
+import { DEPTH_STOPS, LAYER_COLOURS, NATIVE_COLOUR } from "./bone.js";
 
 // closer than this to the medial wall (mm of bone left under the reamer's teeth), the page warns
 export const MEDIAL_WALL_WARNING_MM = 1.0;
@@ -66,7 +66,6 @@ export class CavityView {
     this.stats.wallWarnings = 0;
     this.bone = null;
     this.planKey = "";
-    this.layer = null;
     this.audio = null;
     // Drawn over the bone (it lies inside the bone still to ream), last, in both views (layer 1: the inset).
     this.outline = new THREE.LineSegments(hemisphereLines(), new THREE.LineBasicMaterial({ color: OUTLINE_COLOUR, transparent: true, opacity: 0.7, depthTest: false }));
@@ -84,7 +83,8 @@ export class CavityView {
       element("div", { id: "legend-depth" },
         element("div", { className: "bar", style: `background: ${gradient("to right")}` }),
         ticks("ticks"),
-        element("div", { className: "ends muted" }, element("span", {}, "bone still to ream"), element("span", {}, "on plan"), element("span", {}, "beyond plan"))),
+        element("div", { className: "ends muted" }, element("span", {}, "bone still to ream"), element("span", {}, "on plan"), element("span", {}, "beyond plan")),
+        element("span", { className: "swatch-row muted" }, element("span", { className: "swatch", style: `background: ${NATIVE_COLOUR}` }), " bone no reamer touched, beyond the plan")),
       element("div", { id: "legend-layers", className: "hidden" },
         ...Object.entries(LAYER_COLOURS).map(([name, hex]) => element("span", { className: "swatch-row" }, element("span", { className: "swatch", style: `background: ${hex}` }), ` ${name} bone`))),
       element("label", {}, "Colour ", element("select", { id: "bone-colours" },
@@ -117,14 +117,13 @@ export class CavityView {
     bone.setDepthColours($("bone-colours").value === "depth");
   }
 
-  // Each state: the plan (outline and depth colours follow it), the medial wall, the layer cue.
+  // Each state: the plan (outline and depth colours follow it), the medial wall, the cue of cancellous bone reached.
   apply(state) {
     const r = state.reaming;
     const plan = r.plan;
     if (plan && this.bone) this.showPlan(plan);
     this.showWall(r.bone_left_mm, r.medial_wall_modelled);
-    if (r.cutting_layer === "cancellous" && this.layer === "cortical" && r.running) this.cue();
-    this.layer = r.cutting_layer ?? null;
+    if (r.events.some((e) => e.kind === "cancellous_reached")) this.cue();
   }
 
   showPlan(plan) {

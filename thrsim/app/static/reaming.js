@@ -188,6 +188,7 @@ function feedback(event) {
     cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `no bone left in the reamer's path; ${event.detail}`,
+    cancellous_reached: `cancellous bone: ${event.detail}`,
   }[event.kind];
   const bad = ["perforated", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
     .includes(event.kind);
@@ -283,10 +284,15 @@ function frameView() {
   orbit.target.copy(view.focus);
   orbit.update();
   view.setHome(view.camera.position, orbit.target);
-  // The inset: the cavity seen along the opening, the bone patch alone (layer 1). The patch lies
-  // in the socket's floor, an inner radius (22 mm) in from the acetabular centre.
+  // The inset: the cavity seen along the opening, the bone alone (layer 1). The patch lies in the
+  // socket's floor, an inner radius (22 mm) in from the acetabular centre: seen from 6 cm off it. The
+  // whole socket is seen whole: its rim (the larger of the native socket and the planned cup, and a
+  // few millimetres) fills the inset's field.
   const floor = view.focus.clone().addScaledVector(opening, -0.022);
-  cavity.position.copy(floor).addScaledVector(opening, 0.06);
+  const plan = stats.last?.reaming.plan;
+  const rim = plan ? Math.max(plan.cup_diameter_mm, plan.native_socket_mm) / 2e3 + 0.003 : 0.027;
+  const away = view.sceneInfo.reaming.bone === "socket" ? rim / Math.tan(THREE.MathUtils.degToRad(cavity.fov / 2)) : 0.06 - 0.022;
+  cavity.position.copy(view.focus).addScaledVector(opening, away);
   cavity.up.set(0, 0, 1);
   cavity.lookAt(floor);
 }

@@ -82,7 +82,7 @@ class ReamerFeed:
             return 0.0
         # outside the pushes it learned the regressor reads the nearest and the push scales its advance
         learned = force_n if self.force_range_n is None else min(max(force_n, self.force_range_n[0]), self.force_range_n[1])
-        row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, learned, impulse_n_s * learned / force_n)
+        row = feature_row(float((centre - start) @ axis), inclination_deg, anteversion_deg, learned, impulse_n_s)
         predicted = float(self.regressor.predict(row)[0]) * 1e-3 * force_n / learned
         attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
         rest = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, self.support_nodes)

@@ -116,9 +116,9 @@ class TrainSettings(_Frozen):
     max_minutes: float | None = Field(None, gt=0, description="stop after the epoch that crosses this budget")
     advance_trees: int = Field(100, ge=1, description="trees of the advance regressor's Random Forest (the thesis's 100)")
     advance_kind: Kind | Literal["lowest_cv"] = Field(
-        "svr",
-        description="the advance regressor kept: svr, whose rollouts hold off the training grid where the forest's (the "
-        "lowest per-frame error, lowest_cv) under-advance (the benchmarks page), or any kind by name",
+        "lowest_cv",
+        description="the advance regressor kept: lowest_cv (the lowest cross-validated error of one frame's advance, the thesis's "
+        "rule) or a kind by name; svr holds off the training grid where the forest under-advances (the benchmarks page)",
     )
     pushforward_steps: int = Field(
         0, ge=0, description="longest rollout of the network itself that makes a training input (0: ground-truth inputs only)"

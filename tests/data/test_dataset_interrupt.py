@@ -44,9 +44,15 @@ def test_dataset_stops_within_2_s_and_keeps_every_finished_case(tmp_path, how):
     out = tmp_path / "data"
     # a slowed stand-in solver: about 1.8 s a case, so that cases are running when the stop comes
     env = checkout_env(THRSIM_SYNTHETIC_SECONDS_PER_FRAME="0.15")
-    sweep = subprocess.Popen(
-        [*THRSIM, "dataset", *SWEEP, "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
-    )
+    # a command started from an interactive shell hears Ctrl-C; one started in the background of a
+    # script inherits SIGINT ignored (POSIX), as this test would if pytest itself ran so
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        sweep = subprocess.Popen(
+            [*THRSIM, "dataset", *SWEEP, "--out", str(out)], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True
+        )
+    finally:
+        signal.signal(signal.SIGINT, inherited)
     try:
         deadline = time.monotonic() + 120
         while "complete" not in statuses(out).values():

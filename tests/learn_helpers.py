@@ -50,3 +50,21 @@ def tiny_socket_settings(epochs: int = 3, **train) -> ModelSettings:
         features=preset("socket").features,
         train=tiny.train,
     )
+
+
+def use_forest_regressor(model: Path) -> None:
+    """Give a copied model folder a small random-forest feed regressor in place of its own, so that
+    the validation tests can spoil a forest's trees (the shipped patch model's feed is an SVR)."""
+    import json
+
+    import numpy as np
+    from sklearn.ensemble import RandomForestRegressor
+
+    from thrsim.learn.advance import FEATURES, REFERENCE_FORCE_N, export
+    from thrsim.learn.model_dir import CARD, save_advance
+
+    rng = np.random.default_rng(0)
+    X = rng.uniform(0.0, 1.0, (200, len(FEATURES)))
+    forest = RandomForestRegressor(n_estimators=4, max_depth=5, random_state=0).fit(X, 0.05 * X[:, 0])
+    card = json.loads((model / CARD).read_text())
+    save_advance(model, card, export("random_forest", forest, (0.0, 0.05), reference_force_n=REFERENCE_FORCE_N))

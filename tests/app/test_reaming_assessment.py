@@ -50,7 +50,8 @@ def test_a_perforation_undone_and_restored_still_counts_and_scores(tmp_path, mon
     clock.control(type="reamer", inclination_deg=55, anteversion_deg=15)  # 15° off the axis: through in 60–150 frames
     clock.control(type="run", action="start")
     clock.run(3.0)
-    assert [e["kind"] for e in clock.session.trainer.events] == ["start", "perforated"]
+    started, through = (e["kind"] for e in clock.session.trainer.events)  # through the 2 mm patch: with bone left around or none
+    assert started == "start" and through in ("perforated", "passed_through")
     assert clock.control(type="run", action="undo").startswith("undid")
     clock.control(type="run", action="reset")  # R: the intact bone again
     assert clock.session.trainer.simulator.removed.sum() == 0
@@ -61,9 +62,9 @@ def test_a_perforation_undone_and_restored_still_counts_and_scores(tmp_path, mon
     assessment = build_assessment(path)
     points = _points(assessment)
     kinds = [e["kind"] for e in assessment.events]
-    assert kinds[:4] == ["start", "perforated", "undo", "restore"] and all({"kind", "time_s"} <= set(e) for e in assessment.events)
+    assert kinds[:4] == ["start", through, "undo", "restore"] and all({"kind", "time_s"} <= set(e) for e in assessment.events)
     perforation = next(c for c in assessment.criteria if c.name == "no perforation or breach")
-    assert perforation.points == 0 and "perforated at" in perforation.measured and "undone" in perforation.measured
+    assert perforation.points == 0 and perforation.measured.startswith("perforated") and "undone" in perforation.measured
     assert points["cavity prepared"] == 0 and points["over-reaming"] == 0  # a cavity reamed through is not one prepared to plan
     assert points["no undo or restore"] == 0  # one undo and one restore
     assert assessment.metrics["perforations"] == 1 and assessment.metrics["undos"] == 1 and assessment.metrics["restores"] == 1

@@ -9,6 +9,7 @@ import urllib.request
 
 import pytest
 from app_helpers import ServedTrainer, next_of_type
+from learn_helpers import use_forest_regressor
 from safetensors.numpy import load_file, save_file
 from websockets.sync.client import connect
 
@@ -20,6 +21,7 @@ pytestmark = pytest.mark.timeout(120)
 def test_a_model_with_a_cyclic_regressor_tree_is_refused_and_the_server_lives_on(tmp_path):
     model = tmp_path / "model"
     shutil.copytree(SHIPPED_MODEL, model)
+    use_forest_regressor(model)
     arrays = load_file(str(model / ADVANCE))
     root = int(arrays["roots"][0])
     arrays["left"][root] = arrays["right"][root] = root

@@ -8,6 +8,7 @@ import json
 import shutil
 
 import h5py
+import numpy as np
 import pytest
 from checkout_cli import run_main
 from safetensors.numpy import load_file, save_file
@@ -59,8 +60,8 @@ def test_a_named_model_that_fails_its_checks_is_refused(session_naming_a_folder,
     spoiled = tmp_path / "spoiled"
     shutil.copytree(SHIPPED_MODEL, spoiled)
     arrays = load_file(str(spoiled / ADVANCE))
-    arrays["left"][0] = 2**30
-    save_file(arrays, str(spoiled / ADVANCE), metadata={"kind": "random_forest"})
+    arrays["dual_coef"][0] = np.nan  # the shipped patch model's feed is an SVR
+    save_file(arrays, str(spoiled / ADVANCE), metadata={"kind": "svr"})
     code, out, err = run_main(monkeypatch, capsys, "replay", str(path), "--model", str(spoiled))
     assert code == 2 and out == "", (code, out, err)
-    assert len(err.splitlines()) == 1 and "advance.safetensors" in err and "1073741824" in err
+    assert len(err.splitlines()) == 1 and "advance.safetensors" in err and "'dual_coef'" in err

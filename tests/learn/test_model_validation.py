@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 import torch
 from checkout_cli import run_main
+from learn_helpers import use_forest_regressor
+from safetensors import safe_open
 from safetensors.numpy import load_file, save_file
 from safetensors.torch import load_file as load_tensors
 from safetensors.torch import save_file as save_tensors
@@ -41,11 +43,14 @@ def _card(change):
     return spoil
 
 
-def _advance(change):
+def _advance(change, kind: str = "random_forest"):
     def spoil(folder: Path) -> None:
+        if kind == "random_forest":
+            use_forest_regressor(folder)
         arrays = load_file(str(folder / ADVANCE))
+        assert safe_open(str(folder / ADVANCE), "np").metadata()["kind"] == kind
         change(arrays)
-        save_file(arrays, str(folder / ADVANCE), metadata={"kind": "random_forest"})
+        save_file(arrays, str(folder / ADVANCE), metadata={"kind": kind})
 
     return spoil
 
@@ -88,6 +93,9 @@ SPOILED = {
     "forest_feature_out_of_range": (_advance(lambda a: a["feature"].__setitem__(0, 10**6)), "feature 1000000"),
     "forest_value_nan": (_advance(lambda a: a["value"].__setitem__(3, np.nan)), "'value'"),
     "forest_without_values": (_advance(lambda a: a.pop("value")), "lacks array(s) value"),
+    "svr_dual_coef_nan": (_advance(lambda a: a["dual_coef"].__setitem__(0, np.nan), "svr"), "'dual_coef'"),
+    "svr_support_vectors_short": (_advance(lambda a: a.update(support_vectors=a["support_vectors"][:-1]), "svr"), "support_vectors"),
+    "svr_without_gamma": (_advance(lambda a: a.pop("gamma"), "svr"), "lacks array(s) gamma"),
     "weights_nan": (_network(lambda t: _first_tensor(t, float("nan"))), "NaN or infinite"),
     "weights_half_precision": (_network(lambda t: t.update({k: v.half() for k, v in t.items() if v.is_floating_point()})), "float16"),
     "weights_missing_one": (_network(lambda t: t.pop(sorted(t)[-1])), "missing"),

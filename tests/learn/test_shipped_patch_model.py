@@ -49,3 +49,20 @@ def test_a_push_or_a_reamer_the_patch_model_did_not_learn_is_flagged(model):
     assert simulator.step(AXIS, 0.5 * (low + high)).out_of_range == ()
     assert "push" in simulator.step(AXIS, 0.5 * low).out_of_range
     assert "reamer size" in simulator.step(AXIS, 0.5 * (low + high), reamer_mm=model.trained_reamer_mm[0] + 4.0).out_of_range
+
+
+def test_a_tilt_direction_beyond_the_half_circle_it_learned_feeds_as_its_mirror_image(model):
+    """θ 330° reads the regressor at 30°: the shipped SVR, read at 330° itself, ran a 230 N reamer
+    through the 2 mm patch in 10 frames (13 mm/s; the solver takes about 1.6 s)."""
+    assert model.trained_anteversion_deg == (0.0, 180.0)
+
+    def tilted(theta_deg: float) -> np.ndarray:
+        gamma, theta = np.radians(7.0), np.radians(theta_deg)
+        return np.array([np.sin(gamma) * np.cos(theta), np.sin(gamma) * np.sin(theta), -np.cos(gamma)])
+
+    advances = {}
+    for theta_deg in (30.0, 330.0):
+        simulator = ReamingSimulator(model=model)
+        advances[theta_deg] = [simulator.step(tilted(theta_deg), 230.0).advance_m for _ in range(10)]
+    assert advances[330.0] == pytest.approx(advances[30.0], rel=1e-2)
+    assert 1e3 * sum(advances[330.0]) / (10 / 60) < 5.0  # mm/s: far below a runaway

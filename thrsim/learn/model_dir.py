@@ -138,6 +138,13 @@ class LoadedModel:
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
+    def trained_anteversion_deg(self) -> tuple[float, float] | None:
+        """The lowest and highest θ (which way the axis tilts from the socket's) of the training
+        cases (None on a card written before cards recorded it)."""
+        found = self.card.get("data", {}).get("anteversion_range_deg")
+        return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
     def trained_axis_offset_mm(self) -> tuple[float, float] | None:
         """The nearest and farthest the training cases' reamer axis passed from the socket's centre (mm;
         None on a card written before cards recorded it)."""
@@ -157,7 +164,14 @@ class LoadedModel:
 
     def reamer_feed(self) -> ReamerFeed:
         """How the reamer advances when no position is given (regressor, resting on the bone)."""
-        return ReamerFeed(self.advance, self.mesh, self.teeth_radius_m, self.threshold, force_range_n=self.trained_force_n)
+        return ReamerFeed(
+            self.advance,
+            self.mesh,
+            self.teeth_radius_m,
+            self.threshold,
+            force_range_n=self.trained_force_n,
+            anteversion_range_deg=self.trained_anteversion_deg,
+        )
 
 
 def mesh_arrays(mesh: TetMesh) -> dict[str, np.ndarray]:

@@ -118,6 +118,7 @@ def train_model(
             "split": {name: sorted(c.case_id for c in cases if c.split == name) for name in ("train", "validation", "test")},
             "force_range_n": [min(c.recorded_push_n() for c in train), max(c.recorded_push_n() for c in train)],
             "inclination_range_deg": [min(c.inclination_deg for c in train), max(c.inclination_deg for c in train)],
+            "anteversion_range_deg": anteversion_range_deg(train),
             "axis_offset_range_mm": [min(c.axis_offset_mm() for c in train), max(c.axis_offset_mm() for c in train)],
             "feed_range_mm_s": feed_range_mm_s(train),
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
@@ -156,6 +157,11 @@ def train_model(
     return card
 
 
+def anteversion_range_deg(train: list[CaseArrays]) -> list[float]:
+    """The lowest and highest tilt direction θ of the training cases, as their regressor reads it."""
+    return [min(c.anteversion_deg for c in train), max(c.anteversion_deg for c in train)]
+
+
 def refit_advance(data: str | os.PathLike, out: str | os.PathLike, kind: str | None = None) -> dict:
     """Refit the reamer regressor of the trained model in ``out`` on the data it was trained on,
     keeping its networks (minutes of training) untouched, as its settings' ``advance_kind`` or
@@ -178,6 +184,7 @@ def refit_advance(data: str | os.PathLike, out: str | os.PathLike, kind: str | N
     advance, advance_table = train_advance(train, held_out, settings.train.seed, settings.train.advance_trees, settings.train.advance_kind)
     card = {
         **card,
+        "data": {**card["data"], "anteversion_range_deg": anteversion_range_deg(train)},
         "settings": settings.model_dump(mode="json"),
         "advance": advance_table,
         "advance_refit_utc": datetime.now(UTC).isoformat(timespec="seconds"),

@@ -31,11 +31,15 @@ from thrsim.session.reaming import BONE_ERRORS, PATCH_ELEMENT_SIZE_M, ReamingRec
 
 GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
-_ERROR_WORDS = {"perforated": "perforated", "medial_wall_breached": "medial wall breached", "rim_damaged": "rim damaged"}
+_ERROR_WORDS = {
+    "perforated": "perforated",
+    "passed_through": "perforated, no bone left in the reamer's path,",
+    "medial_wall_breached": "medial wall breached",
+    "rim_damaged": "rim damaged",
+}
 #: the events listed under errors and corrections
 _LISTED = (
     *BONE_ERRORS,
-    "passed_through",
     "push_out_of_range",
     "feed_out_of_range",
     "tilt_out_of_range",

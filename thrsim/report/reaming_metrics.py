@@ -186,7 +186,7 @@ def metrics(record: ReamingRecord) -> dict:
     cannot give is None, a figure a file before it does not hold is left out."""
     kinds = [e["kind"] for e in record.events]
     found: dict = {
-        "perforations": kinds.count("perforated"),
+        "perforations": kinds.count("perforated") + kinds.count("passed_through"),
         "undos": kinds.count("undo"),
         "restores": kinds.count("restore"),
         "push_mean_n": float(np.mean(record.force_n)),

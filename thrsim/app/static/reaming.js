@@ -187,10 +187,10 @@ function feedback(event) {
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
     cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
     perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
-    passed_through: `no bone left in the reamer's path; ${event.detail}`,
+    passed_through: `perforated: the reamer went through the bone, none left in its path; ${event.detail}`,
     cancellous_reached: `cancellous bone: ${event.detail}`,
   }[event.kind];
-  const bad = ["perforated", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
+  const bad = ["perforated", "passed_through", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
     .includes(event.kind);
   if (text) toast(text, event.kind === "start" ? "good" : bad ? "error" : "");
 }

@@ -7,9 +7,8 @@ the bone does not hover over a cavity: it rests on the bone that is left. So the
 by the regressor's prediction or, where that would leave it clear of the bone, by as much as
 brings at least ``support_nodes`` nodes of the remaining bone into the teeth's dome (the
 half-ball of the teeth's reach in front of the head's equatorial plane), whichever is more.
-``SUPPORT_NODES`` = 20 never moves the reamer further than the solver did on the solver's own
-bone (measured on the training cases: the docs' Learned simulator page). With no push there is
-nothing to rest on the bone with: the reamer stays where it is. Outside the pushes it learned the
+``SUPPORT_NODES`` = 20 never moves the reamer further than the solver did on its own bone (the
+docs' Learned simulator page). No push: the reamer stays. Outside the pushes it learned the
 regressor reads the nearest; beyond a half-circle of tilt directions it reads the mirror image.
 """
 

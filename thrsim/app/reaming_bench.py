@@ -8,9 +8,8 @@ full). Reported: simulator frames per second delivered, the bone's binary frames
 against every element's α as float32, frames drawn per second once the page's render scale has
 settled, Chromium's CPU per drawn frame, and the latency from an OpenIGTLink pose to the state
 that shows it and to its first drawing (median, p90), the session's worst server tick and how far the drawn
-bone trailed the simulation (wall-clock). With a whole-socket model, first a whole reaming
-(:func:`whole_reaming`): a reamer sequence over hundreds of frames, with its worst tick, the drawn
-bone's lag, and whether pushes sent while it reams apply in order.
+bone trailed the simulation (wall-clock). A whole-socket model first reams the socket whole with a
+reamer sequence (:func:`whole_reaming`): its worst tick, lag, and whether inputs apply in order.
 """
 
 from __future__ import annotations

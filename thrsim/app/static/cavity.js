@@ -151,6 +151,7 @@ export class CavityView {
     const text = medialWall
       ? `Medial wall: ${known ? `${left.toFixed(1)} mm of bone left` : "—"}`
       : `Medial wall: not modelled on the bone patch${known ? ` · ${left.toFixed(1)} mm of bone left before its far face` : ""}`;
+    if (box.textContent !== text) box.textContent = text;
     const words = medialWall
       ? (left <= 0 ? "Medial wall reached: stop" : `Medial wall close: ${left?.toFixed(1)} mm of bone left`)
       : (left <= 0 ? "Through the bone: stop" : `About to break through the bone: ${left?.toFixed(1)} mm left`);

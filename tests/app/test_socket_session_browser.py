@@ -2,7 +2,9 @@
 model (the native 46 mm socket meshed coarse) and a headless Chromium trainee who reams with the
 46 mm reamer and then the 48 mm one (keys), hears the cue as the 48 mm reamer reaches cancellous
 bone, reads the bone left before the medial wall (and its warning), sees native bone beyond the plan apart from
-reamed bone, ends the session and reads a report whose figures are those of the saved file."""
+reamed bone, ends the session and reads a report whose figures are those of the saved file; and a
+trainee at 1280×720 who reaches every control of the panels, and is warned before the 52 mm reamer
+pushed at 400 N breaks through the edge of the modelled bone."""
 
 from __future__ import annotations
 

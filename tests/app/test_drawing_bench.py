@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 
 import pytest
-from checkout_cli import run_thrsim
+from checkout_cli import run_main, run_thrsim
 
 import thrsim.app
 from thrsim.app.drawing_bench import CHROMIUM
@@ -59,6 +59,49 @@ def test_reaming_page_benchmark_reams_and_times_the_page():
     assert figures["worst_tick_ms"] > 0 and figures["worst_tick_ms"] >= figures["step_ms_last"]
     lag = figures["drawn_bone_lag_s"]
     assert lag["drawings"] > 0 and 0 <= lag["mean"] <= lag["worst"]
+    assert figures["whole_reaming"] is None  # the patch model's runs each ream the patch whole already
+
+
+@pytest.mark.timeout(900)
+def test_reaming_page_benchmark_reams_the_whole_socket_with_a_reamer_sequence():
+    """The shipped socket model meshed coarse, a very short whole reaming (4 frames, 46 → 48 mm):
+    the figures are there with sane types, and the pushes sent while it reams apply in order."""
+    from thrsim.app.reaming_bench import PROBE_PUSHES
+    from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
+
+    completed = run_thrsim(
+        "bench", "--browser-only", "--reaming-page", "--model", str(SHIPPED_SOCKET_MODEL), "--socket-element-size", "5",
+        "--reamers", "46,48", "--reaming-frames", "4", "--browser-seconds", "1", "--no-compile", timeout=880,
+    )  # fmt: skip
+    assert completed.returncode == 0, completed.stderr[-3000:]
+    figures = json.loads(completed.stdout)["reaming_page"]
+    whole = figures["whole_reaming"]
+    assert [step["reamer_mm"] for step in whole["reamers"]] == [46, 48]
+    for step in whole["reamers"]:  # each its share of the frames, unless the simulator stopped it
+        assert step["frames"] >= 2 or step["stopped_by"] in ("perforated", "medial_wall_breached", "passed_through")
+    assert whole["frames"] == sum(step["frames"] for step in whole["reamers"])
+    assert 0 < whole["worst_tick_ms_before"] <= whole["worst_tick_ms"] <= figures["worst_tick_ms"]
+    lag = whole["drawn_bone_lag_s"]
+    assert lag["drawings"] >= 0 and isinstance(lag["worst"], float) and whole["behind_frames"] >= 0
+    pushes = whole["pushes_in_order"]
+    assert pushes["sent"] == pushes["acknowledged"] == 2 * PROBE_PUSHES
+    assert pushes["acks_in_order"] and pushes["states_in_order"] and pushes["most_in_one_state"] >= 1
+
+
+def test_the_whole_reaming_flags_are_a_whole_socket_models_and_checked(monkeypatch, capsys):
+    from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
+
+    socket = ("--browser-only", "--reaming-page", "--model", str(SHIPPED_SOCKET_MODEL))
+    for args, flag in (
+        (("--browser-only", "--reamers", "46,48"), "--reaming-page"),  # no reaming page
+        (("--browser-only", "--reaming-page", "--reaming-frames", "10"), "--model SOCKET_MODEL"),  # the patch model
+        ((*socket, "--reamers", "46.5"), "--reamers"),
+        ((*socket, "--reamers", "48,46"), "--reamers"),
+        ((*socket, "--socket-element-size", "9"), "--socket-element-size"),
+        ((*socket, "--reaming-frames", "0"), "--reaming-frames"),
+    ):
+        code, out, err = run_main(monkeypatch, capsys, "bench", *args)
+        assert code == 2 and out == "" and flag in err and len(err.strip().splitlines()) == 1, (args, err)
 
 
 @pytest.mark.timeout(400)

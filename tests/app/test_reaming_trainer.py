@@ -351,6 +351,7 @@ def test_the_state_carries_the_plans_cup_and_the_bone_left_before_breaking_throu
     assert all(value is not None and 0 <= value < shell_mm for value in left)
     assert left[-1] < left[0] and np.all(np.diff(left) <= 1e-9)
     assert clock.state["reaming"]["medial_wall_remaining_mm"] is None  # never a number for a wall the patch lacks
+    assert clock.state["reaming"]["edge_left_mm"] is None  # the patch's cut edge is its far face: bone_left_mm's
     assert clock.state["reaming"]["cutting_layer"] is None
 
 

@@ -2,7 +2,9 @@
 model (the native 46 mm socket meshed coarse) and a headless Chromium trainee who reams with the
 46 mm reamer and then the 48 mm one (keys), hears the cue as the 48 mm reamer reaches cancellous
 bone, reads the bone left before the medial wall (and its warning), sees native bone beyond the plan apart from
-reamed bone, ends the session and reads a report whose figures are those of the saved file."""
+reamed bone, ends the session and reads a report whose figures are those of the saved file; and a
+trainee at 1280×720 who reaches every control of the panels, and is warned before the 52 mm reamer
+pushed at 400 N breaks through the edge of the modelled bone."""
 
 from __future__ import annotations
 
@@ -113,5 +115,77 @@ def test_a_socket_session_from_the_page_to_its_report(served, browser):
     for size, seconds in zip(found["reamer_sequence_mm"], found["time_per_reamer_s"], strict=True):
         assert f"{size:g} mm\t{seconds:.1f} s" in times
     assert page.locator("img").count() >= 2  # the course and the cavity against the plan
+    assert not problems
+    page.close()
+
+
+#: every shown control and read-out of the page's panels (their ids given), scrolled into view within
+#: its panel (never the page): the problems found (one line each), and whether the page itself can scroll
+_PANELS_REACHABLE = """((panels) => {
+  const problems = [];
+  for (const id of panels) {
+    const panel = document.getElementById(id);
+    for (const item of panel.querySelectorAll("input, select, button, a, tr, li, #medial-wall, #cut-edge, #zone-text")) {
+      if (item.closest(".hidden")) continue; // not shown in this state
+      item.scrollIntoView({ block: "nearest", inline: "nearest" });
+      const r = item.getBoundingClientRect(), p = panel.getBoundingClientRect();
+      const name = `${id} ${item.id || item.tagName} ${item.textContent.trim().slice(0, 30)}`;
+      if (r.width === 0 || r.height === 0) { problems.push(`${name}: no size`); continue; }
+      if (r.top < p.top - 0.5 || r.bottom > p.bottom + 0.5 || r.left < p.left - 0.5 || r.right > p.right + 0.5) problems.push(`${name}: outside its panel`);
+      if (r.top < 0 || r.bottom > innerHeight || r.left < 0 || r.right > innerWidth) problems.push(`${name}: off the window`);
+      const hit = document.elementFromPoint((r.left + r.right) / 2, (r.top + r.bottom) / 2);
+      if (!hit || !item.contains(hit)) problems.push(`${name}: covered by ${hit && (hit.id || hit.tagName)}`);
+    }
+  }
+  const page = document.scrollingElement;
+  const scrolls = page.scrollTop !== 0 || page.scrollLeft !== 0 || page.scrollHeight > innerHeight || page.scrollWidth > innerWidth;
+  return { problems, scrolls };
+})"""
+
+
+def _every_control_reachable(page) -> None:
+    """The panels', and the help's (opened, then closed again)."""
+    page.wait_for_function("!document.querySelector('#toasts .toast')", timeout=30_000)  # passing messages gone
+    assert page.evaluate(_PANELS_REACHABLE, ["topbar", "steps", "readouts", "cavity-legend"]) == {"problems": [], "scrolls": False}
+    page.click("#help-toggle")
+    assert page.evaluate(_PANELS_REACHABLE, ["help"]) == {"problems": [], "scrolls": False}
+    page.click("#help-close")
+    assert not page.is_visible("#help")
+
+
+def test_the_panels_fit_or_scroll_within_and_the_page_warns_before_the_modelled_bones_edge(served, browser):
+    """At 1280×720 (and 1920×1080) every control and read-out of the panels is on screen or scrolls
+    into view within its panel, the page never scrolls; the 52 mm reamer pushed at 400 N breaks
+    through the socket's cut edge, and the page warned before it, in the edge's own words."""
+    page = browser.new_page(viewport={"width": 1280, "height": 720})
+    problems: list[str] = []
+    page.on("pageerror", lambda error: problems.append(str(error)))
+    page.goto(served.url + "/reaming", timeout=60_000)
+    page.wait_for_function("window.trainer && trainer.stats.framed && trainer.stats.states > 3", timeout=WAIT_MS)
+    page.wait_for_timeout(500)  # the panels' text follows the next drawn frame
+    _every_control_reachable(page)  # the tallest controls panel: the trainee's name asked first
+    if page.get_attribute("#trainee", "class") == "asking":
+        page.fill("#trainee-id", "Trainee E")
+        page.click("#trainee-save")
+    assert page.is_visible("#cut-edge") and page.inner_text("#cut-edge") == "Edge of the modelled bone: —"
+    page.select_option("#reamer-size", "52")
+    page.wait_for_function("trainer.stats.last.reaming.reamer.size_mm === 52", timeout=30_000)
+    page.evaluate("trainer.send({type: 'force', newton: 400})")
+    page.wait_for_function("trainer.stats.last.reaming.force_n === 400", timeout=30_000)
+    keys(page, "Space")
+    page.wait_for_function("trainer.stats.events.includes('perforated')", timeout=WAIT_MS)
+    page.wait_for_function("!trainer.stats.last.reaming.running", timeout=30_000)
+    events = page.evaluate("trainer.stats.events")
+    assert events.index("edge_warning") < events.index("perforated") and "medial_wall_breached" not in events
+    assert page.evaluate("trainer.stats.edgeWarnings") >= 1 and page.evaluate("trainer.stats.wallWarnings") == 0
+    page.wait_for_function("document.getElementById('cut-edge').textContent.endsWith('0.0 mm of bone left')", timeout=30_000)
+    assert page.get_attribute("#cut-edge", "data-level") == "bad" and page.is_visible("#edge-warning")
+    assert page.inner_text("#edge-warning") == "Edge of the modelled bone reached: the simulated bone ends here"
+    assert not page.is_visible("#wall-warning") and page.evaluate("trainer.stats.last.reaming.bone_left_mm") > 1.0
+    page.wait_for_function("!document.querySelector('.force-row.hidden')", timeout=30_000)  # the read-outs at their tallest
+    _every_control_reachable(page)
+    page.set_viewport_size({"width": 1920, "height": 1080})
+    page.wait_for_timeout(500)
+    _every_control_reachable(page)
     assert not problems
     page.close()

@@ -17,12 +17,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from thrsim.app import controls as c
 from thrsim.app.navigation import NavigationTrainer
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, SafeZone, SocketConfig
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, OUTER, REAMED_FACES, TetMesh
+from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, MEDIAL_WALL, OUTER, REAMED_FACES, SUPPORTED, TetMesh
 from thrsim.geometry.reaming_path import breach_faces
 from thrsim.geometry.tet_metrics import rms_edge_lengths
 from thrsim.learn.cases import axis_offset_mm
@@ -31,7 +32,7 @@ from thrsim.nav.bone_frame import angles_of, patch_in_app, reamer_axis_from_cup
 from thrsim.nav.phantom import Phantom
 from thrsim.nav.tracker_state import CUP_AXIS_IN_REAMER
 from thrsim.session.plan import REAMER_SIZES_MM, Plan
-from thrsim.session.reaming import ReamingRecord, write_reaming
+from thrsim.session.reaming import CUT_EDGE, FAR_FACE, ReamingRecord, write_reaming
 
 #: α is sent to viewers in this many levels above the removal threshold (0 = removed)
 DISPLAY_LEVELS = 32
@@ -41,6 +42,17 @@ SENSOR_FRESH_S = 0.5
 OUT_OF_RANGE_EVENTS = {
     "push": "push_out_of_range", "feed": "feed_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
 }  # fmt: skip
+#: under this much bone (mm) between the reamer's teeth and a face it would break through (the medial
+#: wall, the patch's far face, the modelled bone's cut edge) the page warns in red, and under the
+#: caution shows the figure amber; the page reads both from the scene (``scene.reaming``)
+BREAK_WARNING_MM = 1.0
+BREAK_CAUTION_MM = 2.0
+#: how the events say what a breach went through (its ``face``, :data:`~thrsim.session.reaming.CUT_EDGE`)
+BREACH_WORDS = {
+    MEDIAL_WALL: "the medial wall, into the pelvis",
+    CUT_EDGE: "the edge of the modelled bone: the simulated bone ended there (the bone is cut off, not anatomy), not at the medial wall",
+    FAR_FACE: "the bone patch's far face",
+}
 #: the report's element size is read over the bone this far beyond the articular surface: where the reamers cut
 CUTTING_ZONE_M = 3e-3
 #: the whole socket's axes (columns) in the bone patch's frame: the socket frame's +x (anterior) and
@@ -159,6 +171,7 @@ class ReamingTrainer:
         self.reamer_mm = self.plan.first_reamer_mm()
         self._wall_nodes: np.ndarray | None = None  # the nodes of the face the reamer breaks through (_wall)
         self._medial_wall = False
+        self._edge: tuple[np.ndarray, cKDTree] | None = None  # the socket's cut edge (_cut_edge)
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -174,6 +187,7 @@ class ReamingTrainer:
         self._reamer_position: np.ndarray | None = None  # patch frame, m
         self._cutting_layer: str | None = None
         self._through_plate: set[float] = set()  # the reamers that have cut from the plate into cancellous bone (an event each)
+        self._edge_warned: set[float] = set()  # the reamers the page has warned of the modelled bone's cut edge (an event each)
         self._reaction: tuple[float, float] | None = None  # the last frame's reaction (N) and motor torque (N·m)
         self._frame_forces: list[dict] = []  # frames stepped since the last state: their reaction and torque
         if self.simulator is not None:
@@ -270,6 +284,7 @@ class ReamingTrainer:
         self._reamer_position = None if back.centre is None else back.centre.copy()
         self._cutting_layer = None
         self._through_plate.clear()  # the plate undone: reaching cancellous bone again is said again
+        self._edge_warned.clear()  # likewise the cut edge's warning
         self._reaction = None
         undone = self.frames_run - back.frame
         self.frames_run = back.frame
@@ -388,6 +403,13 @@ class ReamingTrainer:
             self._through_plate.add(self.reamer_mm)  # once per reamer: a coarse mesh's layers alternate frame by frame at the plate
             self._event(time_s, "cancellous_reached", f"the {self.reamer_mm:g} mm reamer left the subchondral plate for cancellous bone")
         self._cutting_layer = layer
+        edge = self.edge_left_mm()
+        if edge is not None and edge < BREAK_WARNING_MM and self.reamer_mm not in self._edge_warned:
+            self._edge_warned.add(self.reamer_mm)  # once per reamer, as the page's warning first shows for it
+            words = (
+                f"the {self.reamer_mm:g} mm reamer {edge:.2f} mm from the edge of the modelled bone (where the simulated bone is cut off)"
+            )
+            self._event(time_s, "edge_warning", words, edge_left_mm=edge, reamer_mm=float(self.reamer_mm))
         trace = self.trace
         trace.time.append(time_s)
         trace.frame.append(result.frame)
@@ -414,16 +436,28 @@ class ReamingTrainer:
         self._check_ranges(simulator, time_s, force, axis, result.advance_m / simulator.model.frame_dt_s, result.out_of_range)
         if result.end_reason is not None:
             self.running = False
+            face = self._breach_face(simulator, result.end_reason)
             self._event(
                 time_s,
                 result.end_reason,
-                "reaming paused: undo (U) or restore (R) to go on",
+                ("" if face is None else f"through {BREACH_WORDS[face]}; ") + "reaming paused: undo (U) or restore (R) to go on",
                 depth_mm=trace.depth_mm[-1],
                 removed=trace.removed[-1],
                 angles_deg=[None if math.isnan(v) else v for v in trace.angles[-1][:2]],
+                **({} if face is None else {"face": face}),
+                **({"medial_wall_left_mm": trace.medial_wall_mm[-1]} if face == CUT_EDGE else {}),
             )
             return False
         return True
+
+    @staticmethod
+    def _breach_face(simulator: ReamingSimulator, end_reason: str) -> str | None:
+        """What a frame that ended the reaming broke through (:data:`BREACH_WORDS`); None where it broke nothing."""
+        if end_reason == "medial_wall_breached":
+            return MEDIAL_WALL
+        if end_reason == "perforated":
+            return CUT_EDGE if simulator.socket else FAR_FACE
+        return None
 
     def _check_ranges(
         self, simulator: ReamingSimulator, time_s: float, force: float, axis: np.ndarray, feed_m_s: float, flags: tuple[str, ...]
@@ -502,6 +536,7 @@ class ReamingTrainer:
             "bone_left_mm": bone_left,
             "medial_wall_modelled": medial_wall,
             "medial_wall_remaining_mm": bone_left if medial_wall else None,
+            "edge_left_mm": self.edge_left_mm(),
             "cutting_layer": self._cutting_layer,
             "reaction_n": None if self._reaction is None else self._reaction[0],
             "motor_torque_n_m": None if self._reaction is None else self._reaction[1],
@@ -574,9 +609,41 @@ class ReamingTrainer:
         if not len(nodes):
             return None
         nearest = float(np.min(np.linalg.norm(nodes - self._reamer_position, axis=1)))
+        return max(0.0, (nearest - self._teeth_radius_m()) * 1e3)
+
+    def _teeth_radius_m(self) -> float:
+        """The radius of the reamer's teeth sphere that cuts: the size held on a socket model, the model's one on a patch model."""
         sim = self.simulator
-        teeth_m = sim.cutting_size_mm(self.reamer_mm) * 0.5e-3 if sim.socket else sim.model.teeth_radius_m
-        return max(0.0, (nearest - teeth_m) * 1e3)
+        assert sim is not None
+        return sim.cutting_size_mm(self.reamer_mm) * 0.5e-3 if sim.socket else sim.model.teeth_radius_m
+
+    def _cut_edge(self) -> tuple[np.ndarray, cKDTree]:
+        """The socket's elements on its supported boundary (the faces where the modelled bone is cut off
+        from the pelvis it continues into; losing one ends the reaming as a perforation,
+        :func:`~thrsim.geometry.reaming_path.breach_faces`) and a KD-tree of their nodes, built once."""
+        if self._edge is None:
+            assert self.simulator is not None
+            mesh = self.simulator.right_mesh
+            elements = breach_faces(mesh).get(SUPPORTED, np.zeros(0, dtype=np.int64))
+            self._edge = (elements, cKDTree(mesh.nodes[np.unique(mesh.tets[elements])] if len(elements) else np.zeros((0, 3))))
+        return self._edge
+
+    def edge_left_mm(self) -> float | None:
+        """Bone left between the reamer's teeth and the edge of the modelled bone (mm, 0 once through):
+        the nearest node of the remaining elements on the socket's supported boundary, whose loss the
+        simulator ends as a perforation (their inner nodes, not only the face's: an element goes when
+        the teeth reach it). None before the reamer has a position, and on the bone patch, whose cut
+        edge is its far face (:meth:`bone_left_mm` measures it)."""
+        sim = self.simulator
+        if sim is None or not sim.socket or self._reamer_position is None:
+            return None
+        elements, tree = self._cut_edge()
+        if not len(elements):
+            return None
+        if sim.removed[elements].any():
+            return 0.0  # an element of the edge is gone: the reamer is through it
+        nearest, _ = tree.query(self._reamer_position)
+        return max(0.0, (float(nearest) - self._teeth_radius_m()) * 1e3)
 
     def medial_wall_modelled(self) -> bool:
         """Whether the bone has a medial wall (the layered socket does; the bone patch does not)."""
@@ -599,6 +666,8 @@ class ReamingTrainer:
             "mesh": "/api/reaming/mesh",
             "display_levels": DISPLAY_LEVELS,
             "teeth_radius_m": None if sim is None else sim.model.teeth_radius_m,
+            "warning_mm": BREAK_WARNING_MM,
+            "caution_mm": BREAK_CAUTION_MM,
             "bone": None if sim is None else "socket" if sim.socket else "patch",  # the whole socket: the case's, in the plan
         }
         return scene

@@ -8,7 +8,8 @@ full). Reported: simulator frames per second delivered, the bone's binary frames
 against every element's α as float32, frames drawn per second once the page's render scale has
 settled, Chromium's CPU per drawn frame, and the latency from an OpenIGTLink pose to the state
 that shows it and to its first drawing (median, p90), the session's worst server tick and how far the drawn
-bone trailed the simulation (wall-clock).
+bone trailed the simulation (wall-clock). A whole-socket model first reams the socket whole with a
+reamer sequence (:func:`whole_reaming`): its worst tick, lag, and whether inputs apply in order.
 """
 
 from __future__ import annotations
@@ -30,6 +31,14 @@ from thrsim.errors import ThrsimInputError
 from thrsim.io import igtl
 
 _SEED = 7  # serve_child starts the server with --seed 7: the same pelvis placement here
+#: a whole reaming on a whole-socket model: this reamer sequence (mm) over this many simulator frames
+#: in all (shared among the reamers), at the safe zone's centre with the page's push
+WHOLE_REAMING_MM = (46, 48)
+WHOLE_REAMING_FRAMES = 600
+#: as each reamer starts (its slowest ticks: the placement, the approach), the page sends this many
+#: pushes this far apart (ms), each this much (N) above the last, then the push it had again
+PROBE_PUSHES, PROBE_PERIOD_MS, PROBE_STEP_N = 50, 20, 0.01
+_BREACHES = ("perforated", "medial_wall_breached", "passed_through")
 
 
 class _Tracker:
@@ -90,6 +99,103 @@ def _ream(page, seconds: float) -> tuple[np.ndarray, float]:
     return totals, cpu_seconds
 
 
+# The pushes of :data:`PROBE_PUSHES`, from the page as its push control sends them, and the push of
+# every state the page receives meanwhile (a hook on trainer.stats.last, which each state replaces).
+_SEND_PUSHES = """(([count, period, step]) => {
+  const stats = trainer.stats, base = stats.last.reaming.force_n;
+  const probe = stats.pushProbe = { sent: [], seen: [], acksFrom: stats.acks.length, done: false };
+  let last = stats.last;
+  Object.defineProperty(stats, "last", { configurable: true, get: () => last, set: (state) => {
+    last = state;
+    if (!probe.done) probe.seen.push(state.reaming.force_n);
+  } });
+  const timer = setInterval(() => {
+    if (probe.sent.length === count) {
+      clearInterval(timer);
+      probe.done = true;
+      trainer.send({ type: "force", newton: base });
+      return;
+    }
+    const newton = Math.round((base + step * (probe.sent.length + 1)) * 100) / 100;
+    probe.sent.push(newton);
+    trainer.send({ type: "force", newton });
+  }, period);
+})"""
+
+
+def _pushes_in_order(page) -> dict:
+    """Whether the probe's pushes were acknowledged, and shown in the states, in the order sent, and the
+    most of them that first showed in one state the page received (a state the page skipped counts too)."""
+    probe = page.evaluate("trainer.stats.pushProbe")
+    sent = probe["sent"]
+    acks = [text for text in page.evaluate("trainer.stats.acks")[probe["acksFrom"] :] if text.startswith("push ")]
+    acked = [float(text.split()[1]) for text in acks[: len(sent)]]
+    shown = [sent.index(value) for value in probe["seen"] if value in sent]
+    steps = np.diff([-1, *shown]) if shown else np.zeros(0)
+    return {
+        "sent": len(sent),
+        "acknowledged": len(acked),
+        "acks_in_order": acked == sent,
+        "states_in_order": bool(np.all(steps >= 0)),
+        "most_in_one_state": int(steps.max()) if len(steps) else 0,
+    }
+
+
+def whole_reaming(page, reamers: tuple[int, ...], frames: int) -> dict:
+    """The intact socket reamed whole with ``reamers`` in turn, ``frames`` simulator frames in all
+    shared among them (a reamer the simulator stops, through the bone or through its path, stops
+    early), from the page's own controls; as each reamer starts, the pushes of :data:`PROBE_PUSHES`.
+    Reported: the frames each reamer reamed and what stopped it; the session's worst tick by the end
+    (and before the reaming: the session began with it, so a larger figure is the reaming's); how far
+    the drawn bone trailed the simulation while reaming; the frames the simulator fell behind; and
+    whether every probe's pushes applied in order."""
+    share = -(-frames // len(reamers))
+    page.evaluate("trainer.send({type: 'run', action: 'reset'})")
+    page.wait_for_function("trainer.stats.last.reaming.frame === 0 && !trainer.stats.last.reaming.running", timeout=60_000)
+    before = page.evaluate("[trainer.stats.last.session.worst_tick_ms, trainer.stats.last.reaming.behind_frames]")
+    page.evaluate("trainer.stats.boneLag = { worst: 0, sum: 0, count: 0 }")
+    done, orders = [], []
+    for size in reamers:
+        page.evaluate(f"trainer.send({{type: 'reamer_size', size_mm: {size}}})")
+        page.wait_for_function(f"trainer.stats.last.reaming.reamer.size_mm === {size}", timeout=60_000)
+        first, events = page.evaluate("[trainer.stats.last.reaming.frame, trainer.stats.events.length]")
+        page.evaluate("trainer.send({type: 'run', action: 'start'})")
+        page.evaluate(_SEND_PUSHES, [PROBE_PUSHES, PROBE_PERIOD_MS, PROBE_STEP_N])
+        page.wait_for_function(
+            f"trainer.stats.last.reaming.frame >= {first + share} || trainer.stats.events.slice({events}).some((k) => {list(_BREACHES)}.includes(k))",
+            timeout=60_000 + share * 2_000,
+        )
+        page.evaluate("trainer.send({type: 'run', action: 'pause'})")
+        page.wait_for_function("!trainer.stats.last.reaming.running && trainer.stats.pushProbe.done", timeout=60_000)
+        page.wait_for_function(f"trainer.stats.acks.length >= trainer.stats.pushProbe.acksFrom + {PROBE_PUSHES}", timeout=60_000)
+        orders.append(_pushes_in_order(page))
+        reamed, kinds = page.evaluate(f"[trainer.stats.last.reaming.frame, trainer.stats.events.slice({events})]")
+        done.append({"reamer_mm": size, "frames": reamed - first, "stopped_by": next((k for k in kinds if k in _BREACHES), None)})
+    last = page.evaluate("[trainer.stats.last.session.worst_tick_ms, trainer.stats.last.reaming.behind_frames, trainer.stats.boneLag]")
+    worst, behind, lag = last
+    return {
+        "what": f"the intact socket reamed with {' → '.join(f'{size} mm' for size in reamers)}, {share} frames each unless stopped",
+        "reamers": done,
+        "frames": sum(step["frames"] for step in done),
+        "worst_tick_ms": worst,
+        "worst_tick_ms_before": before[0],
+        "drawn_bone_lag_s": _lag(lag),
+        "behind_frames": behind - before[1],
+        "pushes_in_order": {
+            "sent": sum(order["sent"] for order in orders),
+            "acknowledged": sum(order["acknowledged"] for order in orders),
+            "acks_in_order": all(order["acks_in_order"] for order in orders),
+            "states_in_order": all(order["states_in_order"] for order in orders),
+            "most_in_one_state": max(order["most_in_one_state"] for order in orders),
+        },
+    }
+
+
+def _lag(lag: dict) -> dict:
+    """The page's drawn-bone lag figures (ms) in seconds: the worst, the mean and the drawings counted."""
+    return {"worst": lag["worst"] / 1000, "mean": lag["sum"] / lag["count"] / 1000 if lag["count"] else None, "drawings": lag["count"]}
+
+
 def time_reaming_page(
     model: Path | None = None,
     seconds: float = 10.0,
@@ -98,11 +204,17 @@ def time_reaming_page(
     height: int = 720,
     chromium: str = CHROMIUM,
     compile: bool = True,
+    reamers: tuple[int, ...] = WHOLE_REAMING_MM,
+    reaming_frames: int = WHOLE_REAMING_FRAMES,
+    socket_element_size_mm: float | None = None,
 ) -> dict:
+    """The figures of the module docstring; ``reamers``, ``reaming_frames`` and ``socket_element_size_mm``
+    shape a whole-socket model's whole reaming (:func:`whole_reaming`) and the socket it reams."""
     aim = NavigationTrainer(side="right", seed=_SEED)
     poses = {inclination: aim.reamer_pose(inclination, 15.0) for inclination in (38.0, 40.0, 42.0)}
     load_before = os.getloadavg()
     extra = (("--model", str(model)) if model is not None else ()) + (() if compile else ("--no-compile",))
+    extra += () if socket_element_size_mm is None else ("--socket-element-size", f"{socket_element_size_mm:g}")
     with served_page("/reaming", width, height, *extra, chromium=chromium) as (browser, page):
         page.wait_for_function("window.trainer && trainer.stats.hello && trainer.stats.states > 10", timeout=60_000)
         if not page.evaluate("trainer.stats.hello.scene.reaming.available"):
@@ -125,6 +237,10 @@ def time_reaming_page(
         thread.start()
         try:
             page.wait_for_function("trainer.stats.last.tools.Reamer.source === 'tracker'", timeout=20_000)
+            socket = page.evaluate("trainer.stats.hello.scene.reaming.bone") == "socket"
+            whole = (
+                whole_reaming(page, reamers, reaming_frames) if socket else None
+            )  # first: the session's worst tick is then the reaming's
             # the page starts at full resolution and lowers it while it draws slowly: ream until
             # its render scale has settled, then count (its later tries of a finer scale stay in)
             warmup_s, scale_changes = 0.0, page.evaluate(_SCALE_CHANGES)
@@ -180,11 +296,7 @@ def time_reaming_page(
         "latency_trials": latency_trials,
         "step_ms_last": reaming.get("step_ms"),
         "worst_tick_ms": session["worst_tick_ms"],
-        "drawn_bone_lag_s": {
-            "worst": lag["worst"] / 1000,
-            "mean": lag["sum"] / lag["count"] / 1000 if lag["count"] else None,
-            "drawings": lag["count"],
-        },
+        "drawn_bone_lag_s": _lag(lag),
         "behind_frames": reaming.get("behind_frames"),
         "removed_at_end": reaming.get("removed"),
         "elements": elements,
@@ -196,4 +308,5 @@ def time_reaming_page(
         "warmup_s": warmup_s,
         "chromium": chromium_version,
         "load_average_1min": [load_before[0], os.getloadavg()[0]],
+        "whole_reaming": whole,
     }

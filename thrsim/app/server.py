@@ -139,9 +139,7 @@ class ServeSettings:
         if self.token is not None and not _TOKEN.fullmatch(self.token):
             raise ThrsimInputError("the access token may hold letters, digits and . _ ~ - only (it travels in URLs and a cookie)")
         check_side(self.side)
-        size = self.socket_element_size_mm
-        if size is not None and not (math.isfinite(size) and 0.3 <= size <= 5.0):
-            raise ThrsimInputError(f"must lie in [0.3, 5] mm, got {self.socket_element_size_mm:g}", "socket_element_size_mm")
+        check_socket_element_size(self.socket_element_size_mm)
         if not (math.isfinite(self.haptic_hz) and 100.0 <= self.haptic_hz <= 10_000.0):
             raise ThrsimInputError(f"must lie in [100, 10000] Hz, got {self.haptic_hz:g}", "haptic_hz")
         if self.haptic_port is not None and not 0 <= self.haptic_port <= 65535:
@@ -181,6 +179,17 @@ class ServeSettings:
         if name == served or name in map(_canonical_host, self.allowed_hosts):
             return True
         return served in ("0.0.0.0", "::") and _is_address(name)
+
+
+#: the element sizes (mm) a whole-socket model's socket may be meshed at in a served session
+SOCKET_ELEMENT_SIZE_RANGE_MM = (0.3, 5.0)
+
+
+def check_socket_element_size(size: float | None) -> None:
+    """A served socket's element size (None: thrsim ream's), or a one-line error naming its setting."""
+    low, high = SOCKET_ELEMENT_SIZE_RANGE_MM
+    if size is not None and not (math.isfinite(size) and low <= size <= high):
+        raise ThrsimInputError(f"must lie in [{low:g}, {high:g}] mm, got {size:g}", "socket_element_size_mm")
 
 
 def _is_address(name: str) -> bool:

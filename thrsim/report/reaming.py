@@ -27,7 +27,7 @@ from thrsim.report.reaming_metrics import (
 from thrsim.report.thresholds import AtLeast, AtMost, Thresholds, default_thresholds
 from thrsim.session.file import SessionFile
 from thrsim.session.plan import Plan
-from thrsim.session.reaming import BONE_ERRORS, PATCH_ELEMENT_SIZE_M, ReamingRecord, read_reaming
+from thrsim.session.reaming import BONE_ERRORS, CUT_EDGE, PATCH_ELEMENT_SIZE_M, ReamingRecord, read_reaming
 
 GRID_M = 0.5e-3
 ON_PLAN_TOLERANCE_M = 0.45e-3
@@ -37,6 +37,8 @@ _ERROR_WORDS = {
     "medial_wall_breached": "medial wall breached",
     "rim_damaged": "rim damaged",
 }
+#: a break through the whole socket's cut edge, named as what it is
+_CUT_EDGE_WORDS = "through the edge of the modelled bone (the simulated bone ended there, not at the medial wall)"
 #: the events listed under errors and corrections
 _LISTED = (
     *BONE_ERRORS,
@@ -45,6 +47,7 @@ _LISTED = (
     "tilt_out_of_range",
     "reamer_out_of_range",
     "centre_out_of_range",
+    "edge_warning",
     "undo",
     "restore",
 )
@@ -159,6 +162,15 @@ def _errors(record: ReamingRecord) -> list[dict]:
     return [e for e in record.events if e["kind"] in BONE_ERRORS]
 
 
+def _error_words(event: dict) -> str:
+    """An error as the catalogue names it: a break through the socket's cut edge is the modelled bone ending, not anatomy."""
+    return _CUT_EDGE_WORDS if event.get("face") == CUT_EDGE else _ERROR_WORDS[event["kind"]]
+
+
+def _event_name(event: dict) -> str:
+    return "perforated: the edge of the modelled bone" if event.get("face") == CUT_EDGE else event["kind"].replace("_", " ")
+
+
 def _corrected(record: ReamingRecord, event: dict) -> str:
     """How an error was gone back on: ", then undone" / ", then the bone restored" / ""."""
     later = [e["kind"] for e in record.events if e["time_s"] >= event["time_s"] and e["kind"] in ("undo", "restore")]
@@ -173,7 +185,7 @@ def criteria(record: ReamingRecord, thresholds: Thresholds | None = None) -> lis
     errors = _errors(record)
     found = cavity_map(record)["fractions"] if record.cavity else None
     through = bool(found and found["perforated"] > 0)
-    said = [f"{_ERROR_WORDS[e['kind']]} at {e['time_s']:.1f} s{_corrected(record, e)}" for e in errors]
+    said = [f"{_error_words(e)} at {e['time_s']:.1f} s{_corrected(record, e)}" for e in errors]
     if through and not errors:
         said.append("the final cavity is perforated")
     failed = "; ".join(said)
@@ -528,7 +540,7 @@ def _half_element_mm(record: ReamingRecord) -> float:
 def _errors_and_corrections(record: ReamingRecord) -> Section:
     listed = [e for e in record.events if e["kind"] in _LISTED]
     body = (
-        table(["time", "event", "what"], [[f"{e['time_s']:.1f} s", e["kind"].replace("_", " "), e["detail"]] for e in listed])
+        table(["time", "event", "what"], [[f"{e['time_s']:.1f} s", _event_name(e), e["detail"]] for e in listed])
         if listed
         else "<p>No perforation, no push, tilt or reamer outside what the simulator learned, nothing undone or restored.</p>"
     )

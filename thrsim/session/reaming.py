@@ -24,6 +24,10 @@ _EVENT_FIELDS = ("time_s", "kind", "detail", "frame")
 #: what goes wrong in the bone, scored however it was undone or restored: the bone patch reports
 #: perforations; the whole socket adds medial-wall breaches, and rim damage once a simulator reports it
 BONE_ERRORS = ("perforated", "passed_through", "medial_wall_breached", "rim_damaged")
+#: what a bone error's ``face`` names besides the medial wall (``medial_wall``): the whole socket's cut
+#: edge, its supported boundary, where the modelled bone is cut off from the pelvis it continues into
+#: (not anatomy: the simulated bone ends there), and the bone patch's far face, where it perforates
+CUT_EDGE, FAR_FACE = "cut_edge", "far_face"
 _RENAMED = {"reset": "restore"}  # thrsim 0.4.0 called a restore of the intact bone "reset"
 _TRACE = ("time", "frame", "force_n", "axis", "position_m", "removed", "removed_volume_mm3", "depth_mm", "angles")
 #: trace columns some files lack: those before the reamer sequence, a bone without a medial wall, a model without a reaction
@@ -100,7 +104,10 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the
     simulator's end reasons
     (the :data:`BONE_ERRORS`, ``passed_through`` the reamer through the bone with none left in its path,
-    with ``depth_mm``, ``removed``, ``angles_deg``);
+    with ``depth_mm``, ``removed``, ``angles_deg``, and for a
+    breach the ``face`` gone through: ``medial_wall``, :data:`CUT_EDGE` with the ``medial_wall_left_mm``
+    then, or :data:`FAR_FACE`), ``edge_warning`` (``edge_left_mm``, ``reamer_mm``: the page first warned a
+    reamer of the whole socket's cut edge);
     ``final_alpha`` (E, α of every element at the end); ``cavity/`` what the report's depth map
     needs without the model: ``centroids_m`` (E×3, patch frame), ``outer`` (E, the element lies on
     a face the reamer breaks through: the patch's outer face, the socket's medial wall and supported

@@ -1,16 +1,14 @@
 // The cavity against the plan, on the reaming page: the planned hemisphere outlined (a wire
 // hemisphere of the planned cup's size at its centre and orientation, drawn over the bone, in the
 // main view and the inset), the bone coloured by depth against it (or by its layers) with a legend
-// in mm and a scale beside the inset, the medial wall's closeness with a warning before it, and an
+// in mm and a scale beside the inset, the medial wall's closeness and the modelled bone's edge's, each
+// with a warning before it (the thresholds are the server's: scene.reaming.warning_mm and caution_mm), and an
 // optional sound cue (off by default) when a reamer leaves the subchondral plate for cancellous
 // bone (the server's cancellous_reached event, once a reamer). It reads the state the server sends (reaming.plan: its
-// cup_diameter_mm, centre_m and axis in the pelvis model frame; bone_left_mm, medial_wall_modelled, events); the page's own panels stay the page's.
+// cup_diameter_mm, centre_m and axis in the pelvis model frame; bone_left_mm, medial_wall_modelled, edge_left_mm, events); the page's own panels stay the page's.
 import * as THREE from "three";
 import { DEPTH_STOPS, LAYER_COLOURS, NATIVE_COLOUR } from "./bone.js";
 
-// closer than this to the medial wall (mm of bone left under the reamer's teeth), the page warns
-export const MEDIAL_WALL_WARNING_MM = 1.0;
-const WALL_CAUTION_MM = 2.0;
 const OUTLINE_COLOUR = 0xffffff;
 
 const $ = (id) => document.getElementById(id);
@@ -64,6 +62,7 @@ export class CavityView {
     this.stats = stats;
     this.stats.cues = 0;
     this.stats.wallWarnings = 0;
+    this.stats.edgeWarnings = 0;
     this.bone = null;
     this.planKey = "";
     this.audio = null;
@@ -90,13 +89,15 @@ export class CavityView {
       element("label", {}, "Colour ", element("select", { id: "bone-colours" },
         element("option", { value: "depth" }, "depth against the plan"), element("option", { value: "layers" }, "bone layers"))),
       element("div", { id: "medial-wall", className: "muted" }, "Medial wall: —"),
+      element("div", { id: "cut-edge", className: "muted hidden", title: "Where the simulated bone is cut off from the pelvis it continues into: not anatomy. Through it, the simulation ends as a perforation." }, "Edge of the modelled bone: —"),
       element("label", { className: "check" }, element("input", { type: "checkbox", id: "cue-sound" }), "Sound when the reamer reaches cancellous bone"));
     this.insetScale = element("div", { id: "inset-scale", className: "legend" },
       element("div", { className: "legend-title" }, "mm"),
       element("div", { className: "vbar", style: `background: ${gradient("to top")}` }),
       ticks("vticks"));
     this.warning = element("div", { id: "wall-warning", className: "hidden", role: "alert" });
-    document.body.append(this.legend, this.insetScale, this.warning);
+    this.edgeWarning = element("div", { id: "edge-warning", className: "hidden", role: "alert" });
+    document.body.append(this.legend, this.insetScale, this.warning, this.edgeWarning);
     $("bone-colours").addEventListener("change", (e) => this.showColours(e.target.value === "depth"));
   }
 
@@ -123,6 +124,7 @@ export class CavityView {
     const plan = r.plan;
     if (plan && this.bone) this.showPlan(plan);
     this.showWall(r.bone_left_mm, r.medial_wall_modelled);
+    this.showEdge(r.edge_left_mm);
     if (r.events.some((e) => e.kind === "cancellous_reached")) this.cue();
   }
 
@@ -150,17 +152,39 @@ export class CavityView {
       ? `Medial wall: ${known ? `${left.toFixed(1)} mm of bone left` : "—"}`
       : `Medial wall: not modelled on the bone patch${known ? ` · ${left.toFixed(1)} mm of bone left before its far face` : ""}`;
     if (box.textContent !== text) box.textContent = text;
-    const level = !known ? "" : left < MEDIAL_WALL_WARNING_MM ? "bad" : left < WALL_CAUTION_MM ? "caution" : "";
+    const words = medialWall
+      ? (left <= 0 ? "Medial wall reached: stop" : `Medial wall close: ${left?.toFixed(1)} mm of bone left`)
+      : (left <= 0 ? "Through the bone: stop" : `About to break through the bone: ${left?.toFixed(1)} mm left`);
+    if (this.warn(box, this.warning, known ? left : null, words)) this.stats.wallWarnings += 1;
+  }
+
+  // The bone left under the reamer's teeth before the edge of the modelled bone (the whole socket's
+  // supported boundary, where the simulated bone is cut off: not anatomy); the bone patch's edge is
+  // its far face, which the medial wall's line already gives.
+  showEdge(left) {
+    const box = $("cut-edge");
+    const socket = this.view.sceneInfo?.reaming.bone === "socket";
+    box.classList.toggle("hidden", !socket);
+    const known = socket && left !== null && left !== undefined;
+    const text = `Edge of the modelled bone: ${known ? `${left.toFixed(1)} mm of bone left` : "—"}`;
+    if (box.textContent !== text) box.textContent = text;
+    const words = left <= 0
+      ? "Edge of the modelled bone reached: the simulated bone ends here"
+      : `Edge of the modelled bone close: ${left?.toFixed(1)} mm left (the simulated bone is cut off there, not anatomy)`;
+    if (this.warn(box, this.edgeWarning, known ? left : null, words)) this.stats.edgeWarnings += 1;
+  }
+
+  // One line's level (amber under the caution, red under the warning: the server's thresholds) and its
+  // warning above the view, shown with ``words`` while red; true when the warning has just shown.
+  warn(box, warning, left, words) {
+    const limits = this.view.sceneInfo?.reaming ?? {};
+    const level = left === null ? "" : left < limits.warning_mm ? "bad" : left < limits.caution_mm ? "caution" : "";
     if (box.dataset.level !== level) box.dataset.level = level;
-    const warn = level === "bad";
-    if (warn && this.warning.classList.contains("hidden")) this.stats.wallWarnings += 1;
-    this.warning.classList.toggle("hidden", !warn);
-    if (warn) {
-      const words = medialWall
-        ? (left <= 0 ? "Medial wall reached: stop" : `Medial wall close: ${left.toFixed(1)} mm of bone left`)
-        : (left <= 0 ? "Through the bone: stop" : `About to break through the bone: ${left.toFixed(1)} mm left`);
-      if (this.warning.textContent !== words) this.warning.textContent = words;
-    }
+    const shown = level === "bad";
+    const appeared = shown && warning.classList.contains("hidden");
+    warning.classList.toggle("hidden", !shown);
+    if (shown && warning.textContent !== words) warning.textContent = words;
+    return appeared;
   }
 
   // Through the subchondral plate: a short falling tone, when the trainee asked for sound.

@@ -148,6 +148,7 @@ function receive(message) {
       $("force").max = maxForce;
     }
     view.build(message.scene);
+    for (const span of document.querySelectorAll(".warning-mm")) span.textContent = message.scene.reaming.warning_mm; // the help's words: the server's threshold
     translucentReamer();
     // No registration here: the landmark points would only clutter the rim.
     view.landmarks.visible = false;
@@ -183,10 +184,10 @@ function feedback(event) {
     push_out_of_range: `push ${event.detail}`, feed_out_of_range: `feed: ${event.detail}`,
     tilt_out_of_range: `tilt ${event.detail}`, reamer_out_of_range: `reamer ${event.detail}`,
     centre_out_of_range: `centre: ${event.detail}`,
-    medial_wall_breached: `medial wall breached: the reamer went through into the pelvis; ${event.detail}`,
+    medial_wall_breached: `medial wall breached: ${event.detail}`,
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
     cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
-    perforated: `perforated: the reamer broke through the bone; ${event.detail}`,
+    perforated: event.face === "cut_edge" ? `the modelled bone ended: ${event.detail}` : `perforated: the reamer broke through the bone; ${event.detail}`,
     passed_through: `perforated: the reamer went through the bone, none left in its path; ${event.detail}`,
     cancellous_reached: `cancellous bone: ${event.detail}`,
   }[event.kind];

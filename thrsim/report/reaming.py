@@ -41,6 +41,7 @@ _LISTED = (
     "tilt_out_of_range",
     "reamer_out_of_range",
     "centre_out_of_range",
+    "contact_out_of_range",
     "undo",
     "restore",
 )

@@ -103,7 +103,10 @@ def test_the_reamers_cut_forces_are_traced_and_shown_and_out_of_range_inputs_are
     assert record_has_no_push_range(trainer)
     said = [e for e in trainer.events if e["kind"] == "reamer_out_of_range"]
     assert [e["reamer_mm"] for e in said] == [first, first + 2] and said[0]["trained_reamer_mm"] == list(learned.trained_reamer_mm)
-    assert running["out_of_range"] == state["out_of_range"] == ["reamer size"]
+    # the tiny model's law learned on the synthetic block's small contact: the whole socket's is larger, flagged and said once
+    assert running["out_of_range"] == state["out_of_range"] == ["contact", "reamer size"]
+    contact = [e for e in trainer.events if e["kind"] == "contact_out_of_range"]
+    assert len(contact) == 1 and contact[0]["contact_mm2"] > contact[0]["trained_contact_mm2"][1] == learned.trained_law_contact_mm2[1]
     record = trainer.record()
     assert np.array_equal(record.reaction_n, trace.reaction_n) and np.array_equal(record.cut_mm, trace.cut_mm)
 

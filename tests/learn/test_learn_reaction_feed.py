@@ -215,6 +215,34 @@ def test_the_simulator_reams_any_bone_with_any_size_and_reports_the_reaction(soc
         ReamingSimulator(model=socket_model, mesh=bone, cancellous="chalk")
 
 
+def test_a_law_summed_over_more_contact_than_it_learned_is_flagged(socket_model, case):
+    import copy
+
+    from thrsim.learn.simulator import ReamingSimulator
+
+    low, high = socket_model.trained_law_contact_mm2  # the trainer recorded the contact of the frames the law learned from
+    assert 0.0 < low <= high
+
+    def replay(model):
+        simulator = ReamingSimulator(model=model)
+        size = model.trained_reamer_mm[0]
+        return [simulator.step(case.axis, 230.0, reamer_position=p, reamer_mm=size) for p in case.positions[:8]]
+
+    results = replay(socket_model)
+    contacts = [r.law_contact_mm2 for r in results[1:]]  # each frame's law was read on the frame before
+    assert results[0].law_contact_mm2 is None and all(c is not None for c in contacts) and max(contacts) > 0.0
+    assert all(("contact" in r.out_of_range) == (r.law_contact_mm2 > high) for r in results[1:])
+    # a law that learned on half the largest contact here: the frames beyond it are flagged, the others not
+    card = copy.deepcopy(socket_model.card)
+    card["data"]["law_contact_mm2"] = [0.0, 0.5 * max(contacts)]
+    narrow = replay(dataclasses.replace(socket_model, card=card))
+    assert [r.law_contact_mm2 for r in narrow[1:]] == contacts
+    assert [("contact" in r.out_of_range) for r in narrow[1:]] == [c > 0.5 * max(contacts) for c in contacts]
+    assert any("contact" in r.out_of_range for r in narrow)
+    del card["data"]["law_contact_mm2"]  # a card written before cards recorded it: nothing to flag against
+    assert not any("contact" in r.out_of_range for r in replay(dataclasses.replace(socket_model, card=card)))
+
+
 def test_a_socket_reamed_into_the_medial_wall_ends_as_the_solver_ends_it():
     from thrsim.config import SocketConfig
     from thrsim.geometry.mesh import MEDIAL_WALL

@@ -41,6 +41,7 @@ SENSOR_FRESH_S = 0.5
 #: the events of a frame's inputs leaving what the model learned, by the simulator's flag (once per stretch outside)
 OUT_OF_RANGE_EVENTS = {
     "push": "push_out_of_range", "feed": "feed_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
+    "contact": "contact_out_of_range",
 }  # fmt: skip
 #: under this much bone (mm) between the reamer's teeth and a face it would break through (the medial
 #: wall, the patch's far face, the modelled bone's cut edge) the page warns in red, and under the
@@ -433,7 +434,9 @@ class ReamingTrainer:
         trace.motor_torque_n_m.append(math.nan if reaction is None else reaction[1])
         if reaction is not None:
             self._frame_forces.append({"frame": result.frame, "reaction_n": reaction[0], "motor_torque_n_m": reaction[1]})
-        self._check_ranges(simulator, time_s, force, axis, result.advance_m / simulator.model.frame_dt_s, result.out_of_range)
+        self._check_ranges(
+            simulator, time_s, force, axis, result.advance_m / simulator.model.frame_dt_s, result.out_of_range, result.law_contact_mm2
+        )
         if result.end_reason is not None:
             self.running = False
             face = self._breach_face(simulator, result.end_reason)
@@ -460,7 +463,14 @@ class ReamingTrainer:
         return None
 
     def _check_ranges(
-        self, simulator: ReamingSimulator, time_s: float, force: float, axis: np.ndarray, feed_m_s: float, flags: tuple[str, ...]
+        self,
+        simulator: ReamingSimulator,
+        time_s: float,
+        force: float,
+        axis: np.ndarray,
+        feed_m_s: float,
+        flags: tuple[str, ...],
+        law_contact_mm2: float | None = None,
     ) -> None:
         """An event where a frame's input leaves what the model learned (once per stretch outside), as
         every step flags it (:attr:`~thrsim.learn.simulator.StepResult.out_of_range`). A patch model cuts
@@ -493,6 +503,10 @@ class ReamingTrainer:
                 offset = axis_offset_mm(self._reamer_position, np.asarray(axis, dtype=np.float64))
                 words = f"the reamer's axis {offset:.1f} mm from the socket's centre: beyond the {low:g}–{high:g} mm the simulator learned"
                 self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, axis_offset_mm=offset, trained_axis_offset_mm=[low, high])
+            elif flag == "contact" and model.trained_law_contact_mm2 is not None and law_contact_mm2 is not None:
+                low, high = model.trained_law_contact_mm2
+                words = f"the bone's reaction read over {law_contact_mm2:.0f} mm² of contact: more than the {high:.0f} mm² the simulator learned"
+                self._event(time_s, OUT_OF_RANGE_EVENTS[flag], words, contact_mm2=law_contact_mm2, trained_contact_mm2=[low, high])
         self._outside = tuple(flags)
 
     def display_levels(self) -> np.ndarray:

@@ -14,7 +14,7 @@ import torch
 from numba import njit
 
 from thrsim.cache import use_numba_cache
-from thrsim.learn.graph import StaticGraph, Subgraph
+from thrsim.learn.graph import REFERENCE_TET_VOLUME_M3, StaticGraph, Subgraph
 from thrsim.learn.settings import FeatureSet, FeatureSettings
 
 use_numba_cache()  # before the first kernel: Numba reads the cache folder then
@@ -62,6 +62,13 @@ CORNER_COLUMNS = len(CORNER_NAMES)
 def contact_weights(graph: StaticGraph, sub: Subgraph) -> np.ndarray:
     """Each node's share of a contact area (:attr:`StaticGraph.contact_weight`) on ``sub``."""
     return graph.contact_weight[sub.nodes]
+
+
+def law_contact_mm2(graph: StaticGraph, sub: Subgraph) -> float:
+    """The contact a reaction law sums its shares over (mm²): the contact weights of ``sub``'s region
+    (the front and the layer its hop reaches) in area units, Σ V^(2/3). A law learned on small windows
+    is an extrapolation on a far larger contact (a seated whole socket: 20–100 times the pushed windows')."""
+    return float(graph.contact_weight[sub.region].sum(dtype=np.float64)) * REFERENCE_TET_VOLUME_M3 ** (2.0 / 3.0) * 1e6
 
 
 def input_widths(features: FeatureSettings) -> tuple[int, int, int]:

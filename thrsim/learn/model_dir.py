@@ -124,6 +124,13 @@ class LoadedModel:
         return None if found is None else (float(found[0]), float(found[1]))
 
     @property
+    def trained_law_contact_mm2(self) -> tuple[float, float] | None:
+        """The smallest and largest contact (mm², :func:`~thrsim.learn.features.law_contact_mm2`) the
+        reaction law learned from (None: a card written before cards recorded it, or no reaction head)."""
+        found = self.card.get("data", {}).get("law_contact_mm2")
+        return None if found is None else (float(found[0]), float(found[1]))
+
+    @property
     def trained_reamer_mm(self) -> tuple[float, ...]:
         """The reamer sizes (mm, the diameter the teeth cut) of the training cases: the card's
         ``reamer.sizes_mm`` where it lists them, else the one reamer its teeth radius says."""

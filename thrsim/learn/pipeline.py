@@ -124,6 +124,7 @@ def train_model(
             "frame_dt_s": float(np.median([c.frame_dt_s for c in train])),
             "frame_pairs": int(len(trainer.samples)),
             "reaction_cases": sorted(trainer.reaction_case_ids) if settings.arch.reaction_head else [],
+            "law_contact_mm2": trainer.law_contact_range_mm2() if settings.arch.reaction_head else None,
         },
         "training": {
             "epochs": trainer.epoch,

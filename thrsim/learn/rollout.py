@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, select_subgraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.reaction_feed import ReactionFeed
@@ -71,6 +71,8 @@ class LearnedStep:
         self.cuts_only_advancing = features.feature_set == "socket"
         #: the reaction law of the frame after the last step (reaction head), None before the first or without one
         self.reaction_law: np.ndarray | None = None
+        #: the contact that law summed over (mm², :func:`~thrsim.learn.features.law_contact_mm2`), None with no law
+        self.law_contact_mm2: float | None = None
         self.last = StepInfo(0, 0)
 
     def set_teeth_radius(self, teeth_radius_m: float) -> None:
@@ -119,11 +121,13 @@ class LearnedStep:
         self.last = StepInfo(sub.n_region, len(sub.nodes))
         if inputs is None:
             self.reaction_law = None if not self.model.reaction_head else np.zeros(4)
+            self.law_contact_mm2 = None if not self.model.reaction_head else 0.0
             return out
         with torch.inference_mode():
             prediction = self.model.predict(inputs)
         if prediction.reaction is not None:
             self.reaction_law = prediction.reaction[0].numpy().astype(np.float64)
+            self.law_contact_mm2 = law_contact_mm2(self.graph, sub)
         if not advance_m > 0.0 and (self.cuts_only_advancing or not force_n > 0.0):
             return out
         region, n = sub.region, sub.n_region

@@ -64,8 +64,11 @@ class StepResult:
     #: a socket model's bone reaction along the axis (N) and motor torque (N·m) over the frame
     reaction_n: float | None = None
     motor_torque_n_m: float | None = None
-    #: inputs outside what the model learned this frame ("push", "feed", "tilt", "reamer size", "centre"), never silently extrapolated
+    #: inputs outside what the model learned this frame ("push", "feed", "tilt", "reamer size", "centre",
+    #: "contact": a reaction law summed over more contact than the law learned), never silently extrapolated
     out_of_range: tuple[str, ...] = ()
+    #: the contact (mm²) the frame's reaction law summed over (:func:`~thrsim.learn.features.law_contact_mm2`)
+    law_contact_mm2: float | None = None
 
 
 @dataclass(frozen=True)
@@ -277,12 +280,18 @@ class ReamingSimulator:
             return float(reamer_mm)
         return min(sizes, key=lambda size: abs(size - reamer_mm))
 
-    def out_of_range(self, force_n: float, reamer_mm: float, axis: np.ndarray, centre: np.ndarray, feed_mm_s: float) -> tuple[str, ...]:
+    def out_of_range(
+        self, force_n: float, reamer_mm: float, axis: np.ndarray, centre: np.ndarray, feed_mm_s: float, law_contact_mm2: float | None = None
+    ) -> tuple[str, ...]:
         """What of a step's inputs lies outside what the model learned (its card's ranges): the push (a
         model whose network reads it: a socket model's reads the feed the push balances instead), the
         frame's feed, the reamer size asked for, the tilt γ of the axis from the socket's, the axis's
-        offset from the socket's centre (the reamer ``centre`` on it; right-side frame, m)."""
+        offset from the socket's centre (the reamer ``centre`` on it; right-side frame, m), the contact
+        the frame's reaction law summed over (larger than any the law learned from)."""
         flags = []
+        contacts = self.model.trained_law_contact_mm2
+        if contacts is not None and law_contact_mm2 is not None and law_contact_mm2 > contacts[1]:
+            flags.append("contact")
         offsets = self.model.trained_axis_offset_mm
         if (
             offsets is not None
@@ -336,6 +345,7 @@ class ReamingSimulator:
             new_centre = self._centre + moved * axis
         advance = float((new_centre - self._centre) @ axis)
         law = self._step.reaction_law
+        law_contact = None if law is None else self._step.law_contact_mm2
         reaction = torque = None
         if self.socket and law is not None:
             if reamer_position is None and isinstance(self._feed, ReactionFeed):  # pushed: the force the push balances
@@ -366,8 +376,9 @@ class ReamingSimulator:
             reaction_n=reaction,
             motor_torque_n_m=torque,
             out_of_range=self.out_of_range(
-                force, size_mm if reamer_mm is None else reamer_mm, axis, new_centre, 1e3 * advance / self.model.frame_dt_s
+                force, size_mm if reamer_mm is None else reamer_mm, axis, new_centre, 1e3 * advance / self.model.frame_dt_s, law_contact
             ),
+            law_contact_mm2=law_contact,
         )
 
     def _end_reason(self, centre: np.ndarray, axis: np.ndarray, removed: np.ndarray) -> str | None:

@@ -30,7 +30,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import LOWEST_CV, case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
-from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, select_subgraph
+from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.metrics import Counts
@@ -112,6 +112,22 @@ class Trainer:
             digest.update(name.encode())
             digest.update(tensor.detach().contiguous().numpy().tobytes())
         self.init_digest = digest.hexdigest()
+
+    def law_contact_range_mm2(self) -> list[float] | None:
+        """The smallest and largest contact (:func:`~thrsim.learn.features.law_contact_mm2`) of the frames
+        the reaction law learns from (None without them): beyond it a step's law is an extrapolation."""
+        contacts = []
+        for case_index, t in self.samples:
+            case = self.train_cases[case_index]
+            if case.case_id not in self.reaction_case_ids or math.isnan(next_reaction(case, int(t) + 1)[0]):
+                continue
+            graph = self.graphs[case.case_id]
+            sub = select_subgraph(
+                graph, self.settings.features, case.alpha[t] >= self.threshold, case.positions[t + 1], case.teeth_radius_m
+            )
+            if sub.n_region:
+                contacts.append(law_contact_mm2(graph, sub))
+        return [min(contacts), max(contacts)] if contacts else None
 
     def _step(self, model: LearnedSimulator, case: CaseArrays) -> LearnedStep:
         """The learned step on ``case``'s bone, with its reamer."""

@@ -47,6 +47,7 @@ _LISTED = (
     "tilt_out_of_range",
     "reamer_out_of_range",
     "centre_out_of_range",
+    "contact_out_of_range",
     "edge_warning",
     "undo",
     "restore",

@@ -98,7 +98,7 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     (``frames``), ``restore`` (``frames``), ``side_changed``, ``page_hidden``, ``page_shown``,
     ``push_out_of_range`` (``force_n``, ``trained_force_n``), ``feed_out_of_range`` (``feed_mm_s``,
     ``trained_feed_mm_s``), ``tilt_out_of_range`` (``tilt_deg``,
-    ``trained_tilt_deg``), ``reamer_out_of_range`` (``reamer_mm``, ``trained_reamer_mm``), ``centre_out_of_range`` (``axis_offset_mm``, ``trained_axis_offset_mm``), ``plan_set`` (``plan``),
+    ``trained_tilt_deg``), ``reamer_out_of_range`` (``reamer_mm``, ``trained_reamer_mm``), ``centre_out_of_range`` (``axis_offset_mm``, ``trained_axis_offset_mm``), ``contact_out_of_range`` (``contact_mm2``, ``trained_contact_mm2``), ``plan_set`` (``plan``),
     ``reamer_changed`` (``from_mm``, ``to_mm``), ``cancellous_reached`` (a reamer first cut from the
     subchondral plate into cancellous bone: once a reamer, a layered bone's only), ``cup_confirmed`` (``inclination_deg``,
     ``anteversion_deg``: the reamer's radiographic angles when the trainee confirmed the cup), the

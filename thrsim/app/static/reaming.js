@@ -183,7 +183,7 @@ function feedback(event) {
     undo: `undone: ${event.detail} (the report keeps what went before)`, side_changed: `${event.detail} hip`,
     push_out_of_range: `push ${event.detail}`, feed_out_of_range: `feed: ${event.detail}`,
     tilt_out_of_range: `tilt ${event.detail}`, reamer_out_of_range: `reamer ${event.detail}`,
-    centre_out_of_range: `centre: ${event.detail}`,
+    centre_out_of_range: `centre: ${event.detail}`, contact_out_of_range: `contact: ${event.detail}`,
     medial_wall_breached: `medial wall breached: ${event.detail}`,
     plan_set: `plan set: ${event.detail}`, reamer_changed: `reamer ${event.detail}`,
     cup_confirmed: `cup orientation confirmed at ${event.detail} (the report measures it against the plan)`,
@@ -191,7 +191,7 @@ function feedback(event) {
     passed_through: `perforated: the reamer went through the bone, none left in its path; ${event.detail}`,
     cancellous_reached: `cancellous bone: ${event.detail}`,
   }[event.kind];
-  const bad = ["perforated", "passed_through", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range"]
+  const bad = ["perforated", "passed_through", "medial_wall_breached", "push_out_of_range", "feed_out_of_range", "tilt_out_of_range", "reamer_out_of_range", "centre_out_of_range", "contact_out_of_range"]
     .includes(event.kind);
   if (text) toast(text, event.kind === "start" ? "good" : bad ? "error" : "");
 }

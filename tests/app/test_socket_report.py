@@ -97,8 +97,11 @@ def test_the_report_of_a_socket_session_matches_the_socket_mesh_and_the_trace(se
     assert found["cavity_depth_error_mm"] == pytest.approx(floor_mm - 24.0, abs=1e-4)
     assert found["over_reaming_mm"] == pytest.approx(max(0.0, float(np.max(distance[removed])) - 24.0), abs=1e-4)
     assert found["under_reaming_mm"] == pytest.approx(float(np.max(24.0 - distance[inside])), abs=1e-4)
-    # the medial wall left: the least distance from the reamer's teeth to the mesh's medial-wall nodes over the frames
-    wall = mesh.nodes[mesh.node_sets["medial_wall"]]
+    # the medial wall left: the least distance from the reamer's teeth to the nodes of the elements touching the
+    # mesh's medial wall (all their nodes: an element goes when the teeth reach one) over the frames; none went
+    wall_elements = np.isin(mesh.tets, mesh.node_sets["medial_wall"]).any(axis=1)
+    assert not removed[wall_elements].any()
+    wall = mesh.nodes[np.unique(mesh.tets[wall_elements])]
     teeth = np.array([np.min(np.linalg.norm(wall - p, axis=1)) for p in record.position_m]) - record.cut_mm * 0.5e-3
     assert found["medial_wall_remaining_mm"] == pytest.approx(max(0.0, float(teeth.min())) * 1e3, abs=1e-6)
     assert final["states"][-1]["bone_left_mm"] == pytest.approx(max(0.0, teeth[-1]) * 1e3, abs=1e-6)

@@ -88,9 +88,23 @@ class _Trace:
     removed_volume_mm3: list[float] = field(default_factory=list)
     depth_mm: list[float] = field(default_factory=list)
     angles: list[tuple[float, float, float]] = field(default_factory=list)  # radiographic incl., antev., zone distance
-    medial_wall_mm: list[float] = field(default_factory=list)  # bone left before the medial wall (a bone with one)
+    medial_wall_mm: list[float] = field(default_factory=list)  # bone_left_mm of the medial wall (a bone with one)
     reaction_n: list[float] = field(default_factory=list)  # the bone's reaction along the axis (a socket model's; NaN without)
     motor_torque_n_m: list[float] = field(default_factory=list)  # the motor torque (likewise)
+
+
+@dataclass(frozen=True)
+class _Face:
+    """A face the reamer breaks through, as the bone left before it is measured: the elements whose
+    loss ends the reaming (None where no element's does) and a KD-tree of the nodes measured to."""
+
+    elements: np.ndarray | None
+    tree: cKDTree
+
+    @classmethod
+    def of_elements(cls, mesh: TetMesh, elements: np.ndarray) -> _Face:
+        """The face of ``elements``, measured to all their nodes (an element goes when the teeth reach any)."""
+        return cls(elements, cKDTree(mesh.nodes[np.unique(mesh.tets[elements])] if len(elements) else np.zeros((0, 3))))
 
 
 def cutting_layer(mesh, newly_removed: np.ndarray, previous: str | None) -> str | None:
@@ -170,9 +184,7 @@ class ReamingTrainer:
         self.plan = plan or Plan()
         self.plan_source = "trainee" if plan is None else "case file"
         self.reamer_mm = self.plan.first_reamer_mm()
-        self._wall_nodes: np.ndarray | None = None  # the nodes of the face the reamer breaks through (_wall)
-        self._medial_wall = False
-        self._edge: tuple[np.ndarray, cKDTree] | None = None  # the socket's cut edge (_cut_edge)
+        self._faces: dict[str, _Face] | None = None  # the faces the reamer breaks through, read once (_breakable)
         self._reset_run()
 
     # ---- state of the run ---------------------------------------------------------------------
@@ -601,29 +613,43 @@ class ReamingTrainer:
         placement = self.patch_to_model
         return {"centre_m": (placement[:3, :3] @ centre + placement[:3, 3]).tolist(), "axis": (placement[:3, :3] @ axis).tolist()}
 
-    def _wall(self) -> tuple[np.ndarray, bool]:
-        """The nodes (patch frame, m) of the face the reamer breaks through, read once: the mesh's
-        ``medial_wall`` face where the bone has one (the layered socket), else its outer face (the
-        patch's far face); and whether it is the medial wall."""
-        if self._wall_nodes is None:
+    def _breakable(self) -> dict[str, _Face]:
+        """The faces the reamer breaks through, read once from the mesh: the medial wall where the bone
+        has one (the layered socket), the whole socket's cut edge (its supported boundary), and
+        otherwise the far face (the patch's outer face). A face the simulator ends the reaming at when
+        one of its elements goes (the wall and the edge, :func:`~thrsim.geometry.reaming_path.breach_faces`)
+        is measured to every node of its remaining elements (an element goes when the teeth reach any
+        of its nodes); the patch's far face, where the simulator ends the reaming geometrically, to its nodes."""
+        if self._faces is None:
             assert self.simulator is not None
             mesh = self.simulator.right_mesh
-            self._medial_wall = MEDIAL_WALL in mesh.node_sets and len(mesh.node_sets[MEDIAL_WALL]) > 0
-            wall = mesh.node_sets.get(MEDIAL_WALL if self._medial_wall else OUTER)
-            self._wall_nodes = mesh.nodes[wall] if wall is not None and len(wall) else np.zeros((0, 3))
-        return self._wall_nodes, self._medial_wall
+            breaches, faces = breach_faces(mesh), {}
+            for face, name in ((MEDIAL_WALL, MEDIAL_WALL), (CUT_EDGE, SUPPORTED)):
+                if len(breaches.get(name, ())):
+                    faces[face] = _Face.of_elements(mesh, breaches[name])
+            if MEDIAL_WALL not in faces:
+                outer = mesh.node_sets.get(OUTER, np.zeros(0, dtype=np.int64))
+                faces[FAR_FACE] = _Face(None, cKDTree(mesh.nodes[outer] if len(outer) else np.zeros((0, 3))))
+            self._faces = faces
+        return self._faces
+
+    def _bone_left_to(self, face: str) -> float | None:
+        """Bone left between the reamer's teeth and ``face`` (:meth:`_breakable`), mm: 0 once an element
+        of it is gone, else from the teeth sphere to its nearest node; None before the reamer has a
+        position, or where the bone has no such face."""
+        found = None if self.simulator is None or self._reamer_position is None else self._breakable().get(face)
+        if found is None or found.tree.n == 0:
+            return None
+        if found.elements is not None and self.simulator is not None and self.simulator.removed[found.elements].any():
+            return 0.0  # the reamer is through it (the simulator ends the reaming there)
+        nearest, _ = found.tree.query(self._reamer_position)
+        return max(0.0, (float(nearest) - self._teeth_radius_m()) * 1e3)
 
     def bone_left_mm(self) -> float | None:
-        """Bone left between the reamer's teeth and the face it would break through (mm, 0 once
-        through): the nearest node of the medial wall, or of the patch's far face. None before the
-        reamer has a position."""
-        if self.simulator is None or self._reamer_position is None:
-            return None
-        nodes, _ = self._wall()
-        if not len(nodes):
-            return None
-        nearest = float(np.min(np.linalg.norm(nodes - self._reamer_position, axis=1)))
-        return max(0.0, (nearest - self._teeth_radius_m()) * 1e3)
+        """Bone left before the reamer breaks into the pelvis (mm, 0 once through): before the medial
+        wall where the bone has one (to the nearest node of its remaining elements), else before the
+        bone patch's far face (to its nearest node). None before the reamer has a position."""
+        return self._bone_left_to(MEDIAL_WALL if self.medial_wall_modelled() else FAR_FACE)
 
     def _teeth_radius_m(self) -> float:
         """The radius of the reamer's teeth sphere that cuts: the size held on a socket model, the model's one on a patch model."""
@@ -631,37 +657,17 @@ class ReamingTrainer:
         assert sim is not None
         return sim.cutting_size_mm(self.reamer_mm) * 0.5e-3 if sim.socket else sim.model.teeth_radius_m
 
-    def _cut_edge(self) -> tuple[np.ndarray, cKDTree]:
-        """The socket's elements on its supported boundary (the faces where the modelled bone is cut off
-        from the pelvis it continues into; losing one ends the reaming as a perforation,
-        :func:`~thrsim.geometry.reaming_path.breach_faces`) and a KD-tree of their nodes, built once."""
-        if self._edge is None:
-            assert self.simulator is not None
-            mesh = self.simulator.right_mesh
-            elements = breach_faces(mesh).get(SUPPORTED, np.zeros(0, dtype=np.int64))
-            self._edge = (elements, cKDTree(mesh.nodes[np.unique(mesh.tets[elements])] if len(elements) else np.zeros((0, 3))))
-        return self._edge
-
     def edge_left_mm(self) -> float | None:
         """Bone left between the reamer's teeth and the edge of the modelled bone (mm, 0 once through):
-        the nearest node of the remaining elements on the socket's supported boundary, whose loss the
-        simulator ends as a perforation (their inner nodes, not only the face's: an element goes when
-        the teeth reach it). None before the reamer has a position, and on the bone patch, whose cut
-        edge is its far face (:meth:`bone_left_mm` measures it)."""
+        the whole socket's supported boundary, whose loss the simulator ends as a perforation (measured
+        as the medial wall is, :meth:`_bone_left_to`). None before the reamer has a position, and on the
+        bone patch, whose cut edge is its far face (:meth:`bone_left_mm` measures it)."""
         sim = self.simulator
-        if sim is None or not sim.socket or self._reamer_position is None:
-            return None
-        elements, tree = self._cut_edge()
-        if not len(elements):
-            return None
-        if sim.removed[elements].any():
-            return 0.0  # an element of the edge is gone: the reamer is through it
-        nearest, _ = tree.query(self._reamer_position)
-        return max(0.0, (float(nearest) - self._teeth_radius_m()) * 1e3)
+        return None if sim is None or not sim.socket else self._bone_left_to(CUT_EDGE)
 
     def medial_wall_modelled(self) -> bool:
         """Whether the bone has a medial wall (the layered socket does; the bone patch does not)."""
-        return self.simulator is not None and self._wall()[1]
+        return self.simulator is not None and MEDIAL_WALL in self._breakable()
 
     # ---- what the page and the session file get -----------------------------------------------
 

@@ -174,7 +174,8 @@ def cavity_against_plan_mm(record: ReamingRecord, plan: Plan) -> dict | None:
 
 def medial_wall_remaining_mm(record: ReamingRecord) -> float | None:
     """The least bone left between the reamer's teeth and the medial wall over the final bone's
-    frames; None where the bone has no medial wall (the bone patch) or no frame was kept."""
+    frames (the trace's, as the page showed it: 0 from a breach on); None where the bone has no
+    medial wall (the bone patch) or no frame was kept."""
     if record.medial_wall_mm is None:
         return None
     rows = final_rows(record)

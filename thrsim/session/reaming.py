@@ -89,7 +89,8 @@ def write_reaming(group: h5py.Group, record: ReamingRecord, settings: dict) -> N
     the reamer was not measured), ``reamer_mm`` (the reamer size the trainee held) and ``cut_mm``
     (the size the simulator cut with: its model's, where the model learned one size; both absent
     from files before the reamer sequence), ``medial_wall_mm`` (bone left between the reamer's teeth
-    and the medial wall; only where the bone has one: the bone patch has none), ``reaction_n`` and
+    and the nearest node of the remaining elements touching the medial wall, 0 once one is gone;
+    only where the bone has one: the bone patch has none), ``reaction_n`` and
     ``motor_torque_n_m`` (the bone's reaction along the axis, N, and the motor torque, N·m, a
     whole-socket model predicts each frame; only with such a model); ``events/`` ``time``,
     ``kind``, ``detail``, ``frame`` and ``data``

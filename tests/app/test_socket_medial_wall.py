@@ -1,0 +1,125 @@
+"""The medial wall on a real whole-socket session: the shipped socket model on the native 46 mm
+socket meshed at 3 mm, the 48 mm reamer pushed at 400 N at the safe zone's centre, which breaks
+into the pelvis through the medial wall. Every state's bone left before the wall is checked against
+the test's own reading of the socket's mesh (the remaining elements touching the wall, all their
+nodes; 0 once one is gone, the frame the simulator ends as a breach); the trace and the report
+give the same figure, so a report never says "0 mm left" of a breach and more of the same bone."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from thrsim.app.live import LiveSession
+from thrsim.app.modes import MODES
+from thrsim.app.reaming import BREAK_WARNING_MM, socket_in_patch
+from thrsim.geometry.mesh import MEDIAL_WALL
+from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
+from thrsim.report import build_report
+from thrsim.report.reaming import criteria
+from thrsim.report.reaming_metrics import metrics
+from thrsim.session.file import read_session
+from thrsim.session.reaming import read_reaming
+
+pytestmark = pytest.mark.timeout(900)
+
+STEP = 1 / 60
+ELEMENT_MM = 3.0  # fine enough that the reamer reaches the wall before the modelled bone's cut edge
+REAMER_MM, PUSH_N = 48, 400.0
+FRAMES_AFTER_UNDO = 6
+
+
+def _ream_until_it_stops(live: LiveSession, now: list[float], mesh, frames: int = 120) -> list[dict]:
+    """Ream until the simulator pauses; each state with the test's own figures: the bone left by the
+    element rule, and the old reading (to the wall's own nodes only, the elements ignored)."""
+    wall_elements = np.flatnonzero(np.isin(mesh.tets, mesh.node_sets[MEDIAL_WALL]).any(axis=1))
+    element_nodes = mesh.nodes[np.unique(mesh.tets[wall_elements])]
+    face_nodes = mesh.nodes[mesh.node_sets[MEDIAL_WALL]]
+    teeth_m = REAMER_MM / 2e3
+    states = []
+    for _ in range(frames):
+        now[0] += STEP
+        state = live.tick()["reaming"]
+        centre = live.trainer._reamer_position
+        if centre is not None:
+            through = bool(live.trainer.simulator.removed[wall_elements].any())
+            own = 0.0 if through else max(0.0, (np.linalg.norm(element_nodes - centre, axis=1).min() - teeth_m) * 1e3)
+            face = (np.linalg.norm(face_nodes - centre, axis=1).min() - teeth_m) * 1e3
+            states.append({**state, "own_bone_left_mm": own, "face_nodes_mm": face})
+        if not state["running"]:
+            break
+    return states
+
+
+@pytest.fixture(scope="module")
+def session(tmp_path_factory):
+    """The breach saved as it was, and the same session saved again after undoing it and reaming less."""
+    folder = tmp_path_factory.mktemp("socket-wall")
+    now = [0.0]
+    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
+    live = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)
+
+    def send(**message) -> str:
+        return live.control(json.dumps(message))[1]
+
+    mesh = socket_in_patch(46.0, ELEMENT_MM)  # the same socket meshed again, independently of the trainer
+    send(type="force", newton=PUSH_N)
+    send(type="reamer_size", size_mm=REAMER_MM)
+    send(type="run", action="start")
+    states = _ream_until_it_stops(live, now, mesh)
+    breached = read_reaming(read_session(live.save(folder)).groups["reaming"])
+    undone = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)  # the same inputs, then U
+    live, now[0] = undone, 0.0
+    send(type="force", newton=PUSH_N)
+    send(type="reamer_size", size_mm=REAMER_MM)
+    send(type="run", action="start")
+    _ream_until_it_stops(live, now, mesh)
+    send(type="run", action="undo")  # back to the intact bone (the breach came within the undo's second)
+    send(type="run", action="start")
+    for _ in range(FRAMES_AFTER_UNDO):  # ream again, stopping short of the wall
+        now[0] += STEP
+        live.tick()
+    send(type="run", action="pause")
+    path = live.save(folder)
+    return states, breached, path
+
+
+def test_the_bone_left_before_the_medial_wall_is_to_its_remaining_elements(session):
+    states, _, _ = session
+    assert len(states) > 3
+    for state in states:
+        assert state["medial_wall_modelled"] and state["bone_left_mm"] == pytest.approx(state["own_bone_left_mm"], abs=1e-9)
+        assert state["medial_wall_remaining_mm"] == state["bone_left_mm"]
+    left = [state["bone_left_mm"] for state in states]
+    assert left[0] > 2 * BREAK_WARNING_MM and np.all(np.diff(left) <= 1e-9)  # the reamer only goes in
+    # the frame the simulator ends as a breach says 0 left; the wall's own nodes were still beyond the warning
+    last = states[-1]
+    assert [e["kind"] for e in last["events"]].count("medial_wall_breached") == 1 and last["bone_left_mm"] == 0.0
+    assert left[-2] > 0.0 and last["face_nodes_mm"] > BREAK_WARNING_MM
+    assert not any(e["kind"] == "medial_wall_breached" for state in states[:-1] for e in state["events"])
+
+
+def test_the_trace_and_the_report_give_the_same_figure_as_the_warning(session):
+    states, breached, _ = session
+    assert breached.medial_wall_mm is not None and len(breached.medial_wall_mm) == len(states)
+    assert np.allclose(breached.medial_wall_mm, [state["bone_left_mm"] for state in states], rtol=0, atol=1e-9)
+    assert metrics(breached)["medial_wall_remaining_mm"] == 0.0
+    event = next(e for e in breached.events if e["kind"] == "medial_wall_breached")
+    assert event["face"] == MEDIAL_WALL
+
+
+def test_an_undone_breach_leaves_the_bone_it_undid_and_still_scores(session):
+    states, _, path = session
+    record = read_reaming(read_session(path).groups["reaming"])
+    found = metrics(record)
+    # the final bone is the one reamed after the undo: the least bone left over its frames, the same as the live figure then
+    assert len(states) > FRAMES_AFTER_UNDO and np.array_equal(record.frame[-FRAMES_AFTER_UNDO:], np.arange(1, FRAMES_AFTER_UNDO + 1))
+    kept = record.medial_wall_mm[-FRAMES_AFTER_UNDO:]
+    assert found["medial_wall_remaining_mm"] == pytest.approx(kept.min()) and kept.min() > 0.0
+    assert kept == pytest.approx([state["bone_left_mm"] for state in states[:FRAMES_AFTER_UNDO]])  # the same inputs, the same bone
+    criterion = next(c for c in criteria(record) if c.name == "no perforation or breach")
+    assert criterion.points == 0 and "medial wall breached" in criterion.measured
+    page = build_report(path)
+    assert f"<td>{found['medial_wall_remaining_mm']:.1f} mm</td>" in page and "undo" in page

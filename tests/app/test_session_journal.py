@@ -134,7 +134,8 @@ def test_a_long_session_keeps_its_inputs_on_disk_not_in_memory(tmp_path):
     try:
         before = tracemalloc.get_traced_memory()[0]
         for k in range(10_000):
-            session.pose("ReamerToReference", pose, k / 240)
+            now[0] = k / 240  # a tracker at 240 Hz
+            session.pose("ReamerToReference", pose, now[0])
             if k % 1000 == 999:
                 session.tick()  # the queued poses are logged and applied
         grown = tracemalloc.get_traced_memory()[0] - before

@@ -4,9 +4,10 @@ Times given to the trainer are seconds since the session started; inputs are log
 trainer acts on them (a refused control is an input too), so a replay lives the same session.
 The log is the session's journal on disk (:mod:`thrsim.session.journal`), so a crash loses at
 most the last second; the next start closes what a crash left open (:func:`close_interrupted`).
-Every entry point holds the session's lock, so an input lands between two steps, never inside
-one; tracker poses and forces do not wait for it (a reaming step holds it for tens of
-milliseconds): they queue with their arrival times and are applied, in order, at the next step.
+Inputs land between two steps, never inside one: tracker poses, forces and the page's controls
+queue with their arrival times and a tick applies them, in arrival order, before it steps; what
+arrived during a slow tick is applied over the next ticks at twice the rate it came, never at
+once (:meth:`LiveSession.tick`). :meth:`LiveSession.control` applies one at once (scripts, tests).
 """
 
 from __future__ import annotations
@@ -14,11 +15,14 @@ from __future__ import annotations
 import datetime as dt
 import json
 import logging
+import math
 import secrets
 import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -27,6 +31,7 @@ import numpy as np
 
 from thrsim.app.modes import MODES, Mode
 from thrsim.app.replay import relive
+from thrsim.config import FRAME_RATE_HZ
 from thrsim.errors import ThrsimInputError
 from thrsim.provenance import package_versions
 from thrsim.session.file import write_session
@@ -57,12 +62,30 @@ def new_session_id() -> str:
     return dt.datetime.now(dt.UTC).strftime("%Y%m%dT%H%M%SZ") + "-" + secrets.token_hex(3)
 
 
+#: an input never waits longer than this for its tick (s): a backlog older than that (a stall far
+#: beyond a tick) is applied at once, in order, so that a tracked tool's replayed pose never goes
+#: stale (navigation's ``stale_after_s``, 0.5 s) and the session never lags its trainee by more
+MAX_INPUT_LAG_S = 0.25
+
+
+@dataclass(frozen=True)
+class _Arrival:
+    """One input waiting for its tick: ``pose`` (device, 4×4), ``force`` (N) or ``control`` (a parsed
+    control, whose ``reply`` gets ``(control, ack)`` or the refusal once applied), and when it came (clock time)."""
+
+    kind: str
+    clock_time: float
+    payload: tuple
+    reply: Future | None = None
+
+
 class LiveSession:
     """One mode's live session in ``folder``: its journal is ``<id>.journal`` there while it lives,
     its session file ``<id>.h5`` once it ends."""
 
-    def __init__(self, mode: Mode, settings: dict, clock: Callable[[], float], folder: Path):
+    def __init__(self, mode: Mode, settings: dict, clock: Callable[[], float], folder: Path, tick_s: float = 1.0 / FRAME_RATE_HZ):
         self.mode = mode
+        self.tick_s = tick_s  # the time between ticks, which a tick's own time counts as at most (_take_to)
         self.settings = dict(settings)
         self.clock = clock
         self.folder = Path(folder)
@@ -81,59 +104,93 @@ class LiveSession:
         self.worst_tick_ms = 0.0  # the longest tick of this session (inputs applied, trainer stepped), wall-clock
         self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
-        self._arrived: deque[tuple] = deque()  # poses and forces waiting for the lock (appends are atomic)
+        self._arrived: deque[_Arrival] = deque()  # inputs waiting for their tick, in arrival order (appends are atomic)
+        self._taken_to = self.origin  # clock time: the ticks applied the inputs that arrived up to it (_take_to)
+        self._last_tick = (self.origin, self.origin)  # clock times: when the last tick began and ended
 
     def elapsed(self, clock_time: float | None = None) -> float:
         return (self.clock() if clock_time is None else clock_time) - self.origin
 
-    def control(self, message: object) -> tuple[Any, str]:
-        """Validate, log and apply one control; ThrsimInputError (logged first) when refused."""
+    def submit(self, message: object) -> Future:
+        """Validate a page's control (ThrsimInputError at once when it is not one) and queue it for the
+        next tick; the future gets ``(control, ack)`` when it is applied, or the trainer's refusal."""
         control = self.mode.parse_control(message)
+        reply: Future = Future()
+        self._arrived.append(_Arrival("control", self.clock(), (control,), reply))
+        return reply
+
+    def control(self, message: object) -> tuple[Any, str]:
+        """Validate, log and apply one control now, after every input queued before it;
+        ThrsimInputError (logged first) when refused."""
+        reply = self.submit(message)
         with self.lock:
             self._apply_arrived()
-            now = self.elapsed()
-            self.journal.control(now, control.model_dump())
-            if control.type == "end_session":  # the app's to act on: it saves this session
-                return control, "session ending"
-            if control.type == "trainee":  # the record's, not the trainer's: the file's header says who trained
-                self.attrs["trainee"] = control.id.strip()
-                return control, f"trainee {self.attrs['trainee']}"
-            return control, self.trainer.apply_control(control, now)
+        return reply.result()
 
     def pose(self, device: str, pose: np.ndarray, clock_time: float) -> None:
-        """Queue a tracker pose (applied when the lock is next taken; see the module docstring)."""
-        self._arrived.append(("pose", device, np.array(pose, dtype=np.float64), clock_time))
+        """Queue a tracker pose for the next tick (see the module docstring)."""
+        self._arrived.append(_Arrival("pose", clock_time, (device, np.array(pose, dtype=np.float64))))
 
     def force(self, newton: float, clock_time: float) -> None:
         """Queue a force reading, as :meth:`pose`."""
-        self._arrived.append(("force", float(newton), clock_time))
+        self._arrived.append(_Arrival("force", clock_time, (float(newton),)))
 
-    def _apply_arrived(self) -> None:
-        """Log and apply the queued poses and forces in arrival order (the lock held); a refused
-        one is logged as an input, as a refused control is, and the rest go on."""
-        while self._arrived:
+    def _apply_arrived(self, until: float = math.inf) -> None:
+        """Log and apply the queued inputs that arrived by ``until`` (clock time), in arrival order (the
+        lock held); a refused one is logged as an input, and the rest go on."""
+        while self._arrived and self._arrived[0].clock_time <= until:
             entry = self._arrived.popleft()
+            now = self.elapsed(entry.clock_time)
             try:
-                if entry[0] == "pose":
-                    _, device, pose, clock_time = entry
-                    now = self.elapsed(clock_time)
+                if entry.kind == "pose":
+                    device, pose = entry.payload
                     self.journal.pose(now, device, pose)
                     self.trainer.apply_pose(device, pose, now)
+                elif entry.kind == "force":
+                    self.journal.force(now, entry.payload[0])
+                    self.trainer.apply_force(entry.payload[0], now)
                 else:
-                    _, newton, clock_time = entry
-                    now = self.elapsed(clock_time)
-                    self.journal.force(now, newton)
-                    self.trainer.apply_force(newton, now)
+                    self._apply_control(entry, now)
             except ThrsimInputError as error:
-                log.warning("%s refused: %s", entry[0], error)
+                log.warning("%s refused: %s", entry.kind, error)
+
+    def _apply_control(self, entry: _Arrival, now: float) -> None:
+        """Log and apply a queued control; its reply gets the acknowledgement or the refusal."""
+        assert entry.reply is not None
+        control = entry.payload[0]
+        try:
+            self.journal.control(now, control.model_dump())
+            if control.type == "end_session":  # the app's to act on: it saves this session
+                ack = "session ending"
+            elif control.type == "trainee":  # the record's, not the trainer's: the file's header says who trained
+                self.attrs["trainee"] = control.id.strip()
+                ack = f"trainee {self.attrs['trainee']}"
+            else:
+                ack = self.trainer.apply_control(control, now)
+        except Exception as error:  # a refusal, or a trainer bug: the control's sender is told, the session goes on
+            entry.reply.set_exception(error)
+            return
+        entry.reply.set_result((control, ack))
+
+    def _take_to(self, clock_time: float) -> float:
+        """Up to when (clock time) the tick at ``clock_time`` applies the inputs. At a tick's pace, all
+        that arrived by then. A slow tick's own time counts as one tick: what arrived during it is
+        applied over the next ticks in slices twice as long as the time between them (replayed at twice
+        the rate it came, so caught up in about the stall's length, never at once), but all that waited
+        :data:`MAX_INPUT_LAG_S` or more at once."""
+        began, ended = self._last_tick
+        since = clock_time - max(began, ended - self.tick_s)
+        self._taken_to = min(clock_time, max(self._taken_to + 2.0 * max(0.0, since), clock_time - MAX_INPUT_LAG_S))
+        return self._taken_to
 
     def tick(self, early: Callable[[dict], None] | None = None) -> dict:
-        """Step the trainer to now; ``early`` gets the state of the new poses ahead of a slow step's
-        rest (see :class:`thrsim.app.modes.Trainer`)."""
+        """Apply the inputs due (:meth:`_take_to`) and step the trainer to now; ``early`` gets the state
+        of the new poses ahead of a slow step's rest (see :class:`thrsim.app.modes.Trainer`)."""
         with self.lock:
             started = time.perf_counter()
-            self._apply_arrived()
-            now = self.elapsed()
+            clock_time = self.clock()
+            self._apply_arrived(self._take_to(clock_time))
+            now = self.elapsed(clock_time)
             self.journal.tick(now)
             session = {"id": self.id, "elapsed_s": now}
             # an early state goes before this tick is timed: it carries the worst tick so far, not its own
@@ -142,6 +199,7 @@ class LiveSession:
             tick_ms = (time.perf_counter() - started) * 1e3
             self.worst_tick_ms = max(self.worst_tick_ms, tick_ms)
             state["session"] = {**session, "tick_ms": tick_ms, "worst_tick_ms": self.worst_tick_ms}
+            self._last_tick = (clock_time, self.clock())
             return state
 
     def save(self, folder: Path | None = None) -> Path:

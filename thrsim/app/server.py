@@ -3,7 +3,8 @@
 One process serves everything, one live session per trainee's page (a seat), which instructors
 may join read-only (``?observe=SESSION_ID``). Every ``1/tick_hz`` s the ticker steps every live
 session on a worker thread and offers each viewer only the newest state, so a slow viewer skips
-frames instead of slowing the others; a mode's binary stream follows each state. Routes, streams
+frames instead of slowing the others; a mode's binary stream follows each state. A page's controls
+queue for the ticks as tracker poses do, and are answered once applied, in order. Routes, streams
 and settings of one mode are its :class:`~thrsim.app.modes.Mode` hooks, so nothing here names a
 mode. Sessions stream their inputs to a journal, are saved atomically when they end (an empty one
 is not saved), are retried on a full disk, and a crash's are closed at the next start (see
@@ -27,6 +28,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -338,7 +340,7 @@ class TrainerHub:
         return {"side": self.settings.side, "seed": seed, **mode.session_settings(self.settings)}
 
     def _start(self, mode: Mode) -> LiveSession:
-        return LiveSession(mode, self._settings(mode), self.clock, self.settings.sessions_dir)
+        return LiveSession(mode, self._settings(mode), self.clock, self.settings.sessions_dir, tick_s=1.0 / self.settings.tick_hz)
 
     def open_seat(self, mode_name: str, owner: _Viewer | None) -> Seat:
         """A seat with a fresh session of the mode for a trainee's page; ThrsimInputError when
@@ -768,20 +770,20 @@ def create_app(settings: ServeSettings) -> FastAPI:
             await socket.close(code=4404 if observe else 4429, reason="refused")
             return
         sender = asyncio.create_task(_send_states(viewer, seat))
+        answers: asyncio.Queue = asyncio.Queue()  # each control's answer, in the order the controls came
+        answerer = asyncio.create_task(_answer_controls(hub, seat, viewer, answers))
         try:
             await socket.send_text(json.dumps(hub.hello(seat, viewer)))
-            while True:
+            while True:  # never waits for a tick: a control arriving during a slow one queues with its arrival time
                 message = await socket.receive()
                 if message["type"] == "websocket.disconnect":
                     break
-                for kind, payload in _handle(hub, seat, viewer, message.get("text")):
-                    for other in seat.viewers if kind == "all" else [viewer]:
-                        with contextlib.suppress(Exception):
-                            await other.socket.send_text(json.dumps(hub.hello(seat, other) if payload == "hello" else payload))
+                answers.put_nowait(_submit(seat, viewer, message.get("text")))
         except WebSocketDisconnect:
             pass
         finally:
             sender.cancel()
+            answerer.cancel()
             observers = list(seat.observers) if viewer is seat.owner else []
             path = await asyncio.to_thread(hub.leave, seat, viewer)
             over = {"type": "session_over", "message": f"the trainee left session {seat.session.id}" + (" (saved)" if path else "")}
@@ -798,21 +800,45 @@ def _locked_report(build, path: Path, thresholds: Thresholds | None) -> str:
         return build(path, thresholds)
 
 
-def _handle(hub: TrainerHub, seat: Seat, viewer: _Viewer, text: str | None) -> list[tuple[str, dict | str]]:
-    """One viewer message → replies: ("one", payload) to the sender, ("all", payload) to every viewer
-    of the seat ("hello": each viewer's own)."""
+def _submit(seat: Seat, viewer: _Viewer, text: str | None) -> Future | list[tuple[str, dict | str]]:
+    """One viewer message: a control queued in the seat's session for its tick (the future of its
+    acknowledgement), or the replies refusing it at once (an observer's, not JSON, not a control)."""
     if viewer is not seat.owner:
         return [("one", {"type": "error", "message": f"this page observes session {seat.session.id}: its controls are the trainee's"})]
     if text is None:
         return [("one", {"type": "error", "message": "controls are JSON text messages, not binary"})]
+    try:
+        return seat.session.submit(text)
+    except ThrsimInputError as error:
+        log.warning("%s control refused: %s", seat.session.mode.name, error)  # one line per bad message, never a traceback
+        return [("one", {"type": "error", "message": str(error)})]
+
+
+async def _answer_controls(hub: TrainerHub, seat: Seat, viewer: _Viewer, answers: asyncio.Queue) -> None:
+    """Answer each of a viewer's controls, in order, once its tick applied it (:func:`_answer`)."""
+    while True:
+        submitted = await answers.get()
+        if not isinstance(submitted, list):
+            with contextlib.suppress(Exception):  # a refusal: _answer says it
+                await asyncio.wrap_future(submitted)
+        replies = submitted if isinstance(submitted, list) else _answer(hub, seat, submitted)
+        for kind, payload in replies:
+            for other in seat.viewers if kind == "all" else [viewer]:
+                with contextlib.suppress(Exception):
+                    await other.socket.send_text(json.dumps(hub.hello(seat, other) if payload == "hello" else payload))
+
+
+def _answer(hub: TrainerHub, seat: Seat, applied: Future) -> list[tuple[str, dict | str]]:
+    """An applied control → replies: ("one", payload) to the sender, ("all", payload) to every viewer
+    of the seat ("hello": each viewer's own)."""
     session = seat.session
     try:
-        control, ack = session.control(text)
+        control, ack = applied.result()
     except ThrsimInputError as error:
         log.warning("%s control refused: %s", session.mode.name, error)  # one line per bad message, never a traceback
         return [("one", {"type": "error", "message": str(error)})]
     except Exception as error:  # a trainer bug: refuse this control, keep the session and the server
-        log.exception("control failed")
+        log.error("control failed", exc_info=error)
         return [("one", {"type": "error", "message": f"control failed: {error}"})]
     if control.type == "end_session":
         try:

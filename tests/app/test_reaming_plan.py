@@ -59,6 +59,18 @@ def test_the_final_bone_keeps_only_the_frames_no_undo_or_restore_went_back_over(
     assert final_rows(_record([1, 2, 3, 4, 5, 3, 4], np.arange(7.0))).tolist() == [0, 1, 5, 6]
 
 
+def test_an_undo_or_restore_with_nothing_reamed_after_it_still_drops_the_frames_it_went_back_over():
+    record = _record([1, 2, 3, 4, 5], np.arange(5.0))
+    record.events.append({"time_s": 10.0, "kind": "undo", "detail": "3 frames", "frame": 2, "frames": 3})
+    assert final_rows(record).tolist() == [0, 1]
+    record.events.append({"time_s": 11.0, "kind": "restore", "detail": "", "frame": 0, "frames": 2})
+    assert final_rows(record).tolist() == []
+    # an undo between frames: the rows before it go back, the ones after it stay
+    record = _record([1, 2, 3, 4, 5, 3, 4], np.arange(7.0))
+    record.events.append({"time_s": float(record.time[5]), "kind": "undo", "detail": "3 frames", "frame": 2, "frames": 3})
+    assert final_rows(record).tolist() == [0, 1, 5, 6]
+
+
 def test_orientation_error_is_the_cavity_axis_against_the_plan():
     found = metrics(_record(range(1, 11), np.arange(1.0, 11.0), angles=(45.0, 20.0)))
     assert found["inclination_error_deg"] == pytest.approx(5.0, abs=1e-9)

@@ -22,12 +22,23 @@ from thrsim.session.reaming import ReamingRecord
 
 def final_rows(record: ReamingRecord) -> np.ndarray:
     """Trace rows of the frames the final bone kept, in order: a row with frame f replaces every
-    row from frame f on (an undo steps back, a restore starts again at frame 1)."""
+    row from frame f on, and an undo or restore drops every row past the frame it went back to
+    (an undo steps back, a restore starts again at frame 0), reamed again after it or not."""
+    backs = sorted((e["time_s"], e["frame"]) for e in record.events if e["kind"] in ("undo", "restore") and e.get("frame") is not None)
     kept: list[int] = []
+
+    def go_back(until_s: float) -> None:
+        while backs and backs[0][0] <= until_s:
+            _, back = backs.pop(0)
+            while kept and record.frame[kept[-1]] > back:
+                kept.pop()
+
     for row, frame in enumerate(record.frame):
+        go_back(float(record.time[row]))  # a control at a tick's time is applied before its frames
         while kept and record.frame[kept[-1]] >= frame:
             kept.pop()
         kept.append(row)
+    go_back(np.inf)
     return np.array(kept, dtype=np.int64)
 
 

@@ -203,13 +203,17 @@ class ReamingTrainer:
         self._edge_warned: set[float] = set()  # the reamers the page has warned of the modelled bone's cut edge (an event each)
         self._reaction: tuple[float, float] | None = None  # the last frame's reaction (N) and motor torque (N·m)
         self._frame_forces: list[dict] = []  # frames stepped since the last state: their reaction and torque
+        self.levels, self.levels_frame = np.zeros(0, dtype=np.uint8), 0  # the display levels viewers read (see _publish)
         if self.simulator is not None:
             self.simulator.reset("right")  # the patch frame: both hips are one patch (module docstring)
         self._publish()
 
     def _publish(self) -> None:
-        """Replace (never mutate) the levels viewers read: a sender holding the old array stays consistent."""
-        self.levels = self.display_levels()
+        """Replace (never mutate) the levels viewers read when they change: a sender holding the old array
+        stays consistent; ``levels_frame`` is the frame of the last change (what a viewer must have drawn)."""
+        levels = self.display_levels()
+        if not np.array_equal(levels, self.levels):
+            self.levels, self.levels_frame = levels, self.frames_run
 
     @property
     def side(self) -> str:
@@ -546,6 +550,7 @@ class ReamingTrainer:
             "unavailable": self.unavailable,
             "running": self.running,
             "frame": self.frames_run,
+            "bone_frame": self.levels_frame,  # the frame of the bone's last change: a page drawing it is up to date
             "time_s": self.frames_run / self.frame_rate_hz,
             "behind_frames": self.behind_frames,
             "force_n": force,

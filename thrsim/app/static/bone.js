@@ -125,36 +125,44 @@ export class BonePatch {
     this.object.frustumCulled = false;
   }
 
-  // Apply one binary frame (keyframe or delta, its body a zlib stream); resolves to the frame
-  // number. Frames must be applied in the order they arrived (the caller chains them).
-  async apply(buffer) {
-    const view = new DataView(buffer);
-    const kind = String.fromCharCode(view.getUint8(0));
-    const frame = view.getUint32(1, true), count = view.getUint32(5, true);
-    const body = await inflate(new Uint8Array(buffer, 9));
-    if (kind === "K") {
-      if (count !== this.levels.length || body.length !== count) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
-      this.levels.set(body);
-      this.frame = frame;
-      this.rebuild();
-    } else if (kind === "D") {
-      // ids ascending, each the gap to the previous one minus one as a LEB128 varint; then the levels
-      let read = 0, id = -1;
-      const ids = new Uint32Array(count);
-      for (let i = 0; i < count; i++) {
-        let gap = 0, shift = 0, byte;
-        do { byte = body[read++]; gap += (byte & 0x7f) * 2 ** shift; shift += 7; } while (byte & 0x80);
-        id += gap + 1;
-        ids[i] = id;
+  // Apply binary frames (keyframes or deltas, each body a zlib stream) in the order they arrived,
+  // all at once: their bodies inflate together and the faces are refreshed once for the lot, so a
+  // backlog (frames that came while the page drew) costs one refresh, not one per frame; resolves
+  // to the last frame number. The caller chains calls, so frames never apply out of order.
+  async apply(...buffers) {
+    const frames = await Promise.all(buffers.map(async (buffer) => {
+      const view = new DataView(buffer);
+      const kind = String.fromCharCode(view.getUint8(0));
+      return { kind, frame: view.getUint32(1, true), count: view.getUint32(5, true), body: await inflate(new Uint8Array(buffer, 9)) };
+    }));
+    let rebuild = false;
+    const changed = [];
+    for (const { kind, frame, count, body } of frames) {
+      if (kind === "K") {
+        if (count !== this.levels.length || body.length !== count) throw new Error(`keyframe of ${count} elements for a mesh of ${this.levels.length}`);
+        this.levels.set(body);
+        rebuild = true;
+      } else if (kind === "D") {
+        // ids ascending, each the gap to the previous one minus one as a LEB128 varint; then the levels
+        let read = 0, id = -1;
+        const ids = new Uint32Array(count);
+        for (let i = 0; i < count; i++) {
+          let gap = 0, shift = 0, byte;
+          do { byte = body[read++]; gap += (byte & 0x7f) * 2 ** shift; shift += 7; } while (byte & 0x80);
+          id += gap + 1;
+          ids[i] = id;
+        }
+        if (read + count !== body.length || (count && id >= this.levels.length)) throw new Error(`malformed delta of ${count} elements`);
+        for (let i = 0; i < count; i++) this.levels[ids[i]] = body[read + i];
+        changed.push(ids);
+      } else {
+        throw new Error(`unknown bone frame ${kind}`);
       }
-      if (read + count !== body.length || (count && id >= this.levels.length)) throw new Error(`malformed delta of ${count} elements`);
-      for (let i = 0; i < count; i++) this.levels[ids[i]] = body[read + i];
       this.frame = frame;
-      this.update(ids);
-    } else {
-      throw new Error(`unknown bone frame ${kind}`);
     }
-    return frame;
+    if (rebuild) this.rebuild();
+    else if (changed.length) this.update(changed.length === 1 ? changed[0] : new Uint32Array(new Set(changed.flatMap((ids) => [...ids]))));
+    return this.frame;
   }
 
   // Every boundary face of the remaining bone from scratch (a keyframe, a new patch), in order.

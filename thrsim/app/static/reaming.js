@@ -20,9 +20,9 @@ const stats = { frames: 0, states: 0, boneFrames: 0, boneBytes: 0, errors: [], a
 // state arrived and when it was first drawn (performance.now(), ms).
 stats.probe = { inclination: null, arrived: 0, drawn: 0 };
 // Drawn-bone lag (`thrsim bench --reaming-page`): at each drawing while reaming, how long (ms,
-// wall-clock) the page has known of a simulator frame newer than the bone it draws: since the
-// first state past the drawn bone's frame arrived, 0 when the bone drawn is the latest (the worst,
-// their sum and count). newerFrames: [frame, arrival] of states not yet drawn, oldest first.
+// wall-clock) the page has known of a change to the bone newer than the bone it draws: since the
+// first state whose bone changed past the drawn bone's frame arrived, 0 when the bone drawn is the
+// latest (the worst, their sum and count). newerFrames: [frame of the change, arrival], oldest first.
 stats.boneLag = { worst: 0, sum: 0, count: 0 };
 const newerFrames = [];
 let bone = null;
@@ -56,10 +56,16 @@ function onBone(step) {
   boneApplied = boneApplied.then(step).catch((error) => { stats.errors.push(String(error)); toast(`bone frame: ${error.message}`, "error"); });
 }
 
+// Frames that arrive while one is being applied wait in the patch's backlog and are applied
+// together by the next step, so the drawn bone catches up at once instead of one frame a draw.
 function applyBone(patch, buffer) {
+  patch.backlog ??= [];
+  patch.backlog.push(buffer);
+  if (patch.backlog.length > 1) return; // the step already chained takes this frame too
   onBone(async () => {
-    await patch.apply(buffer);
-    stats.boneFrames += 1;
+    const buffers = patch.backlog.splice(0);
+    await patch.apply(...buffers);
+    stats.boneFrames += buffers.length;
     stats.visibleFaces = patch.visibleFaces;
     stats.removed = patch.removedCount();
     dirty = inset.stale = true;
@@ -123,8 +129,9 @@ function receive(message) {
     stats.states += 1;
     stats.last = message;
     const lastSeen = newerFrames.length ? newerFrames[newerFrames.length - 1][0] : -1;
-    if (message.reaming.frame > lastSeen) newerFrames.push([message.reaming.frame, performance.now()]);
-    else if (message.reaming.frame < lastSeen) newerFrames.length = 0; // an undo or a restore: the frames start again
+    const changed = message.reaming.bone_frame; // the frame of the bone's last change (frames that change nothing need no drawing)
+    if (changed > lastSeen) newerFrames.push([changed, performance.now()]);
+    else if (changed < lastSeen) newerFrames.length = 0; // an undo or a restore: the frames start again
     const inclination = message.angles ? message.angles.radiographic[0] : null;
     if (inclination !== stats.probe.inclination) stats.probe = { inclination, arrived: performance.now(), drawn: 0 };
     view.apply(message);

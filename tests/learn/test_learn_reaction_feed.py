@@ -143,6 +143,24 @@ def test_training_learns_the_law_from_pushed_cases_only(synthetic_dataset):
     assert all(math.isnan(value) for value in trainer._sample(0, None)[4])  # the set-feed case's frames teach no law
 
 
+def test_the_law_can_learn_from_whole_sockets_only_with_a_share_of_each_epoch(synthetic_dataset):
+    from thrsim.geometry.mesh import WINDOW_SIDE
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    window_mesh = dataclasses.replace(cases[0].mesh, node_sets={**cases[0].mesh.node_sets, WINDOW_SIDE: np.array([0, 1, 2])})
+    window = dataclasses.replace(cases[0], case_id="window", mesh=window_mesh)
+    assert window.is_window() and not cases[1].is_window()
+    settings = tiny_socket_settings(law_from="whole_socket", law_case_share=0.75, max_samples_per_epoch=8)
+    trainer = Trainer(StaticGraph(mesh), [window, *cases[1:]], [], settings, 0.5)
+    assert trainer.reaction_case_ids == {case.case_id for case in cases[1:]}  # a pushed window teaches no law
+    order = trainer._epoch_order(np.random.default_rng(0))
+    in_law = [trainer.train_cases[trainer.samples[i, 0]].case_id in trainer.reaction_case_ids for i in order]
+    assert len(order) == 8 and sum(in_law) == 6  # three quarters of the epoch from the law's cases
+    with pytest.raises(ThrsimInputError, match="whole sockets"):
+        Trainer(StaticGraph(mesh), [window], [], settings, 0.5)
+
+
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):
     from thrsim.learn.evaluation import evaluate
 

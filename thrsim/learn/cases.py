@@ -21,7 +21,7 @@ from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
 from thrsim.data.pack import is_pack, read_pack
 from thrsim.errors import ThrsimInputError
-from thrsim.geometry.mesh import TetMesh
+from thrsim.geometry.mesh import WINDOW_SIDE, TetMesh
 from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.physics.reaming_case import cutting_energies
 
@@ -51,6 +51,10 @@ class CaseArrays:
     hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
     set_feed_mm_s: float | None = None  # the feed a rig set (None: the push drove the reamer against the bone)
     reamer_centre_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # a point the reamer's axis passes through (bone frame)
+
+    def is_window(self) -> bool:
+        """Whether the case's bone is a window of the socket (held at its cut sides), not a whole bone."""
+        return self.mesh is not None and len(self.mesh.node_sets.get(WINDOW_SIDE, ())) > 0
 
     def axis_offset_mm(self) -> float:
         """How far (mm) the reamer's axis passes from the socket's centre."""

@@ -127,6 +127,14 @@ class TrainSettings(_Frozen):
     pushforward_from_epoch: int = Field(
         5, ge=0, description="first epoch with pushed-forward inputs (the network must first learn one step)"
     )
+    law_from: Literal["pushed", "whole_socket"] = Field(
+        "pushed",
+        description="the cases a reaction head's law learns from: every pushed case, or the pushed whole sockets only "
+        "(a window is held at its cut sides, which stiffens it beyond the socket it is cut from: the benchmarks page)",
+    )
+    law_case_share: float | None = Field(
+        None, gt=0, lt=1, description="share of each epoch's frame pairs drawn from the law's cases (None: in proportion to their frames)"
+    )
 
 
 class ModelSettings(_Frozen):

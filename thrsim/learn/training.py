@@ -80,6 +80,10 @@ class Trainer:
         # the reaction law learns where the push drove the reamer (its feed is the bone's answer to a push);
         # a rig's set feed shows the force a feed takes, not the push a feed needs (see the docs' benchmarks)
         pushed = {case.case_id for case in train if case.set_feed_mm_s is None}
+        if settings.train.law_from == "whole_socket":
+            pushed = {case.case_id for case in train if case.case_id in pushed and not case.is_window()}
+            if settings.arch.reaction_head and not pushed:
+                raise ThrsimInputError("the law learns from pushed whole sockets (train.law_from) and the training split has none")
         self.reaction_case_ids = pushed or {case.case_id for case in train}
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
         if len(self.samples) == 0:
@@ -235,9 +239,7 @@ class Trainer:
         epoch = self.epoch
         rng = np.random.default_rng([t.seed, epoch])
         torch.manual_seed(t.seed * 100_003 + epoch)
-        order = rng.permutation(len(self.samples))
-        if t.max_samples_per_epoch is not None:
-            order = order[: t.max_samples_per_epoch]
+        order = self._epoch_order(rng)
         for optimiser in self.optimisers.values():
             for group in optimiser.param_groups:
                 group["lr"] = self._learning_rate(epoch)
@@ -260,6 +262,19 @@ class Trainer:
                 on_batch(b + 1, batches)
         self.epoch += 1
         return totals["gn"], totals["mlp"]
+
+    def _epoch_order(self, rng: np.random.Generator) -> np.ndarray:
+        """The frame pairs of one epoch, shuffled: all of them or ``max_samples_per_epoch``; with
+        ``law_case_share``, that share drawn from the reaction law's cases (repeated if they hold fewer)."""
+        t = self.settings.train
+        count = len(self.samples) if t.max_samples_per_epoch is None else min(t.max_samples_per_epoch, len(self.samples))
+        if t.law_case_share is None:
+            return rng.permutation(len(self.samples))[:count]
+        in_law = np.array([self.train_cases[c].case_id in self.reaction_case_ids for c in self.samples[:, 0]])
+        law, rest = np.flatnonzero(in_law), np.flatnonzero(~in_law)
+        n_law = round(t.law_case_share * count) if len(rest) else count
+        drawn = np.concatenate([rng.choice(law, n_law, replace=n_law > len(law)), rng.permutation(rest)[: count - n_law]])
+        return rng.permutation(drawn)
 
     def validate(self) -> float | None:
         """Micro F1 of newly removed elements after tool-forced rollouts from frame 0 of each validation case."""

@@ -408,7 +408,8 @@ class SocketSweepConfig(_Frozen):
     the next reamer size at a prescribed feed, so every case cuts from its first frames at a known
     local feed and the force it takes is recorded; and pushed windows, where a set pressure over the
     window drives the reamer against the bone, so the reaction it must overcome is recorded (stalls
-    included). The one definition of the plan's axes and held-out values.
+    included); and pushed whole sockets, the contact a seated reamer meets, which the reaction law of
+    a whole socket learns from. The one definition of the plan's axes and held-out values.
 
     Each set-feed case draws one value of every axis; the train cases from the train values only,
     balanced; each test case holds out one axis at a held-out value (a reamer size, a tilt direction,
@@ -442,11 +443,28 @@ class SocketSweepConfig(_Frozen):
     #: the push over the window's area of the native socket, N/mm² (the cutting threshold is near 0.3)
     push_pressures_n_mm2: tuple[float, ...] = (0.2, 0.35, 0.5, 0.8)
     test_pushed_windows: tuple[tuple[float, float], ...] = ((30.0, 270.0),)
+    #: pushed whole sockets, the contact a seated reamer meets (a window is held at its cut sides):
+    #: (native socket, reamer size, inclination γ, anteversion θ, push N, split), solved at ``whole_socket_element_size_mm``
+    whole_sockets: tuple[tuple[float, float, float, float, float, str], ...] = (
+        (46.0, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, 48.0, 15.0, 30.0, 230.0, "test"),
+        (46.0, 48.0, 0.0, 0.0, 310.0, "train"), (46.0, 48.0, 15.0, 180.0, 150.0, "train"),
+        (50.0, 52.0, 0.0, 0.0, 230.0, "train"), (44.0, 46.0, 30.0, 90.0, 270.0, "train"),
+        (48.0, 50.0, 15.0, 300.0, 200.0, "test"),
+    )  # fmt: skip
+    whole_socket_element_size_mm: float = Field(1.0, ge=0.3, le=3.0, description="the whole sockets' element size (mm)")
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
     validation_cases: int = Field(6, ge=0, le=10_000)
     test_cases: int = Field(9, ge=0, le=10_000)
     frames: FrameCount = 60
     seed: int = 0
+
+    @field_validator("whole_sockets")
+    @classmethod
+    def _known_split(cls, values: tuple) -> tuple:
+        unknown = sorted({v[5] for v in values} - {"train", "validation", "test"})
+        if unknown:
+            raise ValueError(f"unknown split(s) {unknown} of a whole socket: train, validation or test")
+        return values
 
     @field_validator("cancellous")
     @classmethod

@@ -12,6 +12,7 @@ from checkout_cli import run_thrsim
 from thrsim.config import SocketSweepConfig, head_diameter_for_size, teeth_for_diameter
 from thrsim.data.pack import read_pack
 from thrsim.data.sweep import CaseSpec, plan_socket_sweep
+from thrsim.learn.cases import load_cases
 from thrsim.learn.graph import mesh_digest
 
 
@@ -25,8 +26,15 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     again = plan_socket_sweep(config)
     assert [c.case_id for c in plan.cases] == [c.case_id for c in again.cases]
     assert len({c.case_id for c in plan.cases}) == len(plan.cases)
-    pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c)]
+    whole = [c for c in plan.cases if _settings(c)["socket.window_polar_deg"] is None]
+    pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c) and c not in whole]
     fed = [c for c in plan.cases if "feed_mm_s" in _settings(c)]
+    # the pushed whole sockets: the plan's, at their element size, a seated reamer's contact to learn the law from
+    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in whole] == [w[2:] for w in config.whole_sockets]
+    for case, (socket_mm, reamer_mm, *_) in zip(whole, config.whole_sockets, strict=True):
+        built = case.case_config({"bone_kind": "socket"})
+        assert built.feed_mm_s is None and built.socket.element_size_mm == config.whole_socket_element_size_mm
+        assert built.socket.socket_diameter_mm == socket_mm and built.reamer.head_diameter_mm == head_diameter_for_size(reamer_mm)
     splits = Counter(c.split for c in fed)
     assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
     # every pushed window at every pressure, along the socket's axis; the held-out windows only in test
@@ -66,7 +74,8 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     for case in plan.cases:
         built = case.case_config({"bone_kind": "socket"})
         assert built.reamer.tooth_count == teeth_for_diameter(built.reamer.head_diameter_mm)  # each size its own teeth
-        assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed) and built.socket.window_polar_deg is not None
+        assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed or case in whole)
+        assert (built.socket.window_polar_deg is None) == (case in whole)
         assert CaseSpec(**json.loads(json.dumps(case.params()))) == case
 
 
@@ -84,6 +93,8 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "reamer_centres_mm": [[0.0, 0.0, 0.0]],
                 "pushed_windows": [[0.0, 0.0, 44.0, 46.0]],
                 "push_pressures_n_mm2": [0.8],
+                "whole_sockets": [[44.0, 46.0, 0.0, 0.0, 230.0, "train"]],
+                "whole_socket_element_size_mm": 3.0,
                 "seed": 7,
             }
         )
@@ -107,9 +118,12 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     )
     done = run_thrsim(*args, timeout=1200)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert json.loads(done.stdout)["generated"] == 3
+    assert json.loads(done.stdout)["generated"] == 4
     manifest = json.loads((out / "manifest.json").read_text())
     cases = manifest["cases"]
+    whole = cases.pop("whole_s44_r46_g0t0_F230_h3")  # the pushed whole socket, meshed whole at its own element size
+    assert whole["status"] == "complete" and whole["split"] == "train" and whole["solver_summary"]["feed_mm_s"] is None
+    assert whole["solver_summary"]["push_mean_n"] == pytest.approx(230.0)
     push = cases.pop("s44_n_r46_w0a0_push0.8")  # the pushed window: driven by 0.8 N/mm² over its area, no set feed
     assert push["status"] == "complete" and push["solver_summary"]["feed_mm_s"] is None
     assert push["params"]["force_n"] == pytest.approx(0.8 * 2 * math.pi * 22.0**2 * (1 - math.cos(math.radians(10.0))), abs=0.05)
@@ -118,7 +132,7 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     assert manifest["split_rule"]["test_feeds_mm_s"] == [25.0]
     assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
     again = run_thrsim(*args, timeout=600)
-    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 3
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 4
     # the calibration reads the cases reamed along the socket's axis: more push, more seated feed
     info = run_thrsim("dataset", "info", str(out), "--json", timeout=600)
     assert info.returncode == 0, info.stderr[-2000:]
@@ -138,8 +152,11 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
     assert packed.returncode == 0, packed.stderr[-2000:]
     mesh, cases = read_pack(pack)
-    assert len(cases) == 3 and all(case.mesh is not None for case in cases)  # its own, or its file's
-    assert len({mesh_digest(case.mesh) for case in cases}) >= 2  # windows of their own meshes
+    assert len(cases) == 4 and all(case.mesh is not None for case in cases)  # its own, or its file's
+    assert len({mesh_digest(case.mesh) for case in cases}) >= 3  # windows of their own meshes, and the whole socket
+    # the law's cases are told apart from windows in the pack too (a window keeps its held sides)
+    _, learned = load_cases(pack, one_mesh=False)
+    assert {case.case_id for case in learned if not case.is_window()} == {"whole_s44_r46_g0t0_F230_h3"}
     for case in cases:
         own = case.mesh
         assert case.alpha.shape[1] == own.n_tets and case.status.shape == case.alpha.shape
@@ -150,7 +167,8 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     ("plan", "says"),
     [
         ({"train_cases": 0}, "set-feed socket cases need train_cases"),
-        ({"train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": []}, "no case"),
+        ({"train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": [], "whole_sockets": []}, "no case"),
+        ({"whole_sockets": [[46, 48, 0, 0, 230, "holdout"]]}, "unknown split"),
         ({"cancellous": ["spongy"]}, "unknown cancellous"),
         ({"windows": 3}, "windows"),
     ],

@@ -66,8 +66,8 @@ def pushed_window(entry: dict, case_file: Path) -> dict | None:
     settings = dict((key, value) for key, value in params.get("settings", []))
     if entry.get("status") != "complete" or params["inclination_deg"] != 0.0 or "feed_mm_s" in settings:
         return None
-    if "socket.window_polar_deg" not in settings or any(settings.get("reamer_centre_mm", (0.0, 0.0, 0.0))[:2]):
-        return None
+    if settings.get("socket.window_polar_deg") is None or any(settings.get("reamer_centre_mm", (0.0, 0.0, 0.0))[:2]):
+        return None  # a whole socket, or a window off the axis
     summary = entry.get("solver_summary") or {}
     first = summary.get("first_contact_frame")
     with CaseReader(case_file) as reader:

@@ -354,8 +354,8 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
     fed_cases = config.train_cases + config.validation_cases + config.test_cases
     if fed_cases and (not config.train_cases or not train_steps or not tilted):
         raise ThrsimInputError("set-feed socket cases need train_cases, a reamer step to train on and a tilt above 0°")
-    if not fed_cases and not (config.pushed_windows and config.push_pressures_n_mm2):
-        raise ThrsimInputError("the socket plan has no case: give set-feed cases (train_cases) or pushed windows")
+    if not fed_cases and not (config.pushed_windows and config.push_pressures_n_mm2) and not config.whole_sockets:
+        raise ThrsimInputError("the socket plan has no case: give set-feed cases (train_cases), pushed windows or whole sockets")
     axes = {
         "step": _Balanced(train_steps, rng),
         "polar": _Balanced(config.window_polars_deg, rng),
@@ -390,10 +390,13 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
             made += 1
     pushed = [_pushed_case(config, window, pressure) for window in config.pushed_windows for pressure in config.push_pressures_n_mm2]
     cases.update((spec.case_id, spec) for spec in pushed)
+    whole = [_whole_socket_case(config, *entry) for entry in config.whole_sockets]
+    cases.update((spec.case_id, spec) for spec in whole)
     pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
         f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
         f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
+        f"{len(whole)} pushed whole sockets at {config.whole_socket_element_size_mm:g} mm ({', '.join(s.split or '' for s in whole) or 'none'})",
     ]
     return SweepPlan(
         cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
@@ -428,6 +431,24 @@ def _pushed_case(config: SocketSweepConfig, window: tuple[float, float, float, f
         inclination_deg=0.0, anteversion_deg=0.0, force_n=window_push_n(config, socket_mm, pressure_n_mm2),
         frames=config.frames, settings=tuple(settings), label=f"s{socket_mm:g}_n_r{reamer_mm:g}_w{polar:g}a{azimuth:g}_push{pressure_n_mm2:g}",
         split=split,
+    )  # fmt: skip
+
+
+def _whole_socket_case(
+    config: SocketSweepConfig, socket_mm: float, reamer_mm: float, gamma: float, theta: float, push_n: float, split: str
+) -> CaseSpec:
+    """A pushed whole socket: the native socket meshed whole, the reamer one size up driven by a set push."""
+    theta = 0.0 if gamma == 0.0 else float(theta)
+    size = config.whole_socket_element_size_mm
+    settings: list[tuple[str, Any]] = [
+        ("socket.socket_diameter_mm", float(socket_mm)),
+        ("socket.window_polar_deg", None),
+        ("socket.element_size_mm", size),
+        *_reamer(float(reamer_mm)),
+    ]
+    return CaseSpec(
+        inclination_deg=float(gamma), anteversion_deg=theta, force_n=float(push_n), frames=config.frames, settings=tuple(settings),
+        label=f"whole_s{socket_mm:g}_r{reamer_mm:g}_g{gamma:g}t{theta:g}_F{push_n:g}_h{size:g}", split=split,
     )  # fmt: skip
 
 

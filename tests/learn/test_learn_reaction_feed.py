@@ -133,6 +133,20 @@ def test_a_stall_bounds_the_law_from_below_and_a_feed_fixes_it():
     assert torque.tolist() == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-6)
 
 
+def test_a_slow_frame_is_a_stall_only_if_it_cut_nothing(case):
+    from thrsim.learn.training import REACTION_FRAMES, next_reaction
+
+    frames = case.frames
+    slow = dataclasses.replace(case, positions=case.positions[:1] + 1e-5 * case.frame_dt_s * np.arange(frames)[:, None] * case.axis)
+    slow.reaction_n, slow.motor_torque_n_m = np.full(frames, 200.0), np.full(frames, 1.0)
+    uncut = dataclasses.replace(slow, alpha=np.ones_like(case.alpha))
+    assert next_reaction(uncut, 2, 0.5) == (200.0, 1.0, 0.0)  # 10 µm/s and nothing removed: the push did not overcome the bone
+    cut = uncut.alpha.copy()
+    cut[2 + REACTION_FRAMES :, 0] = 0.0  # one element goes within the six frames
+    reaction, torque, feed = next_reaction(dataclasses.replace(slow, alpha=cut), 2, 0.5)
+    assert feed == pytest.approx(1e-5) and feed > 0.0  # a slow feed that cuts (a seated whole socket's): not a stall
+
+
 def test_training_learns_the_law_from_pushed_cases_only(synthetic_dataset):
     from thrsim.learn.training import Trainer
 

@@ -109,7 +109,7 @@ def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) ->
     for frame in range(1, case.frames - 1):
         moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
         state = step(state, case.positions[frame], case.axis, push, moved, case.omega_rad_s)
-        reaction, torque, feed = next_reaction(case, frame)
+        reaction, torque, feed = next_reaction(case, frame, model.threshold)
         law = step.reaction_law if step.reaction_law is not None else np.zeros(4)
         sums["law"] += [abs(law[0] + law[1] * feed - reaction), abs(reaction), abs(law[2] + law[3] * feed - torque), abs(torque)]
         if pushed:

@@ -56,18 +56,19 @@ REACTION_LAW = ("reaction_n", "reaction_n_s_m", "torque_n_m", "torque_n_m_s_m")
 #: the feed one node's "per unit of feed" share is counted in (m/s), and the node count one
 #: share is scaled by: an untrained head's law is then of the order of the training values
 _FEED_UNIT_M_S, _NODES_UNIT = 1e-3, 1000.0
-#: a recorded feed below this (m/s) is a stall: the reaction then equals the push, which says only
-#: that the law's reaction at no feed is at least as large (the push did not overcome it)
+#: a recorded feed below this (m/s) with no element removed is a stall: the reaction then equals the
+#: push, which says only that the law's reaction at no feed is at least as large (the push did not
+#: overcome it); a slow feed that cuts is not (:func:`thrsim.learn.training.next_reaction`)
 STALL_FEED_M_S = 2e-4
 
 
 def law_errors(law: torch.Tensor, recorded: torch.Tensor, scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The errors of reaction laws (n, 4) against the recorded (reaction N, torque N·m, feed m/s) (n, 3),
     in units of ``scale`` (reaction, torque): the law at the recorded feed less the record; at a stall
-    (:data:`STALL_FEED_M_S`) a law's reaction above the record is no error (the push did not overcome it)."""
+    (a recorded feed of 0 or less) a law's reaction above the record is no error (the push did not overcome it)."""
     feed = recorded[:, 2]
     force = (law[:, 0] + law[:, 1] * feed - recorded[:, 0]) / scale[0]
-    force = torch.where(feed < STALL_FEED_M_S, torch.clamp(force, max=0.0), force)
+    force = torch.where(feed <= 0.0, torch.clamp(force, max=0.0), force)
     torque = (law[:, 2] + law[:, 3] * feed - recorded[:, 1]) / scale[1]
     return force, torque
 
@@ -190,7 +191,7 @@ class LearnedSimulator(nn.Module):
 
     def _reaction_loss(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
         """Squared error of the reaction and the torque at the recorded feed, in units of their root mean
-        square; at a stall (:data:`STALL_FEED_M_S`) only a reaction at no feed below the recorded one counts."""
+        square; at a stall (a recorded feed of 0) only a reaction at no feed below the recorded one counts."""
         if batch.reaction is None:
             raise ValueError("a model with a reaction head needs the next frame's reaction, torque and feed")
         law = self.reaction_law(batch, shares)

@@ -32,7 +32,7 @@ from thrsim.learn.advance import LOWEST_CV, case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.learned_simulator import LearnedSimulator
+from thrsim.learn.learned_simulator import STALL_FEED_M_S, LearnedSimulator
 from thrsim.learn.metrics import Counts
 from thrsim.learn.model_dir import LoadedModel
 from thrsim.learn.rollout import BoneState, LearnedStep, rollout
@@ -123,7 +123,7 @@ class Trainer:
         contacts = []
         for case_index, t in self.samples:
             case = self.train_cases[case_index]
-            if case.case_id not in self.reaction_case_ids or math.isnan(next_reaction(case, int(t) + 1)[0]):
+            if case.case_id not in self.reaction_case_ids or math.isnan(next_reaction(case, int(t) + 1, self.threshold)[0]):
                 continue
             graph = self.graphs[case.case_id]
             sub = select_subgraph(
@@ -208,7 +208,7 @@ class Trainer:
             damage_in,
             case.alpha[t + 1][sub.nodes],
             damage_next,
-            next_reaction(case, int(t) + 1) if case.case_id in self.reaction_case_ids else (math.nan,) * 3,
+            next_reaction(case, int(t) + 1, self.threshold) if case.case_id in self.reaction_case_ids else (math.nan,) * 3,
             contact_weights(graph, sub),
         )
 
@@ -370,14 +370,18 @@ class Trainer:
 REACTION_FRAMES = 6
 
 
-def next_reaction(case: CaseArrays, frame: int) -> tuple[float, float, float]:
+def next_reaction(case: CaseArrays, frame: int, threshold: float) -> tuple[float, float, float]:
     """The mean reaction (N), torque (N·m) and feed (m/s) over the :data:`REACTION_FRAMES` frames after
     ``frame`` (fewer at the case's end), which the law the network sees at ``frame`` predicts; NaN
-    past the case's end or where the case records none."""
+    past the case's end or where the case records none. A stall (slower than :data:`STALL_FEED_M_S`
+    and no element removed) has feed 0; a slow frame that cuts (a seated whole socket's) at least 1 µm/s."""
     if case.reaction_n is None or case.motor_torque_n_m is None or frame + 1 >= case.frames:
         return (math.nan, math.nan, math.nan)
     last = min(case.frames - 1, frame + REACTION_FRAMES)
     feed = float((case.positions[last] - case.positions[frame]) @ case.axis) / ((last - frame) * case.frame_dt_s)
+    if feed < STALL_FEED_M_S:
+        cut = bool(((case.alpha[last] < threshold) & (case.alpha[frame] >= threshold)).any())
+        feed = max(feed, 1e-6) if cut else 0.0
     window = slice(frame + 1, last + 1)
     return (float(case.reaction_n[window].mean()), float(case.motor_torque_n_m[window].mean()), feed)
 

@@ -183,3 +183,38 @@ def keys(page, key: str) -> None:
     """A key press as a user makes it, with no control focused (Space must not click a button)."""
     page.evaluate("document.activeElement && document.activeElement.blur()")
     page.keyboard.press(key)
+
+
+class SocketSession:
+    """The shipped socket model's reaming session run in-process on a clock the test moves (``tick``:
+    one simulator frame), the native 46 mm socket meshed at ``element_mm``."""
+
+    def __init__(self, folder: Path, element_mm: float, step_s: float = 1 / 60):
+        from thrsim.app.live import LiveSession
+        from thrsim.app.modes import MODES
+        from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
+
+        self.now, self.step_s, self.folder = 0.0, step_s, folder
+        settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": element_mm}
+        self.live = LiveSession(MODES["reaming"], settings, lambda: self.now, folder)
+
+    def send(self, **message) -> str:
+        return self.live.control(json.dumps(message))[1]
+
+    def tick(self) -> dict:
+        self.now += self.step_s
+        return self.live.tick()["reaming"]
+
+
+def own_bone_left(mesh, node_set: str):
+    """The test's own reading of the bone left before a face (``node_set``): the distance (mm) from the
+    teeth sphere to the nearest node of the remaining elements with a node on it, 0 once one is gone."""
+    elements = np.flatnonzero(np.isin(mesh.tets, mesh.node_sets[node_set]).any(axis=1))
+    nodes = mesh.nodes[np.unique(mesh.tets[elements])]
+
+    def left(trainer, teeth_m: float) -> float:
+        if trainer.simulator.removed[elements].any():
+            return 0.0
+        return max(0.0, (np.linalg.norm(nodes - trainer._reamer_position, axis=1).min() - teeth_m) * 1e3)
+
+    return left

@@ -7,16 +7,12 @@ before the break, and the break is named, in the event and the report, as the mo
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
+from app_helpers import SocketSession, own_bone_left
 
-from thrsim.app.live import LiveSession
-from thrsim.app.modes import MODES
 from thrsim.app.reaming import BREAK_WARNING_MM, socket_in_patch
 from thrsim.geometry.mesh import SUPPORTED
-from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
 from thrsim.report import build_report
 from thrsim.report.reaming import criteria
 from thrsim.session.file import read_session
@@ -24,27 +20,19 @@ from thrsim.session.reaming import CUT_EDGE, read_reaming
 
 pytestmark = pytest.mark.timeout(900)
 
-STEP = 1 / 60
 ELEMENT_MM = 5.0  # coarse: the edge's arithmetic, not the mesh's resolution, is under test
 REAMER_MM, PUSH_N = 52, 400.0
 
 
-def _ream_until_it_stops(live: LiveSession, now: list[float], mesh, frames: int = 120) -> list[dict]:
-    """Ream until the simulator pauses (at most ``frames`` ticks); each state with the test's own edge figure."""
+def _ream_until_it_stops(session: SocketSession, mesh, frames: int = 120) -> list[dict]:
+    """Ream until the simulator pauses (at most ``frames`` ticks); each state with the test's own edge figure
+    (the elements whose loss is a perforation: those with a node on the supported boundary, all their nodes)."""
+    edge_left = own_bone_left(mesh, SUPPORTED)
     states = []
-    # the elements whose loss is a perforation: those with a node on the supported boundary, and all their nodes
-    edge_elements = np.flatnonzero(np.isin(mesh.tets, mesh.node_sets[SUPPORTED]).any(axis=1))
-    edge_nodes = mesh.nodes[np.unique(mesh.tets[edge_elements])]
-    trainer = live.trainer
     for _ in range(frames):
-        now[0] += STEP
-        state = live.tick()["reaming"]
-        centre = trainer._reamer_position
-        if centre is not None:
-            teeth_m = REAMER_MM / 2e3
-            through = bool(trainer.simulator.removed[edge_elements].any())
-            own = 0.0 if through else max(0.0, (np.linalg.norm(edge_nodes - centre, axis=1).min() - teeth_m) * 1e3)
-            states.append({**state, "own_edge_left_mm": own})
+        state = session.tick()
+        if session.live.trainer._reamer_position is not None:
+            states.append({**state, "own_edge_left_mm": edge_left(session.live.trainer, REAMER_MM / 2e3)})
         if not state["running"]:
             break
     return states
@@ -53,23 +41,16 @@ def _ream_until_it_stops(live: LiveSession, now: list[float], mesh, frames: int 
 @pytest.fixture(scope="module")
 def session(tmp_path_factory):
     folder = tmp_path_factory.mktemp("socket-edge")
-    now = [0.0]
-    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
-    live = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)
-
-    def send(**message) -> str:
-        return live.control(json.dumps(message))[1]
-
     mesh = socket_in_patch(46.0, ELEMENT_MM)  # the same socket meshed again, independently of the trainer
-    send(type="force", newton=PUSH_N)
-    send(type="reamer_size", size_mm=REAMER_MM)
-    send(type="run", action="start")
-    first = _ream_until_it_stops(live, now, mesh)
-    send(type="run", action="undo")
-    send(type="run", action="start")
-    again = _ream_until_it_stops(live, now, mesh)
-    scene = live.trainer.scene()
-    return first, again, scene, live.save(folder)
+    scripted = SocketSession(folder, ELEMENT_MM)
+    scripted.send(type="force", newton=PUSH_N)
+    scripted.send(type="reamer_size", size_mm=REAMER_MM)
+    scripted.send(type="run", action="start")
+    first = _ream_until_it_stops(scripted, mesh)
+    scripted.send(type="run", action="undo")
+    scripted.send(type="run", action="start")
+    again = _ream_until_it_stops(scripted, mesh)
+    return first, again, scripted.live.trainer.scene(), scripted.live.save(folder)
 
 
 def test_the_state_gives_the_bone_left_before_the_modelled_bones_edge(session):

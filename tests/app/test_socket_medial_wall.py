@@ -7,16 +7,12 @@ give the same figure, so a report never says "0 mm left" of a breach and more of
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
+from app_helpers import SocketSession, own_bone_left
 
-from thrsim.app.live import LiveSession
-from thrsim.app.modes import MODES
 from thrsim.app.reaming import BREAK_WARNING_MM, socket_in_patch
 from thrsim.geometry.mesh import MEDIAL_WALL
-from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
 from thrsim.report import build_report
 from thrsim.report.reaming import criteria
 from thrsim.report.reaming_metrics import metrics
@@ -25,29 +21,24 @@ from thrsim.session.reaming import read_reaming
 
 pytestmark = pytest.mark.timeout(900)
 
-STEP = 1 / 60
 ELEMENT_MM = 3.0  # fine enough that the reamer reaches the wall before the modelled bone's cut edge
 REAMER_MM, PUSH_N = 48, 400.0
 FRAMES_AFTER_UNDO = 6
 
 
-def _ream_until_it_stops(live: LiveSession, now: list[float], mesh, frames: int = 120) -> list[dict]:
+def _ream_until_it_stops(session: SocketSession, mesh, frames: int = 120) -> list[dict]:
     """Ream until the simulator pauses; each state with the test's own figures: the bone left by the
     element rule, and the old reading (to the wall's own nodes only, the elements ignored)."""
-    wall_elements = np.flatnonzero(np.isin(mesh.tets, mesh.node_sets[MEDIAL_WALL]).any(axis=1))
-    element_nodes = mesh.nodes[np.unique(mesh.tets[wall_elements])]
+    bone_left = own_bone_left(mesh, MEDIAL_WALL)
     face_nodes = mesh.nodes[mesh.node_sets[MEDIAL_WALL]]
     teeth_m = REAMER_MM / 2e3
     states = []
     for _ in range(frames):
-        now[0] += STEP
-        state = live.tick()["reaming"]
-        centre = live.trainer._reamer_position
+        state = session.tick()
+        centre = session.live.trainer._reamer_position
         if centre is not None:
-            through = bool(live.trainer.simulator.removed[wall_elements].any())
-            own = 0.0 if through else max(0.0, (np.linalg.norm(element_nodes - centre, axis=1).min() - teeth_m) * 1e3)
             face = (np.linalg.norm(face_nodes - centre, axis=1).min() - teeth_m) * 1e3
-            states.append({**state, "own_bone_left_mm": own, "face_nodes_mm": face})
+            states.append({**state, "own_bone_left_mm": bone_left(session.live.trainer, teeth_m), "face_nodes_mm": face})
         if not state["running"]:
             break
     return states
@@ -57,32 +48,24 @@ def _ream_until_it_stops(live: LiveSession, now: list[float], mesh, frames: int 
 def session(tmp_path_factory):
     """The breach saved as it was, and the same session saved again after undoing it and reaming less."""
     folder = tmp_path_factory.mktemp("socket-wall")
-    now = [0.0]
-    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
-    live = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)
-
-    def send(**message) -> str:
-        return live.control(json.dumps(message))[1]
-
     mesh = socket_in_patch(46.0, ELEMENT_MM)  # the same socket meshed again, independently of the trainer
-    send(type="force", newton=PUSH_N)
-    send(type="reamer_size", size_mm=REAMER_MM)
-    send(type="run", action="start")
-    states = _ream_until_it_stops(live, now, mesh)
-    breached = read_reaming(read_session(live.save(folder)).groups["reaming"])
-    undone = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)  # the same inputs, then U
-    live, now[0] = undone, 0.0
-    send(type="force", newton=PUSH_N)
-    send(type="reamer_size", size_mm=REAMER_MM)
-    send(type="run", action="start")
-    _ream_until_it_stops(live, now, mesh)
-    send(type="run", action="undo")  # back to the intact bone (the breach came within the undo's second)
-    send(type="run", action="start")
+    breach = SocketSession(folder, ELEMENT_MM)
+    breach.send(type="force", newton=PUSH_N)
+    breach.send(type="reamer_size", size_mm=REAMER_MM)
+    breach.send(type="run", action="start")
+    states = _ream_until_it_stops(breach, mesh)
+    breached = read_reaming(read_session(breach.live.save(folder)).groups["reaming"])
+    undone = SocketSession(folder, ELEMENT_MM)  # the same inputs, then U
+    undone.send(type="force", newton=PUSH_N)
+    undone.send(type="reamer_size", size_mm=REAMER_MM)
+    undone.send(type="run", action="start")
+    _ream_until_it_stops(undone, mesh)
+    undone.send(type="run", action="undo")  # back to the intact bone (the breach came within the undo's second)
+    undone.send(type="run", action="start")
     for _ in range(FRAMES_AFTER_UNDO):  # ream again, stopping short of the wall
-        now[0] += STEP
-        live.tick()
-    send(type="run", action="pause")
-    path = live.save(folder)
+        undone.tick()
+    undone.send(type="run", action="pause")
+    path = undone.live.save(folder)
     return states, breached, path
 
 

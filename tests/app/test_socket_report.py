@@ -8,16 +8,13 @@ the centre, the push and the path, the depth map's orientation, and the events."
 from __future__ import annotations
 
 import html
-import json
 
 import numpy as np
 import pytest
+from app_helpers import SocketSession
 
-from thrsim.app.live import LiveSession
-from thrsim.app.modes import MODES
 from thrsim.app.reaming import socket_in_patch
 from thrsim.config import SafeZone
-from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL
 from thrsim.nav.bone_frame import patch_in_app
 from thrsim.report import build_report
 from thrsim.report.reaming import CLASSES, cavity_map, map_axes
@@ -38,21 +35,15 @@ SEQUENCE = ((46, 0.5), (48, 0.75))
 def session(tmp_path_factory):
     """The scripted session, its trainer's final state and the saved file."""
     folder = tmp_path_factory.mktemp("socket-report")
-    now = [0.0]
-    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
-    live = LiveSession(MODES["reaming"], settings, lambda: now[0], folder)
-
-    def send(**message) -> str:
-        return live.control(json.dumps(message))[1]
-
+    scripted = SocketSession(folder, ELEMENT_MM, STEP)
+    send, live = scripted.send, scripted.live
     send(type="plan", cup_diameter_mm=48, medialisation_mm=0, superior_shift_mm=0, inclination_deg=40, anteversion_deg=15)
     states = []
     for size, seconds in SEQUENCE:
         send(type="reamer_size", size_mm=size)
         send(type="run", action="start")
         for _ in range(int(round(seconds / STEP))):
-            now[0] += STEP
-            states.append(live.tick()["reaming"])
+            states.append(scripted.tick())
         send(type="run", action="pause")
     send(type="confirm_cup")
     trainer = live.trainer
@@ -177,17 +168,16 @@ def test_a_socket_perforated_and_undone_still_counts_and_scores(tmp_path):
     the bone is whole again, the record is not: the criterion says when, and scores nothing."""
     from thrsim.report.reaming import criteria
 
-    now = [0.0]
-    settings = {"side": "right", "seed": 1, "model": str(SHIPPED_SOCKET_MODEL), "socket_element_size_mm": ELEMENT_MM}
-    live = LiveSession(MODES["reaming"], settings, lambda: now[0], tmp_path)
-    for message in ({"type": "reamer_size", "size_mm": 48}, {"type": "force", "newton": 400}, {"type": "run", "action": "start"}):
-        live.control(json.dumps(message))
-    while live.trainer.running and now[0] < 5.0:
-        now[0] += STEP
-        live.tick()
+    scripted = SocketSession(tmp_path, ELEMENT_MM, STEP)
+    live = scripted.live
+    scripted.send(type="reamer_size", size_mm=48)
+    scripted.send(type="force", newton=400)
+    scripted.send(type="run", action="start")
+    while live.trainer.running and scripted.now < 5.0:
+        scripted.tick()
     breach = [e for e in live.trainer.events if e["kind"] in ("perforated", "medial_wall_breached")]
     assert len(breach) == 1, [e["kind"] for e in live.trainer.events]
-    live.control(json.dumps({"type": "run", "action": "undo"}))
+    scripted.send(type="run", action="undo")
     record = read_reaming(read_session(live.save(tmp_path)).groups["reaming"])
     assert cavity_map(record)["fractions"]["perforated"] == 0.0  # the final bone, undone, is whole
     first = criteria(record)[0]

@@ -8,6 +8,7 @@ import json
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -189,6 +190,32 @@ def test_an_end_with_nothing_done_saves_nothing_and_ends_are_rate_limited(tmp_pa
     assert len(list(tmp_path.glob("*.h5"))) == burst
     assert hub.leave(seat, None) is not None and hub.seats == []  # the trainee leaving saves what was done
     assert len(list(tmp_path.glob("*.h5"))) == burst + 1
+
+
+def test_ends_asked_while_the_ticker_steps_lose_no_trace_row(tmp_path, caplog):
+    """An end asked during a step once read the record as the step appended to it: the step failed
+    (an array exporting its buffer cannot grow) and the trace lost a row, which broke the report."""
+    hub = TrainerHub(ServeSettings(sessions_dir=tmp_path, igtl=False, compile=False))
+    seat = hub.open_seat("navigation", None)
+    stop = threading.Event()
+
+    def ticker() -> None:
+        while not stop.is_set():
+            hub.tick()
+
+    thread = threading.Thread(target=ticker)
+    thread.start()
+    asked, started = 0, time.monotonic()
+    while time.monotonic() - started < 1.5:  # before the fix: dozens of failed steps in this time
+        with pytest.raises(NothingToSave):
+            hub.end_asked(seat)
+        asked += 1
+    stop.set()
+    thread.join()
+    record = seat.session.trainer.record()
+    assert asked > 100 and hub.ticks > 10
+    assert not [r for r in caplog.records if "step failed" in r.getMessage()]
+    assert len(record.time) == len(record.tool_codes) == len(record.phase) == len(record.angles) == hub.ticks
 
 
 @pytest.mark.parametrize("source", ["environment", "file"])

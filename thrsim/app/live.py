@@ -222,6 +222,12 @@ class LiveSession:
             self.journal.close(remove=True)
             return path
 
+    def assessable(self) -> bool:
+        """Whether something assessed was done in this session. Read between ticks: a record read during
+        a step would pin the arrays the step appends to (a BufferError there, a trace row lost)."""
+        with self.lock:
+            return self.trainer.record().assessable
+
     def discard(self) -> None:
         """End a session that is not kept (nothing but steps reached it): its journal goes."""
         with self.lock:

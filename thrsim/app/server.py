@@ -333,6 +333,7 @@ class TrainerHub:
         #: with a haptic stream, the fast contact model it evaluates (thrsim.io.haptic), following every tick
         self.contact_force: ContactForce | None = None if settings.haptic_port is None else ContactForce()
         self.ends_left = float(settings.session_ends.burst)  # the token bucket of viewer-asked ends
+        self._counting_ends = threading.Lock()
         self.ends_counted_at = clock()
 
     def _settings(self, mode: Mode) -> dict:
@@ -374,7 +375,7 @@ class TrainerHub:
         with self._seating:
             self.seats.remove(seat)
         session = seat.session
-        if not session.trainer.record().assessable:
+        if not session.assessable():
             session.discard()
             self._ended(session, None)
             return None
@@ -468,19 +469,20 @@ class TrainerHub:
         assessed was done in it; within :class:`~thrsim.config.SessionEndLimit`, ThrsimInputError,
         the session going on, when ends come faster."""
         session = seat.session
-        if not session.trainer.record().assessable:
+        if not session.assessable():
             raise NothingToSave(f"nothing to save: nothing assessed was done in session {session.id} yet; it goes on")
         limit = self.settings.session_ends
-        now = self.clock()
-        self.ends_left = min(limit.burst, self.ends_left + (now - self.ends_counted_at) / limit.refill_s)
-        self.ends_counted_at = now
-        if self.ends_left < 1:
-            wait_s = (1 - self.ends_left) * limit.refill_s
-            raise SessionEndTooSoon(
-                f"sessions ended too often ({limit.burst} at once, then one every {limit.refill_s:g} s): "
-                f"this one goes on; end it again in {math.ceil(wait_s)} s"
-            )
-        self.ends_left -= 1
+        with self._counting_ends:  # pages' ends are answered on worker threads
+            now = self.clock()
+            self.ends_left = min(limit.burst, self.ends_left + (now - self.ends_counted_at) / limit.refill_s)
+            self.ends_counted_at = now
+            if self.ends_left < 1:
+                wait_s = (1 - self.ends_left) * limit.refill_s
+                raise SessionEndTooSoon(
+                    f"sessions ended too often ({limit.burst} at once, then one every {limit.refill_s:g} s): "
+                    f"this one goes on; end it again in {math.ceil(wait_s)} s"
+                )
+            self.ends_left -= 1
         return self.end(seat)
 
     def end(self, seat: Seat) -> Path:
@@ -524,7 +526,7 @@ class TrainerHub:
         cannot be written anywhere keeps its journal, which the next start closes."""
         written = []
         for session in [seat.session for seat in self.seats]:
-            if not session.trainer.record().assessable:
+            if not session.assessable():
                 session.discard()
                 continue
             try:
@@ -821,7 +823,8 @@ async def _answer_controls(hub: TrainerHub, seat: Seat, viewer: _Viewer, answers
         if not isinstance(submitted, list):
             with contextlib.suppress(Exception):  # a refusal: _answer says it
                 await asyncio.wrap_future(submitted)
-        replies = submitted if isinstance(submitted, list) else _answer(hub, seat, submitted)
+        # an end saves the session: off the event loop, which must not wait for a tick or the disk
+        replies = submitted if isinstance(submitted, list) else await asyncio.to_thread(_answer, hub, seat, submitted)
         for kind, payload in replies:
             for other in seat.viewers if kind == "all" else [viewer]:
                 with contextlib.suppress(Exception):

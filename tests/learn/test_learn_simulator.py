@@ -209,3 +209,21 @@ def test_a_failed_compile_leaves_the_eager_network_and_says_why(tiny_model, monk
     assert not simulator.compiled
     assert simulator.compile_error == "RuntimeError: no C++ compiler found"
     assert simulator.step(AXIS, 230.0).frame == 1
+
+
+def test_a_fresh_simulator_has_its_kernels_loaded_before_its_first_frame_in_contact():
+    """Numba loads a kernel's cached machine code on its first call: once in a trainee's first frame
+    in contact (a 40-90 ms tick), now in the simulator's warm-up. A fresh interpreter, so that no
+    other test has called them first."""
+    script = (
+        "from thrsim.learn.simulator import ReamingSimulator\n"
+        "from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL\n"
+        "from thrsim.learn import features, graph\n"
+        "simulator = ReamingSimulator(SHIPPED_SOCKET_MODEL)\n"
+        "kernels = [graph._cutting_front, graph.attached_nodes, features._socket_node_features, features._socket_edge_features]\n"
+        "print([len(kernel.signatures) for kernel in kernels], simulator.frame, int(simulator.removed.sum()))\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=600, env=checkout_env(), check=True
+    )
+    assert done.stdout.split() == ["[1,", "1,", "1,", "1]", "0", "0"]  # every kernel loaded, and the simulator reset to the intact bone

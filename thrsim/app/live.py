@@ -102,6 +102,9 @@ class LiveSession:
         }
         self.journal = JournalWriter(self.folder / f"{self.id}{SUFFIX}", self.attrs)
         self.worst_tick_ms = 0.0  # the longest tick of this session (inputs applied, trainer stepped), wall-clock
+        # the most CPU one tick's own thread used: far under the worst wall-clock tick, that tick waited
+        # (for the cores or the interpreter's lock held by the server's other threads), not worked
+        self.worst_tick_cpu_ms = 0.0
         self.ended: tuple[dt.datetime, float] | None = None  # set by the first save: a retried save keeps it
         self.lock = threading.RLock()
         self._arrived: deque[_Arrival] = deque()  # inputs waiting for their tick, in arrival order (appends are atomic)
@@ -187,18 +190,21 @@ class LiveSession:
         """Apply the inputs due (:meth:`_take_to`) and step the trainer to now; ``early`` gets the state
         of the new poses ahead of a slow step's rest (see :class:`thrsim.app.modes.Trainer`)."""
         with self.lock:
-            started = time.perf_counter()
+            started, cpu_started = time.perf_counter(), time.thread_time()
             clock_time = self.clock()
             self._apply_arrived(self._take_to(clock_time))
             now = self.elapsed(clock_time)
             self.journal.tick(now)
             session = {"id": self.id, "elapsed_s": now}
             # an early state goes before this tick is timed: it carries the worst tick so far, not its own
-            early_session = {**session, "tick_ms": None, "worst_tick_ms": self.worst_tick_ms}
+            worst = {"worst_tick_ms": self.worst_tick_ms, "worst_tick_cpu_ms": self.worst_tick_cpu_ms}
+            early_session = {**session, "tick_ms": None, **worst}
             state = self.trainer.step(now, None if early is None else (lambda state: early({**state, "session": early_session})))
             tick_ms = (time.perf_counter() - started) * 1e3
             self.worst_tick_ms = max(self.worst_tick_ms, tick_ms)
-            state["session"] = {**session, "tick_ms": tick_ms, "worst_tick_ms": self.worst_tick_ms}
+            self.worst_tick_cpu_ms = max(self.worst_tick_cpu_ms, (time.thread_time() - cpu_started) * 1e3)
+            worst = {"worst_tick_ms": self.worst_tick_ms, "worst_tick_cpu_ms": self.worst_tick_cpu_ms}
+            state["session"] = {**session, "tick_ms": tick_ms, **worst}
             self._last_tick = (clock_time, self.clock())
             return state
 

@@ -171,13 +171,16 @@ def whole_reaming(page, reamers: tuple[int, ...], frames: int) -> dict:
         orders.append(_pushes_in_order(page))
         reamed, kinds = page.evaluate(f"[trainer.stats.last.reaming.frame, trainer.stats.events.slice({events})]")
         done.append({"reamer_mm": size, "frames": reamed - first, "stopped_by": next((k for k in kinds if k in _BREACHES), None)})
-    last = page.evaluate("[trainer.stats.last.session.worst_tick_ms, trainer.stats.last.reaming.behind_frames, trainer.stats.boneLag]")
-    worst, behind, lag = last
+    worst, worst_cpu, behind, lag = page.evaluate(
+        "[trainer.stats.last.session.worst_tick_ms, trainer.stats.last.session.worst_tick_cpu_ms, "
+        "trainer.stats.last.reaming.behind_frames, trainer.stats.boneLag]"
+    )
     return {
         "what": f"the intact socket reamed with {' → '.join(f'{size} mm' for size in reamers)}, {share} frames each unless stopped",
         "reamers": done,
         "frames": sum(step["frames"] for step in done),
         "worst_tick_ms": worst,
+        "worst_tick_cpu_ms": worst_cpu,
         "worst_tick_ms_before": before[0],
         "drawn_bone_lag_s": _lag(lag),
         "behind_frames": behind - before[1],
@@ -296,6 +299,7 @@ def time_reaming_page(
         "latency_trials": latency_trials,
         "step_ms_last": reaming.get("step_ms"),
         "worst_tick_ms": session["worst_tick_ms"],
+        "worst_tick_cpu_ms": session["worst_tick_cpu_ms"],
         "drawn_bone_lag_s": _lag(lag),
         "behind_frames": reaming.get("behind_frames"),
         "removed_at_end": reaming.get("removed"),

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -100,6 +102,25 @@ def test_attached_nodes_are_the_nodes_of_active_elements(removed):
     expected = np.zeros(MESH.n_nodes, dtype=bool)
     expected[MESH.tets[active].ravel()] = True
     assert np.array_equal(attached_nodes(MESH.tets, active, MESH.n_nodes), expected)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.integers(0, MESH.n_tets - 1), max_size=MESH.n_tets, unique=True), st.integers(0, MESH.n_nodes - 1))
+def test_chips_are_the_active_elements_no_face_path_joins_to_held_bone(removed, held_node):
+    """Against the solver's own reckoning (SciPy's connected components over active face pairs)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    mesh = dataclasses.replace(MESH, fixed_nodes=np.array([held_node], dtype=np.int32))
+    graph = StaticGraph(mesh)
+    active = np.ones(mesh.n_tets, dtype=bool)
+    active[removed] = False
+    pairs = mesh.adjacency.pairs
+    live = pairs[active[pairs[:, 0]] & active[pairs[:, 1]]]
+    _, label = connected_components(coo_matrix((np.ones(len(live)), (live[:, 0], live[:, 1])), shape=(mesh.n_tets,) * 2), directed=False)
+    anchored_labels = np.unique(label[active & np.isin(mesh.tets, [held_node]).any(axis=1)])
+    expected = active & ~np.isin(label, anchored_labels)
+    assert np.array_equal(graph.chips(active), expected)
 
 
 def test_removing_elements_moves_the_front_inward():

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 from thrsim.cache import use_numba_cache
-from thrsim.geometry.mesh import REAMED_FACES, TetMesh
+from thrsim.geometry.mesh import REAMED_FACES, SIDE, WINDOW_SIDE, TetMesh
 from thrsim.geometry.tet_metrics import TET_FACES
 
 use_numba_cache()  # before the first kernel: Numba reads the cache folder then
@@ -80,6 +80,17 @@ class StaticGraph:
         self._inner_faces = _inner_face_table(mesh)
         self._inner_tet = self._inner_faces.any(axis=1)
         self._face_centres = mesh.nodes[mesh.tets][:, TET_FACES].mean(axis=2)  # (E, 4 faces, 3)
+        # elements on what the solver holds (its fixed nodes) or rests on its elastic foundation (a
+        # patch's sides, a window's cut sides): bone still face-connected to one of them stays
+        held = np.zeros(mesh.n_nodes, dtype=bool)
+        for ids in (mesh.fixed_nodes, mesh.node_sets.get(SIDE, ()), mesh.node_sets.get(WINDOW_SIDE, ())):
+            held[np.asarray(ids, dtype=np.int64)] = True
+        self.anchored = held[mesh.tets].any(axis=1)
+
+    def chips(self, active: np.ndarray) -> np.ndarray:
+        """Active elements cut off from the anchored bone (bool per element): the solver deletes
+        them at the end of each frame, as debris."""
+        return unanchored_elements(self.neighbours, np.ascontiguousarray(active, dtype=np.bool_), self.anchored)
 
     @property
     def n_edges(self) -> int:
@@ -214,3 +225,29 @@ def attached_nodes(tets, active, n_nodes):
             for k in range(4):
                 attached[tets[element, k]] = True
     return attached
+
+
+@njit(cache=True)
+def unanchored_elements(neighbours, active, anchored):
+    """Active elements not face-connected, through active elements, to an active ``anchored`` one
+    (bool per element): the chips the solver deletes at the end of each frame."""
+    n = len(active)
+    reached = np.zeros(n, dtype=np.bool_)
+    queue = np.empty(n, dtype=np.int64)
+    end = 0
+    for element in range(n):
+        if active[element] and anchored[element]:
+            reached[element] = True
+            queue[end] = element
+            end += 1
+    head = 0
+    while head < end:
+        element = queue[head]
+        head += 1
+        for k in range(neighbours.shape[1]):
+            other = neighbours[element, k]
+            if other >= 0 and active[other] and not reached[other]:
+                reached[other] = True
+                queue[end] = other
+                end += 1
+    return active & ~reached

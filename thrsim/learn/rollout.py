@@ -49,7 +49,8 @@ class StepInfo:
 
 
 class LearnedStep:
-    """α(t) → α(t+1) with a trained :class:`LearnedSimulator` (Graph Network or node-wise MLP)."""
+    """α(t) → α(t+1) with a trained :class:`LearnedSimulator` (Graph Network or node-wise MLP); a frame
+    that removed anything then deletes the chips it cut free (:meth:`StaticGraph.chips`), as the solver."""
 
     def __init__(
         self,
@@ -136,6 +137,9 @@ class LearnedStep:
         if prediction.damage is not None:
             out.damage[region] = prediction.damage[:n].numpy()
         out.alpha[region[out.hazard[region] >= REMOVAL_HAZARD]] = 0.0
+        removed_now = out.alpha[region] < self.model.threshold
+        if (removed_now & (state.alpha[region] >= self.model.threshold)).any():  # a cut can leave a chip, as in the solver
+            out.alpha[self.graph.chips(out.alpha >= self.model.threshold)] = 0.0
         return out
 
 

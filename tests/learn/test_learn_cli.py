@@ -75,7 +75,25 @@ def test_train_init_from_starts_from_a_trained_models_networks(tiny_model, synth
     before, after = load_file(str(tiny_model / "network.safetensors")), load_file(str(out / "network.safetensors"))
     assert np.array_equal(before["gn.node_norm.mean"], after["gn.node_norm.mean"])  # normalisers kept, not refitted
     assert not all(np.array_equal(before[k], after[k]) for k in before)  # and the weights trained on
+    wider = json.loads(settings_file.read_text())
+    wider.setdefault("features", {}).update(front_hops=2, reach_margin_mm=2.0)  # the region grows, the inputs stay
+    settings_file.write_text(json.dumps(wider))
+    grown = run_thrsim(
+        "train", "--data", str(synthetic_dataset), "--out", str(tmp_path / "grown"), "--settings", str(settings_file),
+        "--init-from", str(tiny_model), "--json", "--overwrite",
+    )  # fmt: skip
+    assert grown.returncode == 0, grown.stderr
+    assert json.loads(grown.stdout)["settings"]["features"]["front_hops"] == 2
     other = json.loads(settings_file.read_text())
+    trained_corners = json.loads((tiny_model / "card.json").read_text())["settings"]["features"]["corners"]
+    other["features"]["corners"] = not trained_corners  # another input
+    settings_file.write_text(json.dumps(other))
+    refused = run_thrsim(
+        "train", "--data", str(synthetic_dataset), "--out", str(tmp_path / "other"), "--settings", str(settings_file),
+        "--init-from", str(tiny_model),
+    )  # fmt: skip
+    assert refused.returncode == 2 and refused.stderr.count("\n") == 1 and "input features" in refused.stderr
+    other["features"]["corners"] = not other["features"]["corners"]
     other["arch"]["message_passing_steps"] = 3
     settings_file.write_text(json.dumps(other))
     refused = run_thrsim(

@@ -88,6 +88,11 @@ class FeatureSettings(_Frozen):
     halo_hops: int = Field(0, ge=0, description="face-hops of context around the region (not updated)")
     whole_graph: bool = Field(False, description="update every element every frame (the thesis's way)")
 
+    def network_inputs(self) -> dict:
+        """What shapes the network's inputs, without the region a step updates (reach, hops, whole
+        graph): a warm start may grow the region, never change the inputs."""
+        return self.model_dump(exclude={"reach_margin_mm", "front_hops", "halo_hops", "whole_graph"})
+
     @model_validator(mode="after")
     def _corners_need_the_full_set(self) -> FeatureSettings:
         if self.corners and self.feature_set == "thesis":

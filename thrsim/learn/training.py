@@ -105,8 +105,11 @@ class Trainer:
 
     def _start_from(self, init: LoadedModel) -> None:
         """Warm start: both networks and their normalisers from a trained model of the same architecture."""
-        if init.settings.arch != self.settings.arch or init.settings.features != self.settings.features:
-            raise ThrsimInputError(f"{init.path}: its architecture or features differ from this run's; a warm start needs the same network")
+        if init.settings.arch != self.settings.arch or init.settings.features.network_inputs() != self.settings.features.network_inputs():
+            raise ThrsimInputError(
+                f"{init.path}: its architecture or input features differ from this run's; a warm start needs the same network "
+                "(only the region a step updates may differ)"
+            )
         if init.graph.digest != self.graph.digest:
             raise ThrsimInputError(f"{init.path}: belongs to another mesh than the data")
         self.gn.load_state_dict(init.gn.state_dict())

@@ -52,8 +52,8 @@ function painted(geometry, hex) {
 // The pelvis: its bone surface is built by the server (thrsim.nav.pelvis_surface, GET /api/pelvis:
 // "THRP", u32 version, vertices, triangles, then positions and normals (V×3 f32, metres, model
 // frame) and triangles (T×3 u32)), fetched once per page. Closed and outward-facing, so drawn front
-// faces only. It covers most of the view, so its pixels cost SwiftShader most of a frame: it is lit
-// as a Lambert surface by the scene's fixed lights, but shaded once per vertex on the CPU (shadePelvis)
+// faces only. It costs SwiftShader more of a frame than the rest of the scene together: it is lit as
+// a Lambert surface by the scene's fixed lights, but shaded once per vertex on the CPU (shadePelvis)
 // and drawn unlit with those colours. The bone the reaming page serves (a patch of the socket's
 // floor, or the whole socket) replaces the pelvis where it lies: fragments of the pelvis inside the
 // served bone's extent (its radii and its half-angle about its pole, in its own frame) are
@@ -104,6 +104,7 @@ function pelvisMaterials() {
 
 const PELVIS_COLOUR = new THREE.Color(0xe6d8b8);
 const LIGHT = new THREE.Vector3();
+const TARGET = new THREE.Vector3();
 const NORMAL = new THREE.Vector3();
 const TO_LOCAL = new THREE.Matrix3();
 
@@ -116,7 +117,7 @@ function shadePelvis(mesh, lights) {
   TO_LOCAL.setFromMatrix4(mesh.matrixWorld).invert();
   const directions = lights.map((light) => {
     LIGHT.setFromMatrixPosition(light.matrixWorld);
-    if (light.isDirectionalLight) LIGHT.sub(NORMAL.setFromMatrixPosition(light.target.matrixWorld));
+    if (light.isDirectionalLight) LIGHT.sub(TARGET.setFromMatrixPosition(light.target.matrixWorld));
     return LIGHT.applyMatrix3(TO_LOCAL).normalize().toArray();
   });
   for (let i = 0; i < normals.count; i++) {
@@ -131,10 +132,10 @@ function shadePelvis(mesh, lights) {
         g += light.intensity * (ground.g + (sky.g - ground.g) * w);
         b += light.intensity * (ground.b + (sky.b - ground.b) * w);
       } else {
-        const k2 = light.intensity * Math.max(0, cosine);
-        r += k2 * light.color.r;
-        g += k2 * light.color.g;
-        b += k2 * light.color.b;
+        const irradiance = light.intensity * Math.max(0, cosine);
+        r += irradiance * light.color.r;
+        g += irradiance * light.color.g;
+        b += irradiance * light.color.b;
       }
     });
     colours.setXYZ(i, (PELVIS_COLOUR.r * r) / Math.PI, (PELVIS_COLOUR.g * g) / Math.PI, (PELVIS_COLOUR.b * b) / Math.PI);

@@ -101,6 +101,49 @@ def test_the_pelvis_is_drawn_and_the_socket_is_seen_from_the_default_view(reamin
     assert reaming.problems == []
 
 
+def test_the_pelvis_is_shaded_as_lambert_once_and_only_its_socket_is_drawn_with_the_discard(reaming):
+    # two draws: the triangles with a corner near the served bone (discarding what lies inside it) and the rest, plain
+    far, near = reaming.evaluate("trainer.view.pelvis.geometry.groups.map((g) => [g.start, g.count, g.materialIndex])")
+    total = reaming.evaluate("trainer.view.pelvis.geometry.index.count")
+    assert far == [0, far[1], 0] and near == [far[1], total - far[1], 1] and 0 < near[1] < 0.2 * total
+    # every triangle that reaches into the served bone's extent (its outer radius, mm in its frame) is in the near draw
+    missed = reaming.evaluate(
+        """(() => {
+      const view = trainer.view, g = view.pelvis.geometry, served = view.servedExtent();
+      const p = g.attributes.position, index = g.index.array;
+      let missed = 0;
+      for (let t = 0; t < g.groups[0].count; t += 3)
+        for (let c = 0; c < 3; c++) {
+          const v = view.camera.position.clone().fromBufferAttribute(p, index[t + c]).applyMatrix4(served.boneFromModel.value);
+          if (v.length() < served.boneExtent.value.y) missed += 1;
+        }
+      return missed;
+    })()"""
+    )
+    assert missed == 0
+    # the colours shaded per vertex draw the pelvis as three.js's Lambert shading of it under the scene's lights does
+    shaded = picture(reaming)
+    reaming.evaluate(
+        """(async () => {
+      const THREE = await import("three"), pelvis = trainer.view.pelvis;
+      window.shadedPelvis = pelvis.material;
+      pelvis.material = new THREE.MeshLambertMaterial({ color: 0xe6d8b8 });
+      pelvis.material.onBeforeCompile = shadedPelvis[1].onBeforeCompile;
+      trainer.cavityView.onChange();
+    })()"""
+    )
+    reaming.wait_for_timeout(400)
+    lambert = picture(reaming)
+    reaming.evaluate("trainer.view.pelvis.material = shadedPelvis; trainer.cavityView.onChange()")
+    reaming.wait_for_timeout(400)
+    pelvis_pixels = np.abs(lambert - BACKGROUND).sum(axis=2) > 60
+    assert pelvis_pixels.mean() > 0.2  # the pelvis fills much of the view
+    differ = np.abs(shaded.astype(int) - lambert.astype(int)).sum(axis=2) > 30
+    assert differ.mean() < 0.02
+    assert changed_fraction(shaded, picture(reaming)) < 0.01  # drawn shaded again
+    assert reaming.problems == []
+
+
 def _camera(page) -> np.ndarray:
     return np.array(page.evaluate("[...trainer.view.camera.position.toArray(), ...trainer.view.camera.quaternion.toArray()]"))
 

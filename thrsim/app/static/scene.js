@@ -52,10 +52,14 @@ function painted(geometry, hex) {
 // The pelvis: its bone surface is built by the server (thrsim.nav.pelvis_surface, GET /api/pelvis:
 // "THRP", u32 version, vertices, triangles, then positions and normals (V×3 f32, metres, model
 // frame) and triangles (T×3 u32)), fetched once per page. Closed and outward-facing, so drawn front
-// faces only. The bone the reaming page serves (a patch of the socket's floor, or the whole
-// socket) replaces the pelvis where it lies: fragments of the pelvis inside the served bone's
-// extent (its radii and its half-angle about its pole, in its own frame) are discarded, so the
-// reamed bone is never hidden behind the pelvis's own socket surface.
+// faces only. It costs SwiftShader more of a frame than the rest of the scene together: it is lit as
+// a Lambert surface by the scene's fixed lights, but shaded once per vertex on the CPU (shadePelvis)
+// and drawn unlit with those colours. The bone the reaming page serves (a patch of the socket's
+// floor, or the whole socket) replaces the pelvis where it lies: fragments of the pelvis inside the
+// served bone's extent (its radii and its half-angle about its pole, in its own frame) are
+// discarded, so the reamed bone is never hidden behind the pelvis's own socket surface; only the
+// triangles near that extent are drawn with the discarding shader (a discard costs every fragment it
+// may apply to), the rest with a plain one.
 export function parsePelvis(buffer) {
   const magic = String.fromCharCode(...new Uint8Array(buffer, 0, 4));
   if (magic !== "THRP") throw new Error(`not a thrsim pelvis surface (${magic})`);
@@ -77,11 +81,13 @@ function fetchPelvis(url) {
   return pelvisSurface;
 }
 
-function pelvisMaterial() {
-  const material = new THREE.MeshLambertMaterial({ color: 0xe6d8b8 });
+// The pelvis's two materials, both unlit with the shaded vertex colours: [far from the served bone,
+// near it (discarding what lies inside it)].
+function pelvisMaterials() {
+  const discarding = new THREE.MeshBasicMaterial({ vertexColors: true });
   const served = { boneFromModel: { value: new THREE.Matrix4() }, boneExtent: { value: new THREE.Vector4(0, 0, 2, 0) } };
-  material.userData.served = served;
-  material.onBeforeCompile = (shader) => {
+  discarding.userData.served = served;
+  discarding.onBeforeCompile = (shader) => {
     Object.assign(shader.uniforms, served);
     shader.vertexShader = shader.vertexShader
       .replace("#include <common>", "#include <common>\nuniform mat4 boneFromModel;\nvarying vec3 vBonePoint;")
@@ -93,7 +99,69 @@ function pelvisMaterial() {
         float servedRadius = length(vBonePoint);
         if (boneExtent.w > 0.5 && servedRadius > boneExtent.x && servedRadius < boneExtent.y && -vBonePoint.z >= boneExtent.z * servedRadius) discard;`);
   };
-  return material;
+  return [new THREE.MeshBasicMaterial({ vertexColors: true }), discarding];
+}
+
+const PELVIS_COLOUR = new THREE.Color(0xe6d8b8);
+const LIGHT = new THREE.Vector3();
+const TARGET = new THREE.Vector3();
+const NORMAL = new THREE.Vector3();
+const TO_LOCAL = new THREE.Matrix3();
+
+// The pelvis's vertex colours (linear): three.js's Lambert shading of PELVIS_COLOUR under the
+// scene's hemisphere and directional lights (the diffuse colour over π times the irradiance), at
+// each vertex's normal, the lights' directions taken into the pelvis's own frame.
+function shadePelvis(mesh, lights) {
+  const normals = mesh.geometry.attributes.normal;
+  const colours = mesh.geometry.attributes.color ?? new THREE.BufferAttribute(new Float32Array(normals.count * 3), 3);
+  TO_LOCAL.setFromMatrix4(mesh.matrixWorld).invert();
+  const directions = lights.map((light) => {
+    LIGHT.setFromMatrixPosition(light.matrixWorld);
+    if (light.isDirectionalLight) LIGHT.sub(TARGET.setFromMatrixPosition(light.target.matrixWorld));
+    return LIGHT.applyMatrix3(TO_LOCAL).normalize().toArray();
+  });
+  for (let i = 0; i < normals.count; i++) {
+    NORMAL.fromBufferAttribute(normals, i);
+    let r = 0, g = 0, b = 0;
+    lights.forEach((light, k) => {
+      const [x, y, z] = directions[k];
+      const cosine = NORMAL.x * x + NORMAL.y * y + NORMAL.z * z;
+      if (light.isHemisphereLight) {
+        const w = 0.5 * cosine + 0.5, sky = light.color, ground = light.groundColor;
+        r += light.intensity * (ground.r + (sky.r - ground.r) * w);
+        g += light.intensity * (ground.g + (sky.g - ground.g) * w);
+        b += light.intensity * (ground.b + (sky.b - ground.b) * w);
+      } else {
+        const irradiance = light.intensity * Math.max(0, cosine);
+        r += irradiance * light.color.r;
+        g += irradiance * light.color.g;
+        b += irradiance * light.color.b;
+      }
+    });
+    colours.setXYZ(i, (PELVIS_COLOUR.r * r) / Math.PI, (PELVIS_COLOUR.g * g) / Math.PI, (PELVIS_COLOUR.b * b) / Math.PI);
+  }
+  mesh.geometry.setAttribute("color", colours);
+  colours.needsUpdate = true;
+}
+
+// Splits the pelvis's triangles into two draws: those with a corner within `reachMm` of the served
+// bone's origin (`boneFromModel` maps the model frame to the bone's, mm) last, drawn with the
+// discarding material; the rest first, drawn plain. Without a served bone, all are drawn plain.
+function splitPelvis(geometry, boneFromModel = null, reachMm = 0) {
+  const index = geometry.index.array, positions = geometry.attributes.position;
+  const far = [], near = [];
+  const point = new THREE.Vector3();
+  for (let t = 0; t < index.length; t += 3) {
+    let close = false;
+    for (let c = 0; c < 3 && boneFromModel; c++) close ||= point.fromBufferAttribute(positions, index[t + c]).applyMatrix4(boneFromModel).length() < reachMm;
+    (close ? near : far).push(index[t], index[t + 1], index[t + 2]);
+  }
+  index.set(far);
+  index.set(near, far.length);
+  geometry.index.needsUpdate = true;
+  geometry.clearGroups();
+  geometry.addGroup(0, far.length, 0);
+  geometry.addGroup(far.length, near.length, 1);
 }
 
 // The marker balls, one mesh: they always share a colour (green tracked, red not).
@@ -178,10 +246,19 @@ export class NavigationScene {
     this.scene = new THREE.Scene();
     this.scene.background = new THREE.Color(0x1b2026);
     this.camera = new THREE.PerspectiveCamera(45, 1, 0.01, 20);
-    this.scene.add(new THREE.HemisphereLight(0xffffff, 0x404040, 1.6));
     const sun = new THREE.DirectionalLight(0xffffff, 1.4);
     sun.position.set(1, 2, 1.5);
-    this.scene.add(sun);
+    this.lights = [new THREE.HemisphereLight(0xffffff, 0x404040, 1.6), sun];
+    this.scene.add(...this.lights);
+    // The pelvis is shaded again when it moves against the lights (a headset places the scene).
+    const shaded = { placement: new THREE.Matrix4(), geometry: null };
+    this.scene.onBeforeRender = () => {
+      const pelvis = this.pelvis;
+      if (!pelvis?.geometry.index || (shaded.geometry === pelvis.geometry && shaded.placement.equals(pelvis.matrixWorld))) return;
+      shadePelvis(pelvis, this.lights);
+      shaded.geometry = pelvis.geometry;
+      shaded.placement.copy(pelvis.matrixWorld);
+    };
     this.root = new THREE.Group();
     this.scene.add(this.root);
     const grid = new THREE.GridHelper(4, 20, 0x3a434d, 0x2b323a); // the operating table's plane, 20 cm squares
@@ -213,12 +290,13 @@ export class NavigationScene {
     this.content = new THREE.Group();
     this.root.add(this.content);
     this.sceneInfo = scene;
-    this.pelvis = new THREE.Mesh(new THREE.BufferGeometry(), this.pelvis?.material ?? pelvisMaterial());
+    this.pelvis = new THREE.Mesh(new THREE.BufferGeometry(), this.pelvis?.material ?? pelvisMaterials());
     this.pelvis.name = "pelvis";
     this.content.add(this.pelvis);
     const pelvis = this.pelvis;
     fetchPelvis(scene.pelvis).then((geometry) => {
       pelvis.geometry = geometry;
+      this.splitPelvis();
       this.onLoaded?.();
     }).catch((error) => this.onError?.(error));
     // The landmark points: one mesh coloured per vertex (grey, green once acquired), and the point
@@ -267,11 +345,24 @@ export class NavigationScene {
       outer = Math.max(outer, r);
       if (r > 0) cosine = Math.min(cosine, -z / r);
     }
-    const served = this.pelvis.material.userData.served;
+    const served = this.servedExtent();
     served.boneFromModel.value.copy(object.matrix).invert();
     // radially, a margin of the pelvis's own facets (its grid is 8 mm: its socket lies within about 1 mm
     // of a sphere); around, a little inside the bone's edge, so that the pelvis's socket meets it with no gap
     served.boneExtent.value.set(inner - 1.5, outer + 1.5, Math.cos(Math.max(0, Math.acos(cosine) - 0.01)), 1);
+    this.splitPelvis();
+  }
+
+  // The discarding material's uniforms: the served bone's frame and extent.
+  servedExtent() { return this.pelvis.material[1].userData.served; }
+
+  // The pelvis's triangles near the served bone drawn apart (splitPelvis): those with a corner
+  // within the bone's outer radius and two of the pelvis's facets (8 mm each) of its origin.
+  splitPelvis() {
+    if (!this.pelvis.geometry.index) return; // still on its way: split when it arrives
+    const served = this.servedExtent();
+    const on = served.boneExtent.value.w > 0.5;
+    splitPelvis(this.pelvis.geometry, on ? served.boneFromModel.value : null, served.boneExtent.value.y + 16);
   }
 
   // Camera views: the page's home view (set when it frames the scene), and looking down an axis

@@ -178,3 +178,46 @@ def test_the_socket_s_articular_face_is_where_the_cutting_front_starts():
     pole = np.array([0.0, 0.0, -1.0])
     region = graph.region(np.ones(mesh.n_tets, dtype=bool), np.zeros(3), 0.5 * SocketConfig().socket_diameter_mm * 1e-3 + 1e-3, 1)
     assert len(region) > 0 and (graph.centroids[region] @ pole > 0).all()
+
+
+def test_threads_sharing_a_graph_get_the_subgraphs_and_regions_each_would_alone():
+    """A server's sessions share their model's graph; one starts on a worker thread while another steps."""
+    import sys
+    import threading
+
+    rng = np.random.default_rng(3)
+    active = rng.random(MESH.n_tets) > 0.2
+    centres = MESH.centroids[rng.choice(MESH.n_tets, 40)]
+    reach = 0.3 * float(np.ptp(MESH.nodes[:, 0]))
+    queries = [(np.sort(rng.choice(MESH.n_tets, 30, replace=False)), centre) for centre in centres]
+
+    def answers():
+        found = []
+        for region, centre in queries:
+            sub = GRAPH.subgraph(region, 2)
+            found.append((sub.nodes, sub.senders, GRAPH.region(active, centre, reach, 1)))
+        return found
+
+    alone = answers()
+    results: list = []
+    start = threading.Barrier(4)
+
+    def worker():
+        start.wait()
+        results.append([answers() for _ in range(5)])
+
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)  # switch threads between nearly every bytecode
+    try:
+        threads = [threading.Thread(target=worker) for _ in range(4)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join()
+    finally:
+        sys.setswitchinterval(interval)
+    assert len(results) == 4
+    for runs in results:
+        for run in runs:
+            for (nodes, senders, region), (nodes0, senders0, region0) in zip(run, alone, strict=True):
+                assert np.array_equal(nodes, nodes0) and np.array_equal(senders, senders0) and np.array_equal(region, region0)

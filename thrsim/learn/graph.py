@@ -13,6 +13,7 @@ frame); the network, by far the dearest part, only sees the region.
 from __future__ import annotations
 
 import hashlib
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,8 +76,7 @@ class StaticGraph:
         # distance of each centroid from the acetabular centre: where it sits across the shell
         self.radius = np.linalg.norm(self.centroids, axis=1)
         self.digest = mesh_digest(mesh)
-        self._local = np.full(self.n_nodes, -1, dtype=np.int64)
-        self._mark = np.zeros(self.n_nodes, dtype=np.bool_)  # scratch of `region`, left all False
+        self._scratch = threading.local()  # see _scratch_arrays
         self._inner_faces = _inner_face_table(mesh)
         self._inner_tet = self._inner_faces.any(axis=1)
         self._face_centres = mesh.nodes[mesh.tets][:, TET_FACES].mean(axis=2)  # (E, 4 faces, 3)
@@ -86,6 +86,16 @@ class StaticGraph:
         for ids in (mesh.fixed_nodes, mesh.node_sets.get(SIDE, ()), mesh.node_sets.get(WINDOW_SIDE, ())):
             held[np.asarray(ids, dtype=np.int64)] = True
         self.anchored = held[mesh.tets].any(axis=1)
+
+    def _scratch_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """This thread's scratch: local ids (of ``subgraph``, left all -1) and marks (of ``region``, left
+        all False). A model's graph is shared by every session of a server, and a session starting on
+        one thread while another steps on a second must not write the same scratch (that crashed)."""
+        scratch = self._scratch
+        if not hasattr(scratch, "local"):
+            scratch.local = np.full(self.n_nodes, -1, dtype=np.int64)
+            scratch.mark = np.zeros(self.n_nodes, dtype=np.bool_)
+        return scratch.local, scratch.mark
 
     def chips(self, active: np.ndarray) -> np.ndarray:
         """Active elements cut off from the anchored bone (bool per element): the solver deletes
@@ -112,11 +122,11 @@ class StaticGraph:
         """
         active = np.ascontiguousarray(active, dtype=np.bool_)
         centre = np.ascontiguousarray(centre, dtype=np.float64)
-        return _cutting_front(self.neighbours, self._inner_tet, active, self.centroids, centre, reach_m * reach_m, hops, self._mark)
+        return _cutting_front(self.neighbours, self._inner_tet, active, self.centroids, centre, reach_m * reach_m, hops, self._scratch_arrays()[1])
 
     def subgraph(self, region: np.ndarray, halo_hops: int) -> Subgraph:
         """The region plus ``halo_hops`` face-hops around it, with the edges among them."""
-        local = self._local
+        local = self._scratch_arrays()[0]
         nodes = [np.asarray(region, dtype=np.int64)]
         local[nodes[0]] = 0
         frontier = nodes[0]

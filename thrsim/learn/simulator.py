@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import threading
 import time
 from dataclasses import dataclass
 
@@ -109,6 +110,10 @@ AXIS_OFFSET_SLACK_MM = 0.5
 #: a push no hand gives a reamer (the trainer takes up to 400 N); larger ones overflow the float32 features
 MAX_FORCE_N = 10_000.0
 
+#: the kinds of simulator (socket model?, compiled network?) already warmed up in this process
+_WARMED: set[tuple[bool, bool]] = set()
+_WARMING = threading.Lock()
+
 
 def check_force(force_n) -> float:
     """``force_n`` as newtons in [0, :data:`MAX_FORCE_N`], or ThrsimInputError saying why not."""
@@ -174,13 +179,17 @@ class ReamingSimulator:
         self._intact_alpha = float(alpha_label(np.zeros(1), np.zeros(1), None, LabelConfig(**self.model.card["labels"]))[0])
         self.compile_error = compile_network(self.model.gn, self.example_inputs()) if compile else None
         self.reset()
-        self._warm_up()
-        self.reset()
+        with _WARMING:
+            if (self.socket, self.compiled) not in _WARMED:
+                self._warm_up()
+                self.reset()
+                _WARMED.add((self.socket, self.compiled))
 
     def _warm_up(self) -> None:
-        """Two frames in the bone before any session (then :meth:`reset`): Numba loads its cached
-        kernels of the cutting front, features and attachment here, not in a trainee's first frame
-        in contact (that tick took 40-90 ms more)."""
+        """Two frames in the bone before the process's first session of this kind (then :meth:`reset`):
+        Numba loads its cached kernels of the cutting front, features and attachment here, not in a
+        trainee's first frame in contact (that tick took 40-90 ms more). Once per process: the loaded kernels
+        serve every later simulator, and a server's next session starts without stepping."""
         axis = np.array([0.0, 0.0, -1.0])
         touching = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
         for depth_mm in (0.5, 1.0, 2.0, 4.0):  # a coarse mesh's front lies deeper than a fine one's

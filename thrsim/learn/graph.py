@@ -122,7 +122,9 @@ class StaticGraph:
         """
         active = np.ascontiguousarray(active, dtype=np.bool_)
         centre = np.ascontiguousarray(centre, dtype=np.float64)
-        return _cutting_front(self.neighbours, self._inner_tet, active, self.centroids, centre, reach_m * reach_m, hops, self._scratch_arrays()[1])
+        return _cutting_front(
+            self.neighbours, self._inner_tet, active, self.centroids, centre, reach_m * reach_m, hops, self._scratch_arrays()[1]
+        )
 
     def subgraph(self, region: np.ndarray, halo_hops: int) -> Subgraph:
         """The region plus ``halo_hops`` face-hops around it, with the edges among them."""

@@ -76,10 +76,18 @@ class ServedTrainer:
                 if _ANNOUNCE.search(line):
                     found.set()
 
+        self.error_lines: list[str] = []  # read as it comes: a full pipe would block the server's logging
+
+        def read_errors() -> None:
+            for line in self.process.stderr:
+                self.error_lines.append(line)
+
         threading.Thread(target=read, daemon=True).start()
+        self._error_reader = threading.Thread(target=read_errors, daemon=True)
+        self._error_reader.start()
         if not found.wait(timeout):
             self.stop()
-            raise RuntimeError(f"thrsim serve did not start: {self.process.stderr.read()[-2000:]}")
+            raise RuntimeError(f"thrsim serve did not start: {self.stderr()[-2000:]}")
         match = next(_ANNOUNCE.search(line) for line in self.lines if _ANNOUNCE.search(line))
         self.port, self.igtl_port = int(match.group(1)), int(match.group(2))
         self.url = f"http://127.0.0.1:{self.port}"
@@ -95,7 +103,11 @@ class ServedTrainer:
         return self.process.returncode
 
     def stderr(self) -> str:
-        return self.process.stderr.read() if self.process.poll() is not None else ""
+        """What the server wrote to stderr, once it has exited ("" while it runs)."""
+        if self.process.poll() is None:
+            return ""
+        self._error_reader.join(10)
+        return "".join(self.error_lines)
 
 
 def reamer_to_reference(trainer_side_targets: dict, inclination_deg: float, anteversion_deg: float) -> np.ndarray:

@@ -179,6 +179,8 @@ def test_inductor_cache_is_in_the_users_cache_folder(tmp_path, monkeypatch):
         return network
 
     monkeypatch.setattr(torch, "compile", fake_compile)
-    model = SimpleNamespace(network=lambda: None, normalised_inputs=lambda example: ())
+    one_graph = (torch.zeros((3, 2)), torch.zeros((2, 2)), torch.zeros((1, 2)), torch.tensor([0, 1]), torch.tensor([1, 0]))
+    batch = (*one_graph, torch.zeros(3, dtype=torch.int64), torch.zeros(2, dtype=torch.int64))
+    model = SimpleNamespace(network=lambda *inputs: torch.zeros((len(inputs[0]), 1)), normalised_inputs=lambda example: batch)
     assert compile_network(model, example=None) is None
     assert seen["cache"] == str(tmp_path / "thrsim" / "inductor")

@@ -197,6 +197,40 @@ def test_the_compiled_network_removes_what_the_eager_one_removes(tiny_model):
     assert mismatched <= 0.01 * max(removed, 1)  # fused kernels round differently, rarely across the threshold
 
 
+def test_the_compiled_network_never_compiles_again_for_a_tiny_region(tiny_model):
+    """A region of one element, or one with no edges (a bone nearly gone), once compiled the network
+    again inside a session, for seconds; the values stay the eager network's."""
+    import dataclasses
+
+    import torch
+
+    compiled, eager = ReamingSimulator(tiny_model, compile=True), ReamingSimulator(tiny_model)
+    example = compiled.example_inputs()
+
+    def first(n_nodes, n_edges):  # the example's first nodes, and up to n_edges of the edges among them
+        among = torch.nonzero((example.senders < n_nodes) & (example.receivers < n_nodes)).ravel()[:n_edges]
+        return dataclasses.replace(
+            example,
+            nodes=example.nodes[:n_nodes],
+            edges=example.edges[among],
+            senders=example.senders[among],
+            receivers=example.receivers[among],
+            node_graph=example.node_graph[:n_nodes],
+            edge_graph=example.edge_graph[among],
+            alpha=example.alpha[:n_nodes],
+            update=example.update[:n_nodes],
+        )
+
+    no_edges = torch.from_numpy(np.empty(0, dtype=np.int64))  # stride 0, as NumPy leaves an empty index
+    batches = [first(1, 0), first(2, 0), first(3, 1), first(40, 30)]
+    batches.append(dataclasses.replace(first(2, 0), senders=no_edges, receivers=no_edges, edge_graph=no_edges))
+    with torch._dynamo.config.patch(error_on_recompile=True), torch.inference_mode():
+        for batch in batches:
+            got = compiled.model.gn.network(*compiled.model.gn.normalised_inputs(batch))
+            want = eager.model.gn.network(*eager.model.gn.normalised_inputs(batch))
+            assert got.shape == want.shape and torch.allclose(got, want, atol=1e-4)
+
+
 def test_a_failed_compile_leaves_the_eager_network_and_says_why(tiny_model, monkeypatch):
     import torch
 

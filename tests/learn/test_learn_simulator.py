@@ -254,10 +254,19 @@ def test_a_fresh_simulator_has_its_kernels_loaded_before_its_first_frame_in_cont
         "from thrsim.learn.model_dir import SHIPPED_SOCKET_MODEL\n"
         "from thrsim.learn import features, graph\n"
         "simulator = ReamingSimulator(SHIPPED_SOCKET_MODEL)\n"
-        "kernels = [graph._cutting_front, graph.attached_nodes, features._socket_node_features, features._socket_edge_features]\n"
+        "kernels = [graph._cutting_front, graph.attached_nodes, graph.unanchored_elements, features._socket_node_features,\n"
+        "           features._socket_edge_features]\n"
         "print([len(kernel.signatures) for kernel in kernels], simulator.frame, int(simulator.removed.sum()))\n"
     )
     done = subprocess.run(
         [sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=600, env=checkout_env(), check=True
     )
-    assert done.stdout.split() == ["[1,", "1,", "1,", "1]", "0", "0"]  # every kernel loaded, and the simulator reset to the intact bone
+    assert done.stdout.split() == [
+        "[1,",
+        "1,",
+        "1,",
+        "1,",
+        "1]",
+        "0",
+        "0",
+    ]  # every kernel loaded, and the simulator reset to the intact bone

@@ -188,8 +188,11 @@ class ReamingSimulator:
     def _warm_up(self) -> None:
         """Two frames in the bone before the process's first session of this kind (then :meth:`reset`):
         Numba loads its cached kernels of the cutting front, features and attachment here, not in a
-        trainee's first frame in contact (that tick took 40-90 ms more). Once per process: the loaded kernels
-        serve every later simulator, and a server's next session starts without stepping."""
+        trainee's first frame in contact (that tick took 40-90 ms more; compiling them, on a fresh
+        install, seconds), and the chips' kernel, which only a frame that removes bone calls. Once per
+        process: the loaded kernels serve every later simulator, and a server's next session starts
+        without stepping."""
+        self.model.graph.chips(np.ones(self.n_elements, dtype=bool))
         axis = np.array([0.0, 0.0, -1.0])
         touching = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
         for depth_mm in (0.5, 1.0, 2.0, 4.0):  # a coarse mesh's front lies deeper than a fine one's

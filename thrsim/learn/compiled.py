@@ -13,6 +13,7 @@ Inductor's cache goes to the user's cache folder (:func:`thrsim.cache.cache_dir`
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 
 import torch
 
@@ -55,7 +56,7 @@ class _WithSpareGraph(torch.nn.Module):
     (messages and global sums stay within each), so the batch's own rows are unchanged in value.
     """
 
-    def __init__(self, compiled: torch.nn.Module):
+    def __init__(self, compiled: Callable[..., torch.Tensor]):
         super().__init__()
         self.compiled = compiled
 

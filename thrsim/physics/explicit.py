@@ -207,8 +207,12 @@ def element_update(s, m):
         pressure = (sxx + syy + szz) / 3.0
         dxx, dyy, dzz = sxx - pressure, syy - pressure, szz - pressure
         q_trial = math.sqrt(1.5 * (dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (sxy * sxy + syz * syz + szx * szx)))
+        # the flow stress is never under A: at or below it the step is elastic, with no call into the
+        # return mapping (whose own first test, against A + B·εᵖⁿ, would say the same at a power's cost)
         dpeeq = (
-            jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row]) if q_trial > 0.0 else 0.0
+            jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row])
+            if q_trial > a_of[row]
+            else 0.0
         )
         if dpeeq > 0.0:
             factor = 1.0 - 3.0 * mu * dpeeq / q_trial

@@ -4,8 +4,9 @@ Eager PyTorch runs each message-passing step as a chain of separate kernels, eac
 region's edges or nodes; at a latent width of 32 those passes, not the arithmetic, set the time,
 and Inductor fuses each chain into one C++ loop (speed: the docs' Learned simulator page,
 compiled network). Shapes are symbolic (``dynamic=True``): the region changes size every frame
-and must not trigger a recompile, nor may a tiny one (:class:`_WithSpareGraph`). Compiling takes seconds and needs a C++ compiler, so it is
-opt-in, and any failure leaves the eager network in place with the reason, never an error.
+and must not trigger a recompile, nor may a tiny region (:class:`_WithSpareGraph`). Compiling
+takes seconds and needs a C++ compiler, so it is opt-in, and any failure leaves the eager
+network in place with the reason, never an error.
 Inductor's cache goes to the user's cache folder (:func:`thrsim.cache.cache_dir`), not to
 ``/tmp/torchinductor_<user>``, a name another user can take first; TORCHINDUCTOR_CACHE_DIR wins.
 """

@@ -136,6 +136,33 @@ def test_a_pack_folder_splits_the_cases_into_files_and_reads_back_as_one(dataset
     assert code != 0 and err.count("\n") == 1
 
 
+def test_a_socket_pack_stores_each_mesh_once_and_reads_back_a_file_of_one_case(dataset, tmp_path):
+    socket = tmp_path / "socket"  # the same cases packed as the socket's: each case carries its mesh
+    shutil.copytree(dataset, socket)
+    manifest = read_manifest(socket)
+    manifest["identity"]["template"]["bone_kind"] = "socket"
+    write_manifest(socket, manifest)
+    one = tmp_path / "one.h5"
+    write_pack(socket, one)
+    with h5py.File(one, "r") as f:
+        meshes = [group["mesh"] for group in f["cases"].values()]
+        assert len(meshes) == 7 and all(mesh == f["mesh"] for mesh in meshes)  # one stored copy, linked from each case
+        assert f["mesh/tets"].compression == "gzip" and f.attrs["version"] == 2
+    plain = tmp_path / "plain.h5"
+    write_pack(dataset, plain)
+    folder = tmp_path / "pack"
+    summary = write_pack(socket, folder, shard_mb=1e-3)  # below one case: a file for each
+    assert len(summary["files"]) == 7
+    _, from_files = read_pack(folder)
+    _, from_one = read_pack(one)
+    _, from_plain = read_pack(plain)
+    assert _same_cases(from_files, from_one) and _same_cases(from_one, from_plain)
+    assert all(case.mesh is not None and case.mesh.n_tets == case.alpha.shape[1] for case in from_files)
+    write_pack(socket, one)  # kept cases keep their shared mesh when the file is written again
+    with h5py.File(one, "r") as f:
+        assert all(group["mesh"] == f["mesh"] for group in f["cases"].values())
+
+
 def test_a_pack_keeps_each_elements_damage_to_a_hundredth(dataset, tmp_path, monkeypatch, capsys):
     pack = tmp_path / "learning.h5"
     assert run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(pack))[0] == 0

@@ -35,7 +35,7 @@ from thrsim.provenance import config_hash, json_default, package_versions
 
 PACK_FORMAT = "thrsim-learning-pack"
 PACK_VERSION = 1  # every case on the pack's mesh
-PACK_VERSION_OWN_MESHES = 2  # cases may carry their own mesh (the socket's windows)
+PACK_VERSION_OWN_MESHES = 2  # each case may carry its own mesh (the socket's windows and whole sockets)
 ALPHA_LEVELS = 50
 DAMAGE_LEVELS = 100
 _SMALL_PER_FRAME = ("time", "reamer_position", "energy", *OPTIONAL_PER_FRAME)
@@ -220,7 +220,9 @@ def write_pack(
             time, reamer_position, reamer_axis, energy (+ names) and the optional per-frame series,
                                    as in the case file
             mesh                   the case's own mesh group where it is not the pack's (version 2: the
-                                   socket's windows, one mesh each); version 1 packs hold one mesh
+                                   socket's windows and whole sockets; compressed, one copy per file
+                                   of each mesh, hard-linked from every case on it); version 1 packs
+                                   hold one mesh
     """
     from thrsim.data.generate import load_dataset, read_manifest
 
@@ -275,17 +277,37 @@ def write_pack(
 
 
 def _estimated_bytes(shard: Path, entry: dict) -> float:
-    """A case's packed size, from the shard's bytes per packed frame (its mesh included: an overestimate)."""
+    """A case's packed size, from the shard's bytes per element and frame (its mesh included: an
+    overestimate; a whole socket has seven times a window's elements)."""
     with h5py.File(shard, "r") as f:
-        frames = sum(f["cases"][case_id]["alpha"].shape[1] for case_id in f["cases"])
+        element_frames = sum(f["cases"][case_id]["alpha"].size for case_id in f["cases"])
     with CaseReader(entry["path"]) as reader:
-        case_frames = reader.n_frames
-    return shard.stat().st_size / max(frames, 1) * case_frames
+        case_element_frames = reader.n_frames * reader.n_elements
+    return shard.stat().st_size / max(element_frames, 1) * case_element_frames
+
+
+class _OwnMeshes:
+    """The cases' own meshes of one pack file, each stored once, compressed: a case on a mesh
+    already stored links to it (an HDF5 hard link; the whole sockets of one size share one)."""
+
+    def __init__(self) -> None:
+        self.stored: list[tuple[TetMesh, h5py.Group]] = []
+
+    def place(self, case: h5py.Group, mesh: TetMesh) -> None:
+        for known, group in self.stored:
+            if _same_mesh(known, mesh):
+                case["mesh"] = group
+                return
+        self.stored.append((mesh, case.create_group("mesh")))
+        write_mesh_group(self.stored[-1][1], mesh, compress=True)
 
 
 def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labels: LabelConfig) -> tuple[list[str], list[str]]:
-    """One pack file: the cases ``out`` holds (checked to be of the same source) plus ``entries``; (kept, added)."""
+    """One pack file: the cases ``out`` holds (checked to be of the same source) plus ``entries``; (kept, added).
+    In a pack of the socket every case has its own mesh, and ``/mesh`` links to the first."""
     kept, added = [], []
+    socket = _windows(attrs)
+    own_meshes = _OwnMeshes()
     with atomic_path(out, suffix=".tmp") as tmp, hdf5_in_memory(tmp) as f:
         cases = f.create_group("cases")
         mesh = None
@@ -295,8 +317,14 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
             with h5py.File(out, "r") as existing:
                 mesh = read_mesh_group(existing["mesh"])
                 _check_same_source(existing, attrs, out)
-                for case_id in existing["cases"]:
-                    existing.copy(existing["cases"][case_id], cases, name=case_id)
+                for case_id, source in existing["cases"].items():
+                    group = cases.create_group(case_id)
+                    group.attrs.update(source.attrs)
+                    for name in source:
+                        if name != "mesh":
+                            existing.copy(source[name], group, name=name)
+                    if socket:
+                        own_meshes.place(group, read_mesh_group(source["mesh"]) if "mesh" in source else mesh)
                     kept.append(case_id)
         for entry in entries:
             with CaseReader(entry["path"]) as reader:
@@ -305,23 +333,25 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
                         raise ThrsimInputError(f"{out}: case {entry['case_id']} is packed from other data than {reader.path}")
                     continue
                 group = cases.create_group(entry["case_id"])
+                if socket:
+                    own_meshes.place(group, reader.mesh)  # a window or a whole socket: its own mesh
+                elif mesh is not None and not _same_mesh(mesh, reader.mesh):
+                    del cases[entry["case_id"]]
+                    raise ThrsimInputError(f"{reader.path}: its mesh differs from the pack's (a pack of the patch holds one mesh)")
                 if mesh is None:
                     mesh = reader.mesh
-                elif not _same_mesh(mesh, reader.mesh):
-                    if not _windows(attrs):
-                        del cases[entry["case_id"]]
-                        raise ThrsimInputError(f"{reader.path}: its mesh differs from the pack's (a pack of the patch holds one mesh)")
-                    write_mesh_group(group.create_group("mesh"), reader.mesh)  # a window of the socket: its own mesh
                 _write_case_group(group, reader, entry, labels)
                 added.append(entry["case_id"])
         if mesh is None:
             raise ThrsimInputError(f"{out}: no case to pack")
-        write_mesh_group(f.create_group("mesh"), mesh)
-        own_meshes = any("mesh" in cases[case_id] for case_id in cases)
+        if socket:
+            f["mesh"] = own_meshes.stored[0][1]
+        else:
+            write_mesh_group(f.create_group("mesh"), mesh)
         f.attrs.update(
             {
                 **attrs,
-                "version": PACK_VERSION_OWN_MESHES if own_meshes else PACK_VERSION,
+                "version": PACK_VERSION_OWN_MESHES if socket else PACK_VERSION,
                 "thrsim_version": __version__,
                 "versions": _json_attr(package_versions()),
                 "updated": datetime.now(UTC).isoformat(timespec="seconds"),

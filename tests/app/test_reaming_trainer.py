@@ -11,7 +11,7 @@ import pytest
 
 from thrsim.app.controls import parse_reaming_control
 from thrsim.app.modes import MODES
-from thrsim.app.reaming import DISPLAY_LEVELS, ReamingTrainer
+from thrsim.app.reaming import DISPLAY_LEVELS, MAX_FRAMES_PER_TICK, ReamingTrainer
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.simulator import ReamingSimulator
 from thrsim.nav.anatomy import local_axis_from_angles
@@ -66,10 +66,18 @@ def test_frames_follow_the_running_time_and_bone_is_removed(clock):
     assert clock.run(0.5)["reaming"]["frame"] == frames
 
 
-def test_a_slow_tick_steps_at_most_two_frames_and_says_it_fell_behind(clock):
+def test_a_slow_tick_steps_at_most_one_frame_and_says_it_fell_behind(clock):
     clock.control({"type": "run", "action": "start"})
     state = clock.run(1.0, step=0.1)  # 10 ticks, 6 frames due each
-    assert state["reaming"]["frame"] == 20 and state["reaming"]["behind_frames"] == 40
+    assert state["reaming"]["frame"] == 10 and state["reaming"]["behind_frames"] == 50
+
+
+def test_a_session_recorded_with_two_frames_a_tick_is_made_again_with_two():
+    from thrsim.app.modes import MODES
+
+    trainer = MODES["reaming"].make_trainer({"mode": "reaming", "max_frames_per_tick": 2, "model": None})
+    assert trainer.max_frames_per_tick == 2 and trainer.settings()["max_frames_per_tick"] == 2
+    assert MODES["reaming"].make_trainer({"mode": "reaming", "model": None}).max_frames_per_tick == MAX_FRAMES_PER_TICK == 1
 
 
 def _steered_run(simulator, with_early: bool) -> tuple[list[dict], dict[int, dict]]:

@@ -134,7 +134,7 @@ def _on_socket(key: tuple[str | None, bool], plan: Any, element_size_mm: float) 
 
 
 def _reaming(settings: dict) -> Trainer:
-    from thrsim.app.reaming import ReamingTrainer
+    from thrsim.app.reaming import MAX_FRAMES_PER_TICK, ReamingTrainer
     from thrsim.errors import ThrsimInputError
     from thrsim.learn.model_dir import load_model, reads_any_mesh
     from thrsim.learn.ream import SOCKET_ELEMENT_SIZE_MM
@@ -161,7 +161,12 @@ def _reaming(settings: dict) -> Trainer:
         # the session records what ran, so that its replay runs the same network (rounding differs)
         settings["compile"] = simulator.compiled
     return ReamingTrainer(
-        side=settings.get("side", "right"), seed=settings.get("seed", 0), simulator=simulator, plan=plan, phantom=_phantom(settings)
+        side=settings.get("side", "right"),
+        seed=settings.get("seed", 0),
+        simulator=simulator,
+        plan=plan,
+        phantom=_phantom(settings),
+        max_frames_per_tick=int(settings.get("max_frames_per_tick", MAX_FRAMES_PER_TICK)),
     )
 
 

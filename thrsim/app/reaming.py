@@ -38,6 +38,10 @@ from thrsim.session.reaming import CUT_EDGE, FAR_FACE, ReamingRecord, write_ream
 DISPLAY_LEVELS = 32
 #: a force sensor reading counts for this long; then the page's force control applies again
 SENSOR_FRESH_S = 0.5
+#: simulator frames one server tick may step: one, so that no tick holds two network steps (a tick
+#: that comes late drops the frame it owes, counted in ``behind_frames``, rather than stepping two);
+#: sessions recorded with two (before 0.5.0's last change) replay with two, as their settings say
+MAX_FRAMES_PER_TICK = 1
 #: the events of a frame's inputs leaving what the model learned, by the simulator's flag (once per stretch outside)
 OUT_OF_RANGE_EVENTS = {
     "push": "push_out_of_range", "feed": "feed_out_of_range", "tilt": "tilt_out_of_range", "reamer size": "reamer_out_of_range", "centre": "centre_out_of_range",
@@ -138,7 +142,8 @@ class ReamingTrainer:
     Time. The simulator steps the model's frame time of reaming per frame (its card's). While
     running, every tick steps the frames that are due by the running time (at most
     ``max_frames_per_tick``; beyond that the simulation falls behind real time and says so). Frames
-    are driven by the tick times, which the session logs, so a replay steps the same frames.
+    are driven by the tick times, which the session logs, so a replay steps the same frames (with
+    the session's recorded ``max_frames_per_tick``).
     """
 
     mode = "reaming"
@@ -149,7 +154,7 @@ class ReamingTrainer:
         seed: int = 0,
         simulator: ReamingSimulator | None = None,
         unavailable: str | None = None,
-        max_frames_per_tick: int = 2,
+        max_frames_per_tick: int = MAX_FRAMES_PER_TICK,
         undo_s: float = 1.0,
         zone: SafeZone = SafeZone(),
         plan: Plan | None = None,

@@ -9,7 +9,7 @@ import numpy as np
 
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.adjacency import FaceAdjacency, face_adjacency
-from thrsim.geometry.tet_metrics import QualityReport, centroids, quality_report, signed_volumes
+from thrsim.geometry.tet_metrics import QualityReport, centroids, quality_report, rms_edge_lengths, signed_volumes
 
 #: node-set names used across thrsim: the fixed outer (bottom) face, the reamed articular
 #: face, and the side faces of the patch (cuts through bone that continues in reality)
@@ -82,6 +82,12 @@ class TetMesh:
     @cached_property
     def centroids(self) -> np.ndarray:
         return centroids(self.nodes, self.tets)
+
+    @cached_property
+    def mean_edge_length_m(self) -> float:
+        """The elements' RMS edge length, averaged: the mesh's resolution (computed once; a step
+        that asks for it every frame, as a steered reamer's end check does, must not pay for it)."""
+        return float(rms_edge_lengths(self.nodes, self.tets).mean())
 
     @cached_property
     def adjacency(self) -> FaceAdjacency:

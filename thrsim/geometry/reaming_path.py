@@ -11,7 +11,6 @@ from __future__ import annotations
 import numpy as np
 
 from thrsim.geometry.mesh import MEDIAL_WALL, SUPPORTED, TetMesh
-from thrsim.geometry.tet_metrics import rms_edge_lengths
 
 #: the gap between the teeth and the nearest bone node where a case starts (m)
 INITIAL_GAP_M = 5e-5
@@ -93,7 +92,7 @@ def tip_exit_depth(mesh: TetMesh, axis: np.ndarray) -> float | None:
     points = mesh.nodes[outer]
     along = along_axis(points, axis)
     lateral = np.linalg.norm(points - along[:, None] * axis, axis=1)
-    under_tip = lateral <= float(rms_edge_lengths(mesh.nodes, mesh.tets).mean())
+    under_tip = lateral <= mesh.mean_edge_length_m
     return float(along[under_tip].max()) if under_tip.any() else None
 
 

@@ -1,12 +1,16 @@
-"""The 0.5 dataset ships as a learning pack: 51 socket windows at set feeds and 24 pushed, each with its own mesh and its reaction."""
+"""The 0.5 dataset ships as learning packs: 51 socket windows at set feeds and 24 pushed, each with
+its own mesh and its reaction; beside them, the pushed whole sockets solved so far."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from thrsim.config import SocketSweepConfig
+from thrsim.data.sweep import plan_socket_sweep
 from thrsim.learn.cases import load_cases
 
 PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
+WHOLE = PACK.parent / "socket-whole-0.5.0"
 
 
 def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_learns():
@@ -24,3 +28,16 @@ def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_lea
     assert {round(2e3 * case.teeth_radius_m) for case in cases} == {46, 48, 50, 52, 54}
     assert len({case.mesh.n_tets for case in cases}) > 5  # windows of the socket, not one mesh
     assert all(f.stat().st_size <= 15.5e6 for f in PACK.glob("part-*.h5"))
+
+
+def test_the_whole_socket_pack_holds_the_plan_s_pushed_whole_sockets_meshed_whole():
+    plan = {case.case_id: case for case in plan_socket_sweep(SocketSweepConfig()).cases}
+    _, cases = load_cases(WHOLE, one_mesh=False)
+    assert cases, "no whole socket packed"
+    for case in cases:
+        planned = plan[case.case_id]  # one of the plan's whole sockets, in its split
+        assert case.case_id.startswith("whole_") and case.split == planned.split and case.set_feed_mm_s is None
+        assert case.mesh is not None and case.mesh.n_tets > 100_000 and case.alpha.shape == (case.frames, case.mesh.n_tets)
+        assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.frames > 1
+        assert {"cortical", "cancellous"} <= set(case.mesh.material_names)
+    assert all(f.stat().st_size <= 15.5e6 for f in WHOLE.glob("part-*.h5"))

@@ -63,15 +63,24 @@ def kernel_sources() -> list[Path]:
 
 
 def use_numba_cache() -> None:
-    """Point Numba's cache at ``cache_dir("numba")/<hash of kernel_sources()>``; a kernel module
-    calls it before its first kernel (Numba reads the folder when a kernel is defined)."""
+    """Point Numba's cache at ``cache_dir("numba")/<hash of kernel_sources()>`` and start Numba's
+    threading layer; a kernel module calls it before its first kernel (Numba reads the folder when
+    a kernel is defined).
+
+    The threading layer: a cached serial kernel that calls parallel ones (``advance_reaming``,
+    ``solid_step``) carries their code, but when it was compiled in a process that had loaded them
+    from the cache, not Numba's note to start the threading layer on loading it (Numba issues
+    8578, 10184). Loaded first in a fresh process, it crashed (SIGSEGV) in its first parallel
+    loop. Started here, before any kernel can run, every load is safe."""
     global _numba_cache_set
-    if _numba_cache_set or os.environ.get("NUMBA_CACHE_DIR"):
+    if _numba_cache_set:
         return
     import numba
 
-    digest = hashlib.sha256(b"".join(path.read_bytes() for path in kernel_sources())).hexdigest()[:16]
-    numba.config.CACHE_DIR = str(cache_dir("numba") / digest)
+    numba.get_num_threads()  # starts the threading layer
+    if not os.environ.get("NUMBA_CACHE_DIR"):
+        digest = hashlib.sha256(b"".join(path.read_bytes() for path in kernel_sources())).hexdigest()[:16]
+        numba.config.CACHE_DIR = str(cache_dir("numba") / digest)
     _numba_cache_set = True
 
 

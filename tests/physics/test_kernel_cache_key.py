@@ -1,4 +1,5 @@
-"""The Numba cache: keyed on every thrsim module a kernel can compile in, kept out of the package.
+"""The Numba cache: keyed on every thrsim module a kernel can compile in, kept out of the package,
+and safe to load whatever process wrote it.
 
 Numba keys a kernel's cache on its own file; thrsim keys the whole cache folder on a hash of the
 kernel modules and everything they import (thrsim.cache). A module they import that the key
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -80,3 +82,38 @@ def test_imported_sources_follows_every_form_of_import(tmp_path, monkeypatch):
         "config.py",
         "errors.py",
     }
+
+
+# A serial kernel calling a parallel one, defined as thrsim's kernel modules define theirs.
+_NESTED_KERNELS = """
+import numpy as np
+from numba import njit, prange
+from thrsim.cache import use_numba_cache
+use_numba_cache()
+
+@njit(parallel=True, cache=True)
+def inner(a):
+    out = np.zeros(a.size)
+    for i in prange(a.size):
+        out[i] = 2.0 * a[i]
+    return out
+
+@njit(cache=True)
+def outer(a):
+    return inner(a).sum()
+"""
+
+
+def test_a_cached_kernel_that_calls_parallel_ones_loads_in_a_fresh_process(tmp_path):
+    """The parallel kernel cached by one process; loaded by the next, which then compiles and caches
+    the serial one (Numba leaves out its note to start the threading layer: issues 8578, 10184); a
+    third process loads the serial one first. Without thrsim.cache starting the threading layer
+    that third process died (SIGSEGV), as `thrsim fem` did after a test run had written the cache."""
+    (tmp_path / "nested.py").write_text(_NESTED_KERNELS)
+    env = checkout_env(NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path), env["PYTHONPATH"]])
+    for calls in ("print(nested.inner(a).sum())", "nested.inner(a)\nprint(nested.outer(a))", "print(nested.outer(a))"):
+        script = f"import numpy as np, nested\na = np.arange(1000.0)\n{calls}"
+        run = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+        assert run.returncode == 0 and run.stdout.split()[-1] == "999000.0", (calls, run.returncode, run.stderr[-500:])
+    assert len(list((tmp_path / "cache").rglob("nested.outer-*.nbc"))) == 1  # the last process loaded it, compiled nothing

@@ -167,8 +167,8 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
     group.attrs.update(attrs)
 
 
-def _windows(attrs: dict[str, Any]) -> bool:
-    """Whether the pack's dataset is of socket windows, each case on its own mesh."""
+def _socket_pack(attrs: dict[str, Any]) -> bool:
+    """Whether the pack is of the socket (windows and whole sockets), each case on its own mesh."""
     return json.loads(attrs["identity"]).get("template", {}).get("bone_kind") == "socket"
 
 
@@ -306,7 +306,7 @@ def _write_pack_file(out: Path, entries: list[dict], attrs: dict[str, Any], labe
     """One pack file: the cases ``out`` holds (checked to be of the same source) plus ``entries``; (kept, added).
     In a pack of the socket every case has its own mesh, and ``/mesh`` links to the first."""
     kept, added = [], []
-    socket = _windows(attrs)
+    socket = _socket_pack(attrs)
     own_meshes = _OwnMeshes()
     with atomic_path(out, suffix=".tmp") as tmp, hdf5_in_memory(tmp) as f:
         cases = f.create_group("cases")

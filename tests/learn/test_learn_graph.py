@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from thrsim.data.synthetic import block_mesh
 from thrsim.learn.graph import StaticGraph, attached_nodes, mesh_digest
-from thrsim.learn.metrics import surface_distance_mm
+from thrsim.learn.metrics import sphere_diameter_mm, surface_distance_mm
 
 MESH = block_mesh(n=4)
 GRAPH = StaticGraph(MESH)
@@ -163,6 +163,17 @@ def test_surface_distance_is_symmetric_nearest_face_distance_in_mm():
     mean_mm, max_mm = surface_distance_mm(grid, grid + [0.0, 0.0, 0.2e-3])
     assert np.isclose(mean_mm, 0.2) and np.isclose(max_mm, 0.2)
     assert np.isnan(surface_distance_mm(grid[:0], grid)[0])
+
+
+def test_a_cavity_s_diameter_is_the_sphere_fitted_to_its_surface():
+    rng = np.random.default_rng(0)
+    directions = rng.normal(size=(600, 3))
+    directions /= np.linalg.norm(directions, axis=1)[:, None]
+    cap = directions[directions[:, 2] < -0.6]  # a reamed cap, not the whole sphere
+    noisy = 0.024 * cap + rng.normal(scale=0.02e-3, size=cap.shape) + [0.01, -0.02, 0.03]
+    assert abs(sphere_diameter_mm(noisy) - 48.0) < 0.1
+    plane = np.stack(np.meshgrid(np.arange(10), np.arange(10), [0.0]), axis=-1).reshape(-1, 3) * 1e-3
+    assert sphere_diameter_mm(plane) is None and sphere_diameter_mm(noisy[:9]) is None
 
 
 def test_the_socket_s_articular_face_is_where_the_cutting_front_starts():

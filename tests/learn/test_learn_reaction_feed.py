@@ -188,6 +188,7 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     assert set(report["by_control"]["autonomous"]) == {"pushed"}  # the synthetic cases: a set push, no set feed
     assert report["by_control"]["autonomous"]["pushed"]["end"]["windows"] > 0
     assert report["geometric"][size]["longest_horizon"]["cavity_depth_error_mean_mm"] >= 0.0
+    assert "cavity_diameter_error_mean_mm" in report["geometric"][size]["longest_horizon"]
     checks = report["physics_checks"]
     assert checks["checked"] and checks["held"] == dict.fromkeys(
         ("no_push_no_cut", "no_push_no_advance", "more_push_never_less"), len(cases)

@@ -73,6 +73,7 @@ def print_comparison(report: dict) -> None:
         table.add_column(f"t+{h}" if h != "end" else "to end")
     table.add_column("surface mean mm")
     table.add_column("depth error mm")
+    table.add_column("diameter error mm")
     sources = (report, report["tool_forced"], report["mlp"], report["geometric"])
     gammas = sorted({g for source in sources for g in source if g.replace(".", "", 1).isdigit()}, key=float)
     thesis = {} if by_size else report["thesis_table_10_percent"]
@@ -88,12 +89,21 @@ def print_comparison(report: dict) -> None:
             for h in horizons:
                 c = row.get(h)
                 cells.append("" if c is None else f"{_pct(c['precision'])} / {_pct(c['recall'])} / {_pct(c['f1'])} (n={c['windows']})")
-            surface = row.get("longest_horizon", {}).get("surface_distance_mean_mm")
-            depth = row.get("longest_horizon", {}).get("cavity_depth_error_mean_mm")
-            table.add_row(g, name, *cells, "" if surface is None else f"{surface:.3f}", "" if depth is None else f"{depth:.2f}")
+            longest = row.get("longest_horizon", {})
+            surface, depth, diameter = (
+                longest.get(key) for key in ("surface_distance_mean_mm", "cavity_depth_error_mean_mm", "cavity_diameter_error_mean_mm")
+            )
+            table.add_row(
+                g,
+                name,
+                *cells,
+                "" if surface is None else f"{surface:.3f}",
+                "" if depth is None else f"{depth:.2f}",
+                "" if diameter is None else f"{diameter:.2f}",
+            )
         if g in thesis:
             cells = [("" if h not in thesis[g] else " / ".join(f"{v:.1f}" for v in thesis[g][h].values())) for h in horizons]
-            table.add_row(g, "thesis Table 10", *cells, "", "")
+            table.add_row(g, "thesis Table 10", *cells, "", "", "")
     # wide enough for P / R / F1 cells of four horizons, also when piped to a file
     Console(width=max(console.width, 170)).print(table)
     names = {"autonomous": "GN autonomous", "tool_forced": "GN tool-forced", "mlp": "MLP", "geometric": "geometric"}

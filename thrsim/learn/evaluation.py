@@ -19,7 +19,7 @@ import numpy as np
 
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.metrics import Counts, surface_distance_mm
+from thrsim.learn.metrics import Counts, sphere_diameter_mm, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
 from thrsim.learn.reaction_feed import ReactionFeed, felt_at_push
 from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
@@ -189,7 +189,10 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     threshold = model.threshold
     counts: dict = {m: defaultdict(lambda: defaultdict(Counts)) for m in MODES}
     errors: dict = {
-        m: defaultdict(lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": [], "depth_error_mm": []}) for m in MODES
+        m: defaultdict(
+            lambda: {"volume_error": [], "surface_mean_mm": [], "surface_max_mm": [], "depth_error_mm": [], "diameter_error_mm": []}
+        )
+        for m in MODES
     }
     by_force: dict = defaultdict(lambda: {"volume_error": [], "removed_volume_mm3": []})
     reaction_rows: dict = defaultdict(list)
@@ -227,9 +230,13 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                         by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
                 if mode == "autonomous":
                     by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
-                mean_mm, max_mm = surface_distance_mm(graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true))
+                surfaces = graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true)
+                mean_mm, max_mm = surface_distance_mm(*surfaces)
                 errors[mode][g]["surface_mean_mm"].append(mean_mm)
                 errors[mode][g]["surface_max_mm"].append(max_mm)
+                diameters = [sphere_diameter_mm(surface) for surface in surfaces]
+                if diameters[0] is not None and diameters[1] is not None:
+                    errors[mode][g]["diameter_error_mm"].append(abs(diameters[0] - diameters[1]))
                 depths = [cavity_depth_mm(graph, mask & ~initial, case.positions[start], case.axis) for mask in (final_pred, final_true)]
                 if depths[1] is not None:
                     errors[mode][g]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
@@ -283,6 +290,7 @@ def _report(counts: dict, errors: dict, cases: list[CaseArrays]) -> dict:
                 "surface_distance_mean_mm": _summary(e["surface_mean_mm"]),
                 "surface_distance_max_mm": float(np.nanmax(e["surface_max_mm"])) if np.isfinite(e["surface_max_mm"]).any() else None,
                 "cavity_depth_error_mean_mm": _summary(e["depth_error_mm"]),
+                "cavity_diameter_error_mean_mm": _summary(e["diameter_error_mm"]),
             }
             out[g] = row
         return out

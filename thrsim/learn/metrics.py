@@ -1,4 +1,4 @@
-"""Scores of removed-element predictions [7.3.5, eqs. 51–53] and reamed-surface distances."""
+"""Scores of removed-element predictions [7.3.5, eqs. 51–53], reamed-surface distances and the cavity's diameter."""
 
 from __future__ import annotations
 
@@ -58,3 +58,21 @@ def surface_distance_mm(predicted_points: np.ndarray, true_points: np.ndarray) -
     b = cKDTree(predicted_points).query(true_points)[0]
     both = np.concatenate([a, b])
     return float(both.mean() * 1e3), float(both.max() * 1e3)
+
+
+def sphere_diameter_mm(points: np.ndarray) -> float | None:
+    """Diameter (mm) of the sphere fitted to surface points (m) by linear least squares,
+    |x|² = 2 c·x + k, r² = k + |c|²; None for fewer than 10 points or points that fix no sphere
+    (all on a plane or a line). A reamed cavity's diameter, as a scan of a reamed socket is measured."""
+    points = np.asarray(points, dtype=np.float64)
+    if len(points) < 10:
+        return None
+    origin = points.mean(axis=0)  # centred: the fit's conditioning no longer depends on where the bone lies
+    local = points - origin
+    design = np.column_stack([2.0 * local, np.ones(len(local))])
+    solution, _, rank, _ = np.linalg.lstsq(design, (local * local).sum(axis=1), rcond=None)
+    if rank < 4:
+        return None
+    centre, k = solution[:3], solution[3]
+    radius_sq = k + float(centre @ centre)
+    return 2e3 * float(np.sqrt(radius_sq)) if radius_sq > 0 else None

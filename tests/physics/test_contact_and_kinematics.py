@@ -23,7 +23,7 @@ def _one_node(mass: float, position: np.ndarray, velocity=(0.0, 0.0, 0.0)) -> So
     return SolidArrays(
         tets=np.zeros((0, 4), dtype=np.int64), zone_elements=np.zeros(0, dtype=np.int64), zone_nodes=np.arange(1),
         contact_nodes=np.arange(1), material=np.zeros(0, dtype=np.int64), grads=np.zeros((0, 4, 3)), volume=np.zeros(0), char_length=np.zeros(0),
-        bulk_viscosity=np.zeros(0), element_mass=np.zeros(0), offsets=np.zeros(2, dtype=np.int64),
+        bulk_viscosity=np.zeros(0), offsets=np.zeros(2, dtype=np.int64),
         entries=np.zeros(0, dtype=np.int64), support_stiffness=one.copy(), held=np.zeros(1, dtype=np.bool_),
         active=np.zeros(0, dtype=np.uint8), accounted=np.zeros(0, dtype=np.bool_), stress=np.zeros((0, 6)),
         peeq=np.zeros(0), damage=np.zeros(0), initiation=np.zeros(0), plastic_work=np.zeros(0), damage_work=np.zeros(0),

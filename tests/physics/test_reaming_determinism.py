@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "3d6be1faeeed1c22637bb51578e262cd5e8e47ac4c1fa1377c8e0de8c4908f86"
+PINNED_DIGEST = "d98e38e40b233ccd1dcb44fced1387914d003ae926423a3a32add367e30b2984"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

@@ -49,7 +49,6 @@ class SolidArrays(NamedTuple):
     volume: np.ndarray  # (E,)
     char_length: np.ndarray  # (E,) damage length L_e
     bulk_viscosity: np.ndarray  # (E,) b1·ρ·c_d·h coefficient
-    element_mass: np.ndarray  # (E,) scaled
     offsets: np.ndarray  # (N + 1,) node → element CSR
     entries: np.ndarray  # element·4 + local index
     support_stiffness: np.ndarray  # (N,) foundation springs
@@ -248,6 +247,9 @@ def element_update(s, m):
         stress[e, 3] = sxy
         stress[e, 4] = syz
         stress[e, 5] = szx
+        v = volume[e]
+        # the pressure applied last step worked through the strain increment it produced (deleted or not)
+        viscous_work[e] += viscous_pressure[e] * trace * v
         if damage[e] >= 1.0:
             active[e] = 0
             deleted += 1
@@ -256,9 +258,6 @@ def element_update(s, m):
                     element_force[e, k, i] = 0.0
             continue
         keep = 1.0 - damage[e]
-        v = volume[e]
-        # the pressure applied last step worked through the strain increment it produced
-        viscous_work[e] += viscous_pressure[e] * trace * v
         viscous = bulk_viscosity[e] * trace / dt
         viscous_pressure[e] = viscous
         txx = keep * sxx + viscous
@@ -326,36 +325,40 @@ def node_update(s, dt):
 
 @njit(cache=True)
 def account_deletions(s, elements):
-    """Take newly deleted ``elements``' mass off their nodes; freeze nodes left with no element.
+    """Book newly deleted ``elements``; a node left with no active element leaves the model.
 
-    The debris carries its share of the nodes' momentum and kinetic energy out of the model:
-    ``debris`` accumulates [mass, px, py, pz, kinetic energy, count, elastic energy] so momentum
-    and energy can be balanced across deletion (the elastic part is booked by the caller that
-    deletes elements still carrying stress).
+    A node keeps its whole lumped mass while any of its elements is active, and takes it with its
+    last one. With the masses fixed, deleting elements only takes stiffness away, so the mesh's
+    highest frequency can only fall and a step stable for the intact mesh stays stable. (Taking
+    each element's quarter off its nodes left nodes held by one element at that element's own
+    frequency, above the mesh's: ω·Δt up to 2.8 > 2, and they ran away.) ``debris`` accumulates
+    what left: [mass, px, py, pz, kinetic energy, count, elastic energy], so momentum and energy
+    balance across deletion (the elastic part is booked by the caller that deletes elements still
+    carrying stress).
     """
     for index in range(len(elements)):
         e = elements[index]
         if s.active[e] != 0 or s.accounted[e]:
             continue
         s.accounted[e] = True
-        share = s.element_mass[e] / 4.0
         s.debris[5] += 1.0
         for k in range(4):
             node = s.tets[e, k]
-            vx, vy, vz = s.velocity[node, 0], s.velocity[node, 1], s.velocity[node, 2]
-            s.debris[0] += share
-            s.debris[1] += share * vx
-            s.debris[2] += share * vy
-            s.debris[3] += share * vz
-            s.debris[4] += 0.5 * share * (vx * vx + vy * vy + vz * vz)
-            s.nodal_mass[node] -= share
             s.elements_at_node[node] -= 1
-            if s.elements_at_node[node] == 0:
-                s.nodal_mass[node] = 0.0
-                s.velocity[node, 0] = 0.0
-                s.velocity[node, 1] = 0.0
-                s.velocity[node, 2] = 0.0
-            s.inverse_mass[node] = 1.0 / s.nodal_mass[node] if s.nodal_mass[node] > 0.0 else 0.0
+            if s.elements_at_node[node] > 0:
+                continue
+            mass = s.nodal_mass[node]
+            vx, vy, vz = s.velocity[node, 0], s.velocity[node, 1], s.velocity[node, 2]
+            s.debris[0] += mass
+            s.debris[1] += mass * vx
+            s.debris[2] += mass * vy
+            s.debris[3] += mass * vz
+            s.debris[4] += 0.5 * mass * (vx * vx + vy * vy + vz * vz)
+            s.nodal_mass[node] = 0.0
+            s.inverse_mass[node] = 0.0
+            s.velocity[node, 0] = 0.0
+            s.velocity[node, 1] = 0.0
+            s.velocity[node, 2] = 0.0
 
 
 @njit(cache=True)
@@ -459,7 +462,7 @@ class ExplicitSolid:
         self.integrated = np.ones(n_nodes, dtype=bool)  # nodes the zone integrates
         self.arrays = SolidArrays(
             tets=self.tets, zone_elements=self.all_elements, zone_nodes=self.all_nodes, contact_nodes=self.all_nodes, material=self.element_material, grads=self.grads, volume=self.volume, char_length=self.char_length,
-            bulk_viscosity=self.bulk_viscosity_coefficient, element_mass=self.element_mass,
+            bulk_viscosity=self.bulk_viscosity_coefficient,
             offsets=self.offsets, entries=self.entries, support_stiffness=self.support_stiffness, held=self.held,
             active=self.active, accounted=self._accounted, stress=self.stress, peeq=self.peeq, damage=self.damage,
             initiation=self.initiation, plastic_work=self.plastic_work, damage_work=self.damage_work,

@@ -59,7 +59,7 @@ class SingleTet:
         arrays = SolidArrays(
             tets=self.tets, zone_elements=np.arange(1), zone_nodes=np.arange(4), contact_nodes=np.arange(4),
             material=np.zeros(1, dtype=np.int64), grads=self.grads, volume=self.volume, char_length=self.char_length, bulk_viscosity=one.copy(),
-            element_mass=one.copy(), offsets=np.zeros(5, dtype=np.int64), entries=np.zeros(4, dtype=np.int64),
+            offsets=np.zeros(5, dtype=np.int64), entries=np.zeros(4, dtype=np.int64),
             support_stiffness=np.zeros(4), held=np.zeros(4, dtype=np.bool_), active=active,
             accounted=np.zeros(1, dtype=np.bool_), stress=stress, peeq=peeq, damage=damage, initiation=initiation,
             plastic_work=work, damage_work=one.copy(), viscous_work=one.copy(), viscous_pressure=one.copy(), element_force=np.zeros((1, 4, 3)),

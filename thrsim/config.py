@@ -13,16 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, ClassVar, Literal, get_args
 
-from pydantic import (
-    BaseModel,
-    ConfigDict,
-    Field,
-    IPvAnyNetwork,
-    SerializerFunctionWrapHandler,
-    field_validator,
-    model_serializer,
-    model_validator,
-)
+from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, SerializerFunctionWrapHandler, field_validator, model_serializer, model_validator
 
 from thrsim import portable_math as pm
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import math
 from typing import Annotated, ClassVar, Literal, get_args
 
-from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, SerializerFunctionWrapHandler, field_validator, model_serializer, model_validator
+from pydantic import BaseModel, ConfigDict, Field, IPvAnyNetwork, field_validator, model_validator
 
 from thrsim import portable_math as pm
 
@@ -215,22 +215,9 @@ class JohnsonCookDamage(_Frozen):
     d4: float = 0.0
     d5: float = Field(0.01, description="thermal term, unused")
     displacement_at_failure_m: float = Field(4.5e-4, ge=1e-6, le=1.0)
-    cutoff_triaxiality: float | None = Field(
-        None, ge=-5.0, le=0.0,
-        description="no ductile damage where the stress triaxiality η is below this (Bao & Wierzbicki's −1/3); "
-        "None: damage at every η (the teeth's cutting damage is not affected)",
-    )  # fmt: skip
 
     TABLE_8_U_F_M: ClassVar[float] = 5e-4
     TEXT_U_F_M: ClassVar[float] = 1e-4
-
-    @model_serializer(mode="wrap")
-    def _without_unset_cutoff(self, handler: SerializerFunctionWrapHandler) -> dict:
-        """No cutoff is written as none: case files and checkpoints from before the field keep their identity."""
-        data = handler(self)
-        if data.get("cutoff_triaxiality") is None:
-            data.pop("cutoff_triaxiality", None)
-        return data
 
 
 #: the thesis's reamer: 56 teeth on a 45 mm head [5.1.2]; other sizes keep its teeth per mm of diameter

@@ -99,7 +99,6 @@ class MaterialConstants(NamedTuple):
     d3: np.ndarray
     d4: np.ndarray
     u_f: np.ndarray
-    cutoff_triaxiality: np.ndarray  # −inf where the material has none
 
     @classmethod
     def of(cls, dt: float, tissues: Sequence[Tissue]) -> MaterialConstants:
@@ -122,7 +121,6 @@ class MaterialConstants(NamedTuple):
             d3=column(lambda t: t.damage.d3),
             d4=column(lambda t: t.damage.d4),
             u_f=column(lambda t: t.damage.displacement_at_failure_m),
-            cutoff_triaxiality=column(lambda t: -math.inf if t.damage.cutoff_triaxiality is None else t.damage.cutoff_triaxiality),
         )
 
 
@@ -148,7 +146,6 @@ def element_update(s, m):
     d3_of = m.d3
     d4_of = m.d4
     u_f_of = m.u_f
-    cutoff_of = m.cutoff_triaxiality
     zone_elements = s.zone_elements
     # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
     # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
@@ -228,13 +225,11 @@ def element_update(s, m):
             sxx, syy, szz = dxx + pressure, dyy + pressure, dzz + pressure
             peeq[e] += dpeeq
             plastic_work[e] += (1.0 - damage[e]) * q_new * dpeeq * volume[e]
-            # compressed below the material's cutoff triaxiality the bone flows without damage (crushed cells compact)
-            damaging = pressure / q_new >= cutoff_of[row]
-            if damaging and initiation[e] < 1.0:
+            if initiation[e] < 1.0:
                 initiation[e] += damage_initiation_increment(
                     dpeeq, pressure / q_new, dpeeq / dt, d1_of[row], d2_of[row], d3_of[row], d4_of[row], rate0_of[row]
                 )
-            elif damaging:
+            else:
                 grown = min(1.0, damage[e] + char_length[e] * dpeeq / u_f_of[row]) - damage[e]
                 damage[e] += grown
                 # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V

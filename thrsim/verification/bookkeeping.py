@@ -1,17 +1,13 @@
-"""Mass and momentum bookkeeping across element deletion, and irreversibility of the state.
+"""Mass and momentum bookkeeping across element deletion, irreversibility, and a stable step.
 
-A free (unsupported) jittered block, mass-scaled to a target step, is torn apart: its two
-halves move apart at ±V on top of a common drift U, so the middle yields, damages (u_f small)
-and loses elements. With no supports and no external force, at every step
-
-* Σ nodal mass + deleted mass = initial (scaled) mass,
-* momentum before the step = momentum after + momentum carried off by the deleted elements,
-
-both to round-off; deleted elements never come back; PEEQ and damage never decrease. A second
-scenario (a held bar whose end is flung off) checks the same balances across
-``ExplicitSolid.delete_detached`` (removal of chips no longer connected to supported bone). A
-third (:func:`eroded_block`) checks that deletion never destabilises the step: an elastic block
-mass-scaled to one step, two thirds of its elements removed, keeps its energy over 2,000 steps.
+A free jittered block, mass-scaled to a target step, is torn apart (halves at ±V on a common
+drift U): its middle yields, damages and loses elements. With no supports or loads, at every
+step Σ nodal mass + deleted mass = the initial (scaled) mass and momentum before = momentum
+after + momentum carried off by deleted elements, both to round-off; deleted elements never
+return; PEEQ and damage never decrease. A held bar whose end is flung off checks the same
+balances across ``ExplicitSolid.delete_detached`` (chips cut off from supported bone). An
+elastic block with two thirds of its elements removed (:func:`eroded_block`) keeps its energy
+over 2,000 steps: deletion never destabilises the step.
 """
 
 from __future__ import annotations

@@ -1,4 +1,8 @@
-"""Deleting elements never destabilises the explicit step: a node keeps its mass until its last element goes."""
+"""Deleting elements never destabilises the explicit step: a node keeps its mass until its last element goes.
+
+That the eroded block keeps its energy is ``thrsim verify``'s ``deletion-stable-step`` (run by
+tests/verification); here, that the figure can fail, and the mass rule itself.
+"""
 
 from __future__ import annotations
 
@@ -6,22 +10,12 @@ import numpy as np
 import pytest
 
 from thrsim.physics.tet_kinematics import lumped_nodal_mass
-from thrsim.verification.bookkeeping import eroded_block, eroded_energy_history
-
-
-@pytest.mark.parametrize("seed", [1, 2])
-def test_an_eroded_elastic_block_keeps_its_energy(seed):
-    """With two thirds of the elements gone many nodes hang on one element; undamped and elastic, the
-    booked energy stays near its start and does not grow."""
-    assert int(np.sum(eroded_block(seed, 1.0 / 3.0).elements_at_node == 1)) > 10
-    history = eroded_energy_history(seed)
-    assert np.isfinite(history).all() and history.max() < 1.3
-    assert history[-500:].max() <= 1.02 * history[:500].max()
+from thrsim.verification.bookkeeping import ERODED_ENERGY_TOLERANCE, eroded_block
 
 
 def test_the_old_rule_of_taking_each_deleted_elements_quarter_runs_away():
-    """The check can fail: priced at their remaining elements' mass, lone nodes run away."""
-    solid = eroded_block(1, 1.0 / 3.0)
+    """Priced at their remaining elements' mass, nodes hanging on one element run away within 1,000 steps."""
+    solid = eroded_block(1)
     alive = solid.active > 0
     mass = lumped_nodal_mass(len(solid.nodal_mass), solid.tets[alive], solid.element_mass[alive])
     solid.nodal_mass[:] = mass
@@ -29,7 +23,7 @@ def test_the_old_rule_of_taking_each_deleted_elements_quarter_runs_away():
     start = solid.kinetic_energy() + solid.elastic_energy()
     for _ in range(1000):
         solid.step()
-    assert not solid.kinetic_energy() + solid.elastic_energy() < 100 * start
+    assert not solid.kinetic_energy() + solid.elastic_energy() < 100 * (1.0 + ERODED_ENERGY_TOLERANCE) * start
 
 
 def test_a_node_takes_its_whole_mass_with_its_last_element():

@@ -329,9 +329,9 @@ def account_deletions(s, elements):
 
     A node keeps its whole lumped mass while any of its elements is active, and takes it with its
     last one. With the masses fixed, deleting elements only takes stiffness away, so the mesh's
-    highest frequency can only fall and a step stable for the intact mesh stays stable. (Taking
-    each element's quarter off its nodes left nodes held by one element at that element's own
-    frequency, above the mesh's: ω·Δt up to 2.8 > 2, and they ran away.) ``debris`` accumulates
+    highest frequency can only fall and a step stable for the intact mesh stays stable (a node
+    left with one element's mass would ring at that lone element's frequency, which can pass 2/Δt;
+    docs' Physics page, Materials). ``debris`` accumulates
     what left: [mass, px, py, pz, kinetic energy, count, elastic energy], so momentum and energy
     balance across deletion (the elastic part is booked by the caller that deletes elements still
     carrying stress).

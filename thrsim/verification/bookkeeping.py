@@ -23,8 +23,11 @@ from thrsim.verification.base import Check, CheckResult, Stopwatch, numba_thread
 MASS_TOLERANCE = 1e-12
 MOMENTUM_TOLERANCE = 1e-10
 STEPS = 600
-#: the eroded block's booked energy (kinetic at half steps) may sit this far above its start, never grow
+#: the eroded block keeps this share of its elements; its booked energy (kinetic at half steps) may sit
+#: up to ERODED_ENERGY_TOLERANCE above its start, and its last 500 steps' peak at most ERODED_GROWTH × its first's
+ERODED_KEPT_FRACTION = 1.0 / 3.0
 ERODED_ENERGY_TOLERANCE = 0.3
+ERODED_GROWTH = 1.02
 ERODED_STEPS = 2000
 
 
@@ -90,19 +93,21 @@ def deletion_bookkeeping() -> list[CheckResult]:
     for record in (mass, momentum, monotone):
         record.passed = record.passed and solid.deleted_count > 0 and deletion_steps > 1
     with Stopwatch() as watch, numba_threads(1):
+        lone_nodes = min(int(np.sum(eroded_block(seed).elements_at_node == 1)) for seed in (1, 2, 3))
         growth = [eroded_energy_history(seed) for seed in (1, 2, 3)]
     rise = float(np.max([h.max() for h in growth])) - 1.0
     late_over_early = float(np.max([h[-500:].max() / h[:500].max() for h in growth]))
     stable = result("deletion-stable-step", "eroded elastic block (⅔ of its elements removed, undamped): max (kinetic + elastic) ÷ start − 1 over 2,000 steps, 3 seeds",
                     value=rise, reference=0.0, error=rise, tolerance=ERODED_ENERGY_TOLERANCE, seconds=watch.seconds,
-                    details={"last_500_max_over_first_500_max": late_over_early, "steps": ERODED_STEPS})  # fmt: skip
-    stable.passed = bool(stable.passed and late_over_early <= 1.02)
+                    details={"last_500_max_over_first_500_max": late_over_early, "steps": ERODED_STEPS, "fewest_lone_nodes": lone_nodes})  # fmt: skip
+    # the check means nothing unless nodes hang on a single element
+    stable.passed = bool(stable.passed and late_over_early <= ERODED_GROWTH and lone_nodes > 10)
     return [mass, momentum, monotone, stable]
 
 
-def eroded_block(seed: int, kept_fraction: float) -> ExplicitSolid:
-    """A jittered elastic block mass-scaled to one step for every element (as the sockets are), the
-    rest of ``kept_fraction`` of its elements removed, every attached node given a random velocity."""
+def eroded_block(seed: int, kept_fraction: float = ERODED_KEPT_FRACTION) -> ExplicitSolid:
+    """A jittered elastic block mass-scaled to one step for every element (as the sockets are), all but
+    ``kept_fraction`` of its elements removed, every attached node given a random velocity."""
     mesh = box_mesh((5, 5, 5), (2.5e-3, 2.5e-3, 2.5e-3), scheme="six", jitter=0.25, seed=seed)
     material = BoneMaterial()
     p_wave = material.lame_lambda_pa + 2 * material.shear_modulus_pa
@@ -118,8 +123,8 @@ def eroded_block(seed: int, kept_fraction: float) -> ExplicitSolid:
 
 
 def eroded_energy_history(seed: int) -> np.ndarray:
-    """Kinetic + elastic energy of :func:`eroded_block` (a third kept) after each step, ÷ its start."""
-    solid = eroded_block(seed, kept_fraction=1.0 / 3.0)
+    """Kinetic + elastic energy of :func:`eroded_block` after each step, ÷ its start."""
+    solid = eroded_block(seed)
     start = solid.kinetic_energy() + solid.elastic_energy()
     history = np.empty(ERODED_STEPS)
     for step in range(ERODED_STEPS):

@@ -268,3 +268,22 @@ def test_a_new_dataset_adopts_the_plans_cases_solved_elsewhere_and_refuses_stran
 
     write_pack(root, tmp_path / "pack.h5")
     assert {case.case_id for case in read_pack(tmp_path / "pack.h5")[1]} >= {solved.stem}
+
+
+def test_a_worker_capped_after_numba_started_its_threads_still_compiles():
+    """thrsim starts Numba's threads on import; a worker capped afterwards (a spawned pool's
+    initializer, a Dask task) must still compile kernels, with its cap in force."""
+    import subprocess
+    import sys
+
+    code = (
+        "import numba, thrsim.physics.explicit\n"
+        "from thrsim.data.executor import cap_numerical_threads\n"
+        "cap_numerical_threads(1)\n"
+        "assert numba.njit(lambda x: x + 1)(1) == 2\n"  # a compilation re-reads Numba's environment
+        "print(numba.get_num_threads())\n"
+    )
+    env = {**os.environ, "NUMBA_NUM_THREADS": "2"}
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-500:]
+    assert run.stdout.split() == ["1"]

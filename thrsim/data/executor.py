@@ -67,17 +67,24 @@ def is_worker_lost(error: BaseException) -> bool:
     return name in ("KilledWorker", "CommClosedError")
 
 
+def cap_numerical_threads(threads: int) -> None:
+    """Use at most ``threads`` numerical threads in this process (numba's are per Python thread,
+    so this also works inside a Dask worker). Once Numba's threading layer has started
+    (:func:`thrsim.cache.use_numba_cache` starts it on import), its pool is capped at run time
+    only: a changed ``NUMBA_NUM_THREADS`` would make Numba's next compilation fail ("Cannot set
+    NUMBA_NUM_THREADS ... once the threads have been launched")."""
+    for var in _THREAD_VARS:
+        if var != "NUMBA_NUM_THREADS" or "numba" not in sys.modules:
+            os.environ[var] = str(threads)
+    if "numba" in sys.modules:
+        import numba
+
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+
+
 def _worker_init(threads: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole process group: the parent decides
-    for var in _THREAD_VARS:
-        os.environ[var] = str(threads)
-    if "numba" in sys.modules:  # imported before this initializer ran: the env var is too late
-        try:
-            import numba
-
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-        except Exception:  # noqa: BLE001 - a thread cap is an optimisation, never a failure
-            pass
+    cap_numerical_threads(threads)
     if sys.platform.startswith("linux"):
         try:
             libc = ctypes.CDLL("libc.so.6", use_errno=True)

@@ -35,7 +35,7 @@ from thrsim.atomic import atomic_path, check_folder_creatable, fsync_folder
 from thrsim.config import ReamingCaseConfig
 from thrsim.data.case_file import CaseReader, data_digest, file_sha256, file_solution_hash, solution_hash, validate_case
 from thrsim.data.checkpoint import checkpoint_path, checkpointed_frames
-from thrsim.data.executor import Executor, is_worker_lost, make_executor
+from thrsim.data.executor import Executor, cap_numerical_threads, is_worker_lost, make_executor
 from thrsim.data.sweep import DEFAULT_SPLIT, CaseSpec, SocketSplitRule, SplitRule, SweepPlan, coverage_order
 from thrsim.errors import ThrsimInputError, ThrsimOutputError
 from thrsim.provenance import config_hash, json_default
@@ -98,23 +98,10 @@ def dataset_identity(template: dict, solver: str, element_sizes: tuple) -> dict:
 # ---------------------------------------------------------------- the task run on a worker
 
 
-def _cap_threads(threads: int | None) -> None:
-    """Numerical threads for this task (numba's are thread-local, so this works inside a Dask worker)."""
-    if not threads:
-        return
-    for var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS"):
-        os.environ.setdefault(var, str(threads))
-    try:
-        import numba
-
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    except Exception:  # noqa: BLE001 - numba absent or already capped lower: nothing to do
-        pass
-
-
 def run_one_case(params: dict, template: dict, cases_dir: str, solver: str | Callable, threads: int | None = None) -> dict:
     """Run one case on a worker, verify it, rename it into place; return what the manifest records."""
-    _cap_threads(threads)
+    if threads:
+        cap_numerical_threads(threads)
     spec = CaseSpec(**{**params, "aliases": tuple(params.get("aliases", ()))})
     config = spec.case_config(template)
     folder = Path(cases_dir)

@@ -178,3 +178,21 @@ def test_closed_form_gradients_match_the_inverse_jacobian_and_reproduce_linear_f
     # a linear field u = A x is differentiated exactly: Σ_a u_a ⊗ ∇N_a = A
     a = rng.normal(size=(3, 3))
     np.testing.assert_allclose((nodes @ a.T).T @ grads, a, rtol=1e-9, atol=1e-9)
+
+
+def test_a_convergence_study_can_halve_the_step_with_the_scaled_mass_held():
+    """``mass_scaling_dt_s`` scales the mass for its own step: the same masses at half the step; a
+    step beyond that mass's stable one is refused."""
+    from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
+    from thrsim.geometry.box_mesh import box_mesh
+    from thrsim.physics.explicit import ExplicitSolid
+
+    mesh = box_mesh((3, 3, 3), (2e-3, 2e-3, 2e-3), scheme="six", jitter=0.2, seed=1)
+    laws = (BoneMaterial(), JohnsonCookHardening(), JohnsonCookDamage())
+    scaled = ExplicitSolid(mesh, *laws, target_dt_s=4e-6)
+    held = ExplicitSolid(mesh, *laws, target_dt_s=2e-6, mass_scaling_dt_s=4e-6)
+    lighter = ExplicitSolid(mesh, *laws, target_dt_s=2e-6)
+    assert held.dt == 2e-6 and np.array_equal(held.nodal_mass, scaled.nodal_mass)
+    assert lighter.nodal_mass.sum() < 0.3 * scaled.nodal_mass.sum()  # the scaled mass goes as Δt²
+    with pytest.raises(ValueError, match="exceeds the stable step"):
+        ExplicitSolid(mesh, *laws, target_dt_s=4e-6, mass_scaling_dt_s=2e-6)

@@ -385,7 +385,9 @@ class ExplicitSolid:
     ``material``, ``hardening`` and ``damage`` are the cortical bone's (every element of a mesh
     without material tags); ``other_tissues`` maps the mesh's other material names (``cancellous``)
     to theirs. ``target_dt_s`` sets the step reached by per-element mass scaling (None: the unscaled
-    Courant step). ``held`` nodes default to the mesh's fixed nodes.
+    Courant step); ``mass_scaling_dt_s``, when given, scales the mass for that step instead (at
+    least ``target_dt_s``), so a convergence study can shorten the step with the mass held.
+    ``held`` nodes default to the mesh's fixed nodes.
     """
 
     def __init__(
@@ -400,6 +402,7 @@ class ExplicitSolid:
         bulk_viscosity: float = LINEAR_BULK_VISCOSITY,
         support_stiffness: np.ndarray | None = None,
         other_tissues: dict[str, Tissue] | None = None,
+        mass_scaling_dt_s: float | None = None,
     ) -> None:
         self.mesh = mesh
         self.material, self.hardening, self.damage_law = material, hardening, damage
@@ -416,7 +419,8 @@ class ExplicitSolid:
         density = np.array([t.material.density_kg_m3 for t in self.tissues])[self.element_material]
         self.youngs_modulus = np.array([t.material.youngs_modulus_pa for t in self.tissues])[self.element_material]
         self.poisson_ratio = np.array([t.material.poisson_ratio for t in self.tissues])[self.element_material]
-        self.scaling: MassScaling = mass_scaling(nodes, self.tets, density, p_wave, target_dt_s, safety)
+        scaled_for = target_dt_s if mass_scaling_dt_s is None else mass_scaling_dt_s
+        self.scaling: MassScaling = mass_scaling(nodes, self.tets, density, p_wave, scaled_for, safety)
         self.dt = float(target_dt_s) if target_dt_s is not None else self.scaling.stable_dt_s
         if self.dt > self.scaling.stable_dt_s * (1 + 1e-9):
             raise ValueError(f"time step {self.dt:.3g} s exceeds the stable step {self.scaling.stable_dt_s:.3g} s")

@@ -204,7 +204,8 @@ def advance_reaming(
 class ReamingCase:
     """Bone solid + rigid hand-held reamer, advanced frame by frame (physics only: no files)."""
 
-    def __init__(self, case: ReamingCaseConfig, mesh: TetMesh | None = None) -> None:
+    def __init__(self, case: ReamingCaseConfig, mesh: TetMesh | None = None, mass_scaling_dt_s: float | None = None) -> None:
+        """``mass_scaling_dt_s``: scale the bone's mass for this step, not the case's (a convergence study's)."""
         if case.solver.threads:
             numba.set_num_threads(min(case.solver.threads, numba.config.NUMBA_NUM_THREADS))
         self.case = case
@@ -217,8 +218,9 @@ class ReamingCase:
         )
         cortical, others = case_tissues(case)
         self.solid = ExplicitSolid(
-            self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others
-        )
+            self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others,
+            mass_scaling_dt_s=mass_scaling_dt_s,
+        )  # fmt: skip
         self.start_from_digest: str | None = None
         self.prepared = self._prepare(case)
         self.reamer = build_reamer(case.reamer)

@@ -10,7 +10,7 @@ from thrsim.data.sweep import plan_socket_sweep
 from thrsim.learn.cases import load_cases
 
 PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
-WHOLE = PACK.parent / "socket-whole-0.5.0"
+WHOLE = PACK.parent / "socket-whole-0.5.1"
 
 
 def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_learns():

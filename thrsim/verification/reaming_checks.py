@@ -26,8 +26,6 @@ ZONE_SOCKET_ELEMENT_MM = 1.0
 ZONE_SOCKET_FRAMES = 10
 WINDOW_FRAMES = 30
 WINDOW_TOLERANCE = 0.10
-#: the socket window's variants: two of :data:`VARIANTS`, and half Δt with the scaled mass held
-WINDOW_VARIANTS = ("contact-factor-half", "dt-half", "step-half-mass-held")
 #: variant → (settings changed from the default case, tolerance on removed volume and advance)
 VARIANTS = {
     "contact-factor-half": (lambda c: {"contact": c.contact.model_copy(update={"penalty_factor": c.contact.penalty_factor / 2})}, 0.10),
@@ -183,12 +181,21 @@ def socket_window_case(frames: int) -> ReamingCaseConfig:
     )  # fmt: skip
 
 
-def _step_half_mass_held(case: ReamingCaseConfig) -> ReamingCaseConfig:
-    """Half Δt with the contact stiffness β·m/Δt² held: run with the mass scaled for the case's own Δt."""
-    return case.model_copy(update={
+def _step_half_mass_held(case: ReamingCaseConfig) -> tuple[ReamingCaseConfig, float | None]:
+    """Half Δt with the mass and the contact stiffness β·m/Δt² held: the mass scaled for the case's own Δt."""
+    halved = case.model_copy(update={
         "solver": case.solver.model_copy(update={"target_dt_s": case.solver.target_dt_s / 2}),
         "contact": case.contact.model_copy(update={"penalty_factor": case.contact.penalty_factor / 4}),
     })  # fmt: skip
+    return halved, case.solver.target_dt_s
+
+
+#: the socket window's variants: name → (the case to run, the step its mass is scaled for; None: its own)
+WINDOW_VARIANTS = {
+    "contact-factor-half": lambda c: (c.model_copy(update=VARIANTS["contact-factor-half"][0](c)), None),
+    "dt-half": lambda c: (c.model_copy(update=VARIANTS["dt-half"][0](c)), None),
+    "step-half-mass-held": _step_half_mass_held,
+}
 
 
 def reaming_socket_window() -> list[CheckResult]:
@@ -212,11 +219,9 @@ def reaming_socket_window() -> list[CheckResult]:
             seconds=watch.seconds,
         )  # fmt: skip
         records.append(energy)
-        for name in WINDOW_VARIANTS:
-            if name == "step-half-mass-held":
-                variant = _run(_step_half_mass_held(base), mesh, mass_scaling_dt_s=base.solver.target_dt_s)
-            else:
-                variant = _run(base.model_copy(update=VARIANTS[name][0](base)), mesh)
+        for name, make in WINDOW_VARIANTS.items():
+            case, mass_scaling_dt_s = make(base)
+            variant = _run(case, mesh, mass_scaling_dt_s=mass_scaling_dt_s)
             details = {key: [reference[key], variant[key]] for key in ("removed_volume_mm3", "push_mean_n", "frames")}
             for figure, key, units in (("removed-volume", "removed_volume_mm3", "mm³"), ("mean-push", "push_mean_n", "N")):
                 records.append(result(

@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig
+from thrsim.config import BonePatchConfig, JohnsonCookDamage, ReamingCaseConfig, SolverConfig
+from thrsim.errors import SimulationError
 from thrsim.geometry.bone_patch import generate_bone_patch
-from thrsim.physics.reaming_case import ENERGY_NAMES, STALL_FRAMES, ReamingCase
+from thrsim.physics.reaming_case import ENERGY_NAMES, PUSH, SPIN, STALL_FRAMES, ReamingCase
 
 COARSE = BonePatchConfig(element_size_mm=1.0)
 FRAMES = 10
@@ -172,3 +173,23 @@ def test_axis_through_the_patch_has_bone_under_the_tip(coarse_mesh):
     # the outer face lies under the tip, one mean edge length at most inside the outer sphere
     assert COARSE.outer_radius - 1.2e-3 < simulation.tip_exit_depth <= COARSE.outer_radius + 1e-12
     assert simulation.bone_in_path()
+
+
+@pytest.mark.parametrize("factor", [None, 1e3])
+def test_bone_moving_with_far_more_energy_than_the_work_done_stops_the_case(coarse_mesh, factor):
+    """Kinetic energy can never exceed the work done on the bone: the default guard stops a case whose
+    bone moves with 20 times the work done; a guard at 1,000 × (before 0.5.2) let it go on."""
+    solver = SolverConfig() if factor is None else SolverConfig(energy_blowup_factor=factor)
+    case = ReamingCaseConfig(inclination_deg=15.0, anteversion_deg=30.0, frames=1, bone=COARSE, solver=solver)
+    simulation = ReamingCase(case, coarse_mesh)
+    simulation.run(1)
+    simulation.check_stable(1)
+    work = abs(simulation.ledger[PUSH]) + abs(simulation.ledger[SPIN])
+    free = ~simulation.solid.held
+    simulation.solid.velocity[free] = 0.0
+    simulation.solid.velocity[free, 0] = np.sqrt(2.0 * 20.0 * work / simulation.solid.nodal_mass[free].sum())
+    if factor is None:
+        with pytest.raises(SimulationError, match="energy explosion"):
+            simulation.check_stable(2)
+    else:
+        simulation.check_stable(2)

@@ -2,7 +2,7 @@
 
 Written here: no Python library combines explicit dynamics, rate-dependent JC plasticity,
 ductile damage and element deletion (the docs' Physics page, Solver). Two Numba kernels a step:
-:func:`element_update`, parallel over elements (strain increment, JC radial return, damage plus
+:func:`element_update`, parallel over elements (strain increment, JC or crushable-foam return, damage plus
 the teeth's cutting damage, deletion at D ≥ 1, bulk viscosity, nodal forces), and
 :func:`node_update`, parallel over nodes (element forces gathered through a node→element CSR,
 race-free, then central differences). :class:`ExplicitSolid` owns the state; contact and loads
@@ -22,11 +22,11 @@ from numba import njit, prange
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
+from thrsim.config import BoneMaterial, CrushableFoam, JohnsonCookDamage, JohnsonCookHardening
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import minimum_altitudes
-from thrsim.physics.material import characteristic_length, damage_initiation_increment, jc_radial_return
+from thrsim.physics.material import characteristic_length, damage_initiation_increment, foam_return, jc_radial_return
 from thrsim.physics.tet_kinematics import MassScaling, lumped_nodal_mass, mass_scaling, node_element_csr, shape_gradients
 
 #: ABAQUS/Explicit's default linear bulk viscosity coefficient: damps ringing at contact impacts
@@ -76,11 +76,13 @@ class SolidArrays(NamedTuple):
 
 
 class Tissue(NamedTuple):
-    """One bone material: elastic constants, Johnson–Cook hardening and damage."""
+    """One bone material: elastic constants, Johnson–Cook hardening and damage, and optionally
+    compaction (a crushable foam's yield surface in place of von Mises', crushing never fracturing)."""
 
     material: BoneMaterial
     hardening: JohnsonCookHardening
     damage: JohnsonCookDamage
+    compaction: CrushableFoam | None = None
 
 
 class MaterialConstants(NamedTuple):
@@ -99,6 +101,10 @@ class MaterialConstants(NamedTuple):
     d3: np.ndarray
     d4: np.ndarray
     u_f: np.ndarray
+    alpha: np.ndarray  # the crushable foam's α; 0 for a von Mises (JC) material
+    eps_d: np.ndarray  # densification strain ε_D (inf without compaction)
+    coef_d: np.ndarray  # densification D
+    exp_d: np.ndarray  # densification m
 
     @classmethod
     def of(cls, dt: float, tissues: Sequence[Tissue]) -> MaterialConstants:
@@ -121,6 +127,10 @@ class MaterialConstants(NamedTuple):
             d3=column(lambda t: t.damage.d3),
             d4=column(lambda t: t.damage.d4),
             u_f=column(lambda t: t.damage.displacement_at_failure_m),
+            alpha=column(lambda t: t.compaction.yield_ellipse_alpha if t.compaction else 0.0),
+            eps_d=column(lambda t: t.compaction.densification_strain(t.material.density_kg_m3) if t.compaction else math.inf),
+            coef_d=column(lambda t: t.compaction.densification_coefficient if t.compaction else 1.0),
+            exp_d=column(lambda t: t.compaction.densification_exponent if t.compaction else 1.0),
         )
 
 
@@ -146,6 +156,10 @@ def element_update(s, m):
     d3_of = m.d3
     d4_of = m.d4
     u_f_of = m.u_f
+    alpha_of = m.alpha
+    eps_d_of = m.eps_d
+    coef_d_of = m.coef_d
+    exp_d_of = m.exp_d
     zone_elements = s.zone_elements
     # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
     # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
@@ -206,30 +220,63 @@ def element_update(s, m):
         pressure = (sxx + syy + szz) / 3.0
         dxx, dyy, dzz = sxx - pressure, syy - pressure, szz - pressure
         q_trial = math.sqrt(1.5 * (dxx * dxx + dyy * dyy + dzz * dzz + 2.0 * (sxy * sxy + syz * syz + szx * szx)))
-        # the flow stress is never under A: at or below it the step is elastic, with no call into the
-        # return mapping (whose own first test, against A + B·εᵖⁿ, would say the same at a power's cost)
-        dpeeq = (
-            jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row])
-            if q_trial > a_of[row]
-            else 0.0
-        )
+        alpha = alpha_of[row]
+        dpeeq = 0.0
+        flow_stress = 0.0
+        triaxiality = 0.0
+        fracturing = True  # whether this step's plastic strain counts toward ductile damage
+        if alpha > 0.0:
+            # crushable foam: both the deviator and the mean stress return; crushing (triaxiality at
+            # or below −1/3, Bao and Wierzbicki's cutoff) compacts the bone and never fractures it.
+            # σ_c is never under A: inside √(1 + α²/9)·A the step is elastic, with no call into the return
+            gamma = 0.0
+            if q_trial * q_trial + alpha * alpha * pressure * pressure > (1.0 + alpha * alpha / 9.0) * a_of[row] * a_of[row]:
+                gamma, dpeeq = foam_return(
+                    q_trial, pressure, peeq[e], dt, mu, lam + 2.0 * mu / 3.0, alpha, a_of[row], b_of[row], n_of[row],
+                    c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row],
+                )  # fmt: skip
+            if dpeeq > 0.0:
+                deviator = 1.0 / (1.0 + 6.0 * mu * gamma)
+                dxx *= deviator
+                dyy *= deviator
+                dzz *= deviator
+                sxy *= deviator
+                syz *= deviator
+                szx *= deviator
+                pressure /= 1.0 + 2.0 * (lam + 2.0 * mu / 3.0) * alpha * alpha * gamma
+                q_new = deviator * q_trial
+                flow_stress = math.sqrt((q_new * q_new + alpha * alpha * pressure * pressure) / (1.0 + alpha * alpha / 9.0))
+                fracturing = 3.0 * pressure > -q_new * (1.0 - 1e-9)
+                # hydrostatic tension (q = 0) reads as a large positive triaxiality
+                triaxiality = pressure / max(q_new, 1e-9 * flow_stress)
+        else:
+            # the flow stress is never under A: at or below it the step is elastic, with no call into the
+            # return mapping (whose own first test, against A + B·εᵖⁿ, would say the same at a power's cost)
+            dpeeq = (
+                jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row])
+                if q_trial > a_of[row]
+                else 0.0
+            )
+            if dpeeq > 0.0:
+                factor = 1.0 - 3.0 * mu * dpeeq / q_trial
+                dxx *= factor
+                dyy *= factor
+                dzz *= factor
+                sxy *= factor
+                syz *= factor
+                szx *= factor
+                q_new = factor * q_trial
+                flow_stress = q_new
+                triaxiality = pressure / q_new
         if dpeeq > 0.0:
-            factor = 1.0 - 3.0 * mu * dpeeq / q_trial
-            dxx *= factor
-            dyy *= factor
-            dzz *= factor
-            sxy *= factor
-            syz *= factor
-            szx *= factor
-            q_new = factor * q_trial
             sxx, syy, szz = dxx + pressure, dyy + pressure, dzz + pressure
             peeq[e] += dpeeq
-            plastic_work[e] += (1.0 - damage[e]) * q_new * dpeeq * volume[e]
-            if initiation[e] < 1.0:
+            plastic_work[e] += (1.0 - damage[e]) * flow_stress * dpeeq * volume[e]
+            if fracturing and initiation[e] < 1.0:
                 initiation[e] += damage_initiation_increment(
-                    dpeeq, pressure / q_new, dpeeq / dt, d1_of[row], d2_of[row], d3_of[row], d4_of[row], rate0_of[row]
+                    dpeeq, triaxiality, dpeeq / dt, d1_of[row], d2_of[row], d3_of[row], d4_of[row], rate0_of[row]
                 )
-            else:
+            elif fracturing:
                 grown = min(1.0, damage[e] + char_length[e] * dpeeq / u_f_of[row]) - damage[e]
                 damage[e] += grown
                 # strain energy released as the stiffness degrades: ΔD·½σ̄:C⁻¹:σ̄·V

@@ -1,13 +1,13 @@
-"""Johnson–Cook plasticity and ductile damage for cortical bone: pure kernels, no I/O.
+"""Johnson–Cook plasticity and ductile damage, and the crushable foam of cancellous bone: pure kernels.
 
 Hardening (thermal softening off) [Table 4]: ``σ_y = [A + B εᵖⁿ]·[1 + C ln(ε̇ᵖ/ε̇₀)]``, the rate
 term only for ε̇ᵖ > ε̇₀, as in ABAQUS. Damage initiation [Table 8]: ω = Σ Δεᵖ / ε_f(η, ε̇ᵖ) with
 ``ε_f = [d1 + d2 exp(d3 η)][1 + d4 ln(ε̇ᵖ/ε̇₀)]``; the thesis constants give ε_f < 0 for every
 triaxiality η, read explicitly as "initiate at first yield" and never used as a divisor.
 Evolution is linear in the plastic displacement after initiation, D = L_e·Δεᵖ / u_f, and the
-element is deleted at D ≥ 1. The return mapping is written here because no library offers a
-rate-dependent JC radial return usable inside an explicit loop; the scalar NumPy functions are
-the closed forms the verification suite compares against.
+element is deleted at D ≥ 1. Cancellous bone yields on Deshpande and Fleck's crushable-foam
+ellipse instead (:func:`foam_return`). The return mappings are written here because no library
+offers them usable inside an explicit loop; the NumPy functions are the verification's closed forms.
 """
 
 from __future__ import annotations
@@ -107,3 +107,92 @@ def flow_curve(peeq: np.ndarray, peeq_rate: float, a: float, b: float, n: float,
 def characteristic_length(volume: np.ndarray) -> np.ndarray:
     """L_e for damage evolution: edge of the regular tet with the element's volume, (6√2·V)^(1/3)."""
     return pm.cbrt_array(6.0 * math.sqrt(2.0) * np.abs(np.asarray(volume, dtype=np.float64)))
+
+
+@njit(cache=True, inline="always")
+def crushed_flow_stress(
+    peeq: float, peeq_rate: float, a: float, b: float, n: float, c: float, rate0: float, eps_d: float, coef_d: float, exp_d: float
+) -> float:
+    """Compressive flow stress σ_c (Pa) of the crushable foam: the JC plateau times densification.
+
+    Infinite at and past the densification strain ε_D: the cells cannot close further.
+    """
+    if peeq >= eps_d:
+        return math.inf
+    densify = pm.pow(eps_d / (eps_d - peeq), exp_d) / coef_d
+    return jc_yield_stress(peeq, peeq_rate, a, b, n, c, rate0) * max(1.0, densify)
+
+
+@njit(cache=True)
+def foam_return(
+    q_trial: float,
+    mean_trial: float,
+    peeq: float,
+    dt: float,
+    shear_modulus: float,
+    bulk_modulus: float,
+    alpha: float,
+    a: float,
+    b: float,
+    n: float,
+    c: float,
+    rate0: float,
+    eps_d: float,
+    coef_d: float,
+    exp_d: float,
+) -> tuple[float, float]:
+    """Plastic multiplier Δγ and ε̂ increment returning a trial stress to the crushable-foam surface.
+
+    Associated flow on f = √(q² + α²p²) gives q = q_tr/(1 + 6GΔγ), p = p_tr/(1 + 2Kα²Δγ) and
+    Δε̂ = σ:Δεᵖ/σ_c = 2βΔγ·f with β = √(1 + α²/9); the residual f − β·σ_c(ε̂ + Δε̂) falls
+    strictly with Δγ. Newton's method on z = ln Δγ (as :func:`jc_radial_return`, for the same
+    infinite slopes at zero), safeguarded by bisection. Returns (0, 0) when the trial is elastic.
+    """
+    beta = math.sqrt(1.0 + alpha * alpha / 9.0)
+    f_trial = math.sqrt(q_trial * q_trial + alpha * alpha * mean_trial * mean_trial)
+    static = crushed_flow_stress(peeq, 0.0, a, b, n, c, rate0, eps_d, coef_d, exp_d)
+    if f_trial <= beta * static:
+        return 0.0, 0.0
+    shear_rate = 6.0 * shear_modulus
+    bulk_rate = 2.0 * bulk_modulus * alpha * alpha
+    excess = f_trial / (beta * static) - 1.0
+    # f(Δγ) ≤ f_tr/(1 + min rate·Δγ) and σ_c ≥ its static value: the residual is negative at z_hi
+    z_lo, z_hi = _LOG_FLOOR, pm.log(excess / min(shear_rate, bulk_rate))
+    z = pm.log(excess / max(shear_rate, bulk_rate))
+    gamma = dpeeq = 0.0
+    for _ in range(_RETURN_ITERATIONS):
+        gamma = pm.exp(z)
+        q = q_trial / (1.0 + shear_rate * gamma)
+        mean = mean_trial / (1.0 + bulk_rate * gamma)
+        f = math.sqrt(q * q + alpha * alpha * mean * mean)
+        dpeeq = 2.0 * beta * gamma * f
+        p = peeq + dpeeq
+        if p >= eps_d:  # past full densification: Δγ is too large
+            z_hi = z
+            z = 0.5 * (z_lo + z_hi)
+            continue
+        plateau = a + b * pm.pow(p, n)
+        rate = dpeeq / dt
+        rate_factor = 1.0 + c * pm.log(rate / rate0) if rate > rate0 else 1.0
+        densify = pm.pow(eps_d / (eps_d - p), exp_d) / coef_d
+        densify_factor = max(1.0, densify)
+        g = f - beta * plateau * rate_factor * densify_factor
+        if abs(g) <= _RETURN_TOLERANCE * f_trial:
+            return gamma, dpeeq
+        if g > 0.0:
+            z_lo = z
+        else:
+            z_hi = z
+        if z_hi - z_lo <= _RETURN_TOLERANCE:
+            break
+        # dg/dz = Δγ·(df/dΔγ − β·dσ_c/dΔε̂ · dΔε̂/dΔγ)
+        df = -(shear_rate * q * q / (1.0 + shear_rate * gamma) + bulk_rate * alpha * alpha * mean * mean / (1.0 + bulk_rate * gamma)) / f
+        dx = 2.0 * beta * (f + gamma * df)
+        dsigma = b * n * pm.pow(p, n - 1.0) * rate_factor * densify_factor
+        if densify > 1.0:
+            dsigma += plateau * rate_factor * exp_d * densify_factor / (eps_d - p)
+        if rate > rate0:
+            dsigma += plateau * densify_factor * c / dpeeq
+        newton = z - g / (gamma * (df - beta * dsigma * dx))
+        z = newton if z_lo < newton < z_hi else 0.5 * (z_lo + z_hi)
+    return gamma, dpeeq

@@ -218,7 +218,7 @@ class ReamingCase:
         )
         cortical, others = case_tissues(case)
         self.solid = ExplicitSolid(
-            self.mesh, *cortical, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others,
+            self.mesh, cortical.material, cortical.hardening, cortical.damage, case.solver.target_dt_s, case.solver.safety_factor, support_stiffness=springs, other_tissues=others,
             mass_scaling_dt_s=mass_scaling_dt_s,
         )  # fmt: skip
         self.start_from_digest: str | None = None
@@ -482,7 +482,9 @@ class ReamingCase:
         log.motor_torque.append((spin_work - self.spin_work_at_frame_start) / (self.omega * frame_time) if self.omega else 0.0)
         self.spin_work_at_frame_start = spin_work
 
-    def _check(self, frame: int) -> None:
+    def check_stable(self, frame: int) -> None:
+        """Raise :class:`SimulationError` if the state is not finite or the bone moves with more
+        kinetic energy than ``solver.energy_blowup_factor`` × the work done on it (at most 1 × in truth)."""
         solid = self.solid
         if not (np.isfinite(solid.displacement).all() and np.isfinite(solid.velocity).all() and math.isfinite(self.position)):
             raise SimulationError(f"frame {frame}: non-finite displacement or velocity (the step is unstable)")
@@ -520,7 +522,7 @@ class ReamingCase:
         for frame in range(self.frames_done + 1, frames + 1):
             self.start_frame_statistics()
             self.advance_frame()
-            self._check(frame)
+            self.check_stable(frame)
             if self.first_contact_frame is not None:
                 # a frame of free fall, through a hole or past the bone, is not recorded
                 breach = self.breached()
@@ -658,7 +660,7 @@ def case_tissues(case: ReamingCaseConfig) -> tuple[Tissue, dict[str, Tissue]]:
     """The cortical tissue and the others by material name, from the case's settings."""
     cancellous = case.cancellous
     return Tissue(case.material, case.hardening, case.damage), {
-        CANCELLOUS: Tissue(cancellous.material, cancellous.hardening, cancellous.damage)
+        CANCELLOUS: Tissue(cancellous.material, cancellous.hardening, cancellous.damage, cancellous.compaction)
     }
 
 

@@ -19,7 +19,7 @@ from collections.abc import Callable, Iterable
 from thrsim.verification.base import Check, CheckResult
 
 _MODULES = (
-    "thrsim.verification.material_checks",  # jc-uniaxial, damage-single-element
+    "thrsim.verification.material_checks",  # jc-uniaxial, damage-single-element, crushable-foam
     "thrsim.verification.patch_test",  # patch-test
     "thrsim.verification.wave",  # column-wave
     "thrsim.verification.bookkeeping",  # deletion-bookkeeping

@@ -1,4 +1,5 @@
-"""Material-point checks: the JC flow curve and single-element damage/deletion vs closed forms."""
+"""Material-point checks vs closed forms: the JC flow curve, single-element damage/deletion, and
+the cancellous bone's crushable foam in uniaxial and hydrostatic compression."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import math
 import numpy as np
 from scipy.optimize import minimize_scalar
 
-from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
-from thrsim.physics.material import flow_curve
+from thrsim.config import BoneMaterial, CancellousBone, JohnsonCookDamage, JohnsonCookHardening
+from thrsim.physics.material import crushed_flow_stress, flow_curve
 from thrsim.verification.base import Check, CheckResult, Stopwatch, numba_threads, result
 from thrsim.verification.single_element import SingleTet, graded_increments
 
@@ -191,6 +192,77 @@ def damage_single_element() -> list[CheckResult]:
         return _damage_case("shear", material, hardening, damage) + _damage_case("tension", material, hardening, damage)
 
 
+# ---------------------------------------------------------------- crushable foam (cancellous bone)
+
+FOAM_RATE_S = 1e-4  # below ε̇₀: the closed form is rate-free
+FOAM_TARGET_PEEQ = 0.55  # past the densification onset ε_D·(1 − 1/D) ≈ 0.36 of normal cancellous bone
+FOAM_TOLERANCE = 1e-6
+
+
+def _foam_path(mode: str) -> CheckResult:
+    """Uniaxial or hydrostatic compression of one cancellous element to ε̂ = 0.55 through the kernel.
+
+    Closed forms (associated flow, ν_p = 0): uniaxial, σ = σ_c(ε̂) with no lateral plastic strain
+    (lateral strain = ν·σ/E exactly); hydrostatic, p = (β/α)·σ_c(ε̂) with ε̂ = (β/α)·|εᵥᵖ| and
+    εᵥᵖ = εᵥ + p/K (the kernel's ε̂ checked by that identity). Crushing must never initiate damage.
+    """
+    bone = CancellousBone()
+    foam = bone.compaction
+    assert foam is not None
+    hardening, material = bone.hardening, bone.material
+    alpha = foam.yield_ellipse_alpha
+    beta = math.sqrt(1.0 + alpha * alpha / 9.0)
+    eps_d = foam.densification_strain(material.density_kg_m3)
+    args = (hardening.a_pa, hardening.b_pa, hardening.n, hardening.c, hardening.reference_strain_rate_s)
+    densify = (eps_d, foam.densification_coefficient, foam.densification_exponent)
+    with Stopwatch() as watch:
+        element = SingleTet(material, hardening, bone.damage, compaction=foam)
+        first = 0.02 * hardening.a_pa / material.youngs_modulus_pa
+        errors, identity_errors, strain = [], [], 0.0
+        for step in graded_increments(1.0, first=first, largest=2e-3):
+            if mode == "uniaxial":
+                element.uniaxial_stress_increment(-step, step / FOAM_RATE_S)
+                stress = -float(element.stress[0, 0])
+                elastic_lateral = material.poisson_ratio * stress / material.youngs_modulus_pa
+                identity_errors.append(abs(element.strain[1, 1] - elastic_lateral))
+            else:
+                element.apply(-step * np.eye(3), step / FOAM_RATE_S, commit=True)
+                strain += 3.0 * step
+                stress = -float(element.stress[0, :3].mean()) * alpha / beta  # σ_c from p = (β/α)σ_c
+                plastic_volumetric = strain - (-float(element.stress[0, :3].mean())) / material.bulk_modulus_pa
+                identity_errors.append(abs(element.peeq[0] - beta / alpha * plastic_volumetric))
+            peeq = float(element.peeq[0])
+            if peeq > 0.0:
+                reference = float(crushed_flow_stress(peeq, 0.0, *args, *densify))
+                errors.append(abs(stress - reference) / reference)
+            if peeq >= FOAM_TARGET_PEEQ:
+                break
+        never_fractured = float(element.initiation[0]) == 0.0 and float(element.damage[0]) == 0.0
+    label = "σ" if mode == "uniaxial" else "(α/β)·p"
+    return result(
+        f"foam-{mode}-compression",
+        f"cancellous {mode} compression: {label} at ε̂={peeq:.3f} vs σ_c(ε̂) (plateau × densification); error = max relative error along the path",
+        value=stress / 1e6,
+        reference=reference / 1e6,
+        tolerance=FOAM_TOLERANCE,
+        error=max(errors) if max(identity_errors) <= JC_PEEQ_IDENTITY_TOLERANCE and never_fractured else float("inf"),
+        units="MPa",
+        seconds=watch.seconds,
+        details={
+            "final_peeq": peeq,
+            "densification_strain": eps_d,
+            "max_identity_error": max(identity_errors),
+            "identity": "lateral strain = ν·σ/E" if mode == "uniaxial" else "ε̂ = (β/α)(εᵥ − p/K)",
+            "damage_initiation": float(element.initiation[0]),
+        },
+    )
+
+
+def crushable_foam() -> list[CheckResult]:
+    with numba_threads(1):
+        return [_foam_path("uniaxial"), _foam_path("hydrostatic")]
+
+
 CHECKS = [
     Check(
         "jc-uniaxial",
@@ -203,5 +275,11 @@ CHECKS = [
         "single-element damage initiation, softening and deletion vs closed form",
         damage_single_element,
         ("damage-shear-deletion-strain", "damage-shear-peak-stress", "damage-tension-deletion-strain", "damage-tension-peak-stress"),
+    ),
+    Check(
+        "crushable-foam",
+        "cancellous bone crushed in uniaxial and hydrostatic compression to densification vs closed form; never fractured",
+        crushable_foam,
+        ("foam-uniaxial-compression", "foam-hydrostatic-compression"),
     ),
 ]

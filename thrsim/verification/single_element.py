@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import brentq
 
-from thrsim.config import BoneMaterial, JohnsonCookDamage, JohnsonCookHardening
+from thrsim.config import BoneMaterial, CrushableFoam, JohnsonCookDamage, JohnsonCookHardening
 from thrsim.geometry.tet_metrics import signed_volumes
 from thrsim.physics.explicit import MaterialConstants, SolidArrays, Tissue, element_update
 from thrsim.physics.material import characteristic_length
@@ -30,7 +30,12 @@ class SingleTet:
     """State of one element and a way to try or commit a strain increment."""
 
     def __init__(
-        self, material: BoneMaterial, hardening: JohnsonCookHardening, damage: JohnsonCookDamage, nodes: np.ndarray = REFERENCE_TET
+        self,
+        material: BoneMaterial,
+        hardening: JohnsonCookHardening,
+        damage: JohnsonCookDamage,
+        nodes: np.ndarray = REFERENCE_TET,
+        compaction: CrushableFoam | None = None,
     ) -> None:
         self.nodes = np.asarray(nodes, dtype=float)
         self.tets = np.array([[0, 1, 2, 3]], dtype=np.int64)
@@ -38,6 +43,7 @@ class SingleTet:
         self.volume = np.abs(signed_volumes(self.nodes, self.tets))
         self.char_length = characteristic_length(self.volume)
         self.material, self.hardening, self.damage_law = material, hardening, damage
+        self.tissue = Tissue(material, hardening, damage, compaction)
         self.lam, self.mu = material.lame_lambda_pa, material.shear_modulus_pa
         self.stress = np.zeros((1, 6))
         self.peeq = np.zeros(1)
@@ -67,7 +73,7 @@ class SingleTet:
             velocity=nodes4.copy(), displacement=nodes4.copy(), du=du, external_force=nodes4.copy(),
             cutting_damage=np.zeros(4), debris=np.zeros(7),
         )  # fmt: skip
-        constants = MaterialConstants.of(dt, [Tissue(self.material, self.hardening, self.damage_law)])
+        constants = MaterialConstants.of(dt, [self.tissue])
         element_update(arrays, constants)
         if commit:
             self.strain = self.strain + deps

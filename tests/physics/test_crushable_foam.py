@@ -1,0 +1,82 @@
+"""The cancellous bone's crushable foam: its return mapping, and crushing that compacts, not fractures."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from thrsim.config import CancellousBone
+from thrsim.physics.material import crushed_flow_stress, foam_return
+from thrsim.verification.single_element import SingleTet
+
+BONE = CancellousBone()
+FOAM = BONE.compaction
+ALPHA = FOAM.yield_ellipse_alpha
+BETA = math.sqrt(1.0 + ALPHA**2 / 9.0)
+EPS_D = FOAM.densification_strain(BONE.material.density_kg_m3)
+HARDENING = (BONE.hardening.a_pa, BONE.hardening.b_pa, BONE.hardening.n, BONE.hardening.c, BONE.hardening.reference_strain_rate_s)
+DENSIFY = (EPS_D, FOAM.densification_coefficient, FOAM.densification_exponent)
+SHEAR, BULK = BONE.material.shear_modulus_pa, BONE.material.bulk_modulus_pa
+DT = 4e-6
+
+
+def test_alpha_and_densification_strain_follow_their_closed_forms() -> None:
+    assert ALPHA == 3.0 / math.sqrt(2.0)  # plastic Poisson ratio 0
+    assert math.isclose(EPS_D, 1.0 - 1.4 * 500.0 / 1900.0)
+    # plateau until (1/D)(ε_D/(ε_D − ε̂))^m reaches 1, then rising without bound toward ε_D
+    onset = EPS_D * (1.0 - 1.0 / FOAM.densification_coefficient)
+    plateau = crushed_flow_stress(onset * 0.99, 0.0, *HARDENING, *DENSIFY)
+    assert plateau < 10e6 and crushed_flow_stress(0.99 * EPS_D, 0.0, *HARDENING, *DENSIFY) > 20 * plateau
+    assert crushed_flow_stress(EPS_D, 0.0, *HARDENING, *DENSIFY) == math.inf
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    q_trial=st.floats(0.0, 200e6),
+    mean_trial=st.floats(-200e6, 200e6),
+    peeq=st.floats(0.0, 0.6),
+)
+def test_the_return_lands_on_the_yield_surface(q_trial: float, mean_trial: float, peeq: float) -> None:
+    gamma, dpeeq = foam_return(q_trial, mean_trial, peeq, DT, SHEAR, BULK, ALPHA, *HARDENING, *DENSIFY)
+    f_trial = math.hypot(q_trial, ALPHA * mean_trial)
+    if f_trial <= BETA * crushed_flow_stress(peeq, 0.0, *HARDENING, *DENSIFY):
+        assert (gamma, dpeeq) == (0.0, 0.0)
+        return
+    assert gamma > 0.0 and dpeeq > 0.0 and peeq + dpeeq < EPS_D
+    q = q_trial / (1.0 + 6.0 * SHEAR * gamma)
+    mean = mean_trial / (1.0 + 2.0 * BULK * ALPHA**2 * gamma)
+    f = math.hypot(q, ALPHA * mean)
+    assert math.isclose(f, BETA * crushed_flow_stress(peeq + dpeeq, dpeeq / DT, *HARDENING, *DENSIFY), rel_tol=1e-9)
+    assert math.isclose(dpeeq, 2.0 * BETA * gamma * f, rel_tol=1e-12)  # Δε̂ = σ:Δεᵖ / σ_c
+
+
+def _confined_compression(compaction, axial_strain: float) -> SingleTet:
+    """Uniaxial strain (the bone under the subchondral plate) in steps of 0.2 %."""
+    element = SingleTet(BONE.material, BONE.hardening, BONE.damage, compaction=compaction)
+    for _ in range(round(axial_strain / 2e-3)):
+        element.apply(np.diag([-2e-3, 0.0, 0.0]), 2e-3 / 1e-4, commit=True)
+        if not element.active[0]:
+            break
+    return element
+
+
+def test_crushing_compacts_where_von_mises_fractures() -> None:
+    foam = _confined_compression(FOAM, 0.9)
+    assert foam.active[0] and foam.initiation[0] == 0.0 and foam.damage[0] == 0.0
+    assert 0.4 < foam.peeq[0] < EPS_D
+    # densified: the axial stress has risen well past the plateau
+    assert -foam.stress[0, 0] > 3 * BONE.hardening.a_pa
+    von_mises = _confined_compression(None, 0.9)  # its plastic strain is 2/3 of the axial
+    assert von_mises.initiation[0] >= 1.0 and von_mises.damage[0] > 0.0
+
+
+def test_the_foam_still_fractures_in_shear() -> None:
+    element = SingleTet(BONE.material, BONE.hardening, BONE.damage, compaction=FOAM)
+    for _ in range(400):
+        element.shear_increment(4e-3, 4e-3 / 1e-4)
+        if element.initiation[0] >= 1.0:
+            break
+    assert element.initiation[0] >= 1.0 and element.peeq[0] < EPS_D

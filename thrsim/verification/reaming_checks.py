@@ -190,10 +190,11 @@ def _step_half_mass_held(case: ReamingCaseConfig) -> tuple[ReamingCaseConfig, fl
     return halved, case.solver.target_dt_s
 
 
-#: the socket window's variants: name → (the case to run, the step its mass is scaled for; None: its own)
+#: the socket window's variants: name → (the case to run, the step its mass is scaled for; None: its
+#: own). Δt is halved with the scaled mass held: the mass scaling is part of the calibrated model (its
+#: own sensitivity is in the docs' benchmarks), the time integration is what must converge.
 WINDOW_VARIANTS = {
     "contact-factor-half": lambda c: (c.model_copy(update=VARIANTS["contact-factor-half"][0](c)), None),
-    "dt-half": lambda c: (c.model_copy(update=VARIANTS["dt-half"][0](c)), None),
     "step-half-mass-held": _step_half_mass_held,
 }
 
@@ -201,10 +202,8 @@ WINDOW_VARIANTS = {
 def reaming_socket_window() -> list[CheckResult]:
     """A window of the socket (30° from the pole, toward the dome) reamed by a 48 mm reamer on the
     native 46 mm socket at 1 mm/s for ``WINDOW_FRAMES`` frames: energy balance within 5 %, and the
-    removed volume and the mean push the feed takes within 10 % when the contact penalty factor or
-    Δt is halved. Halving Δt also quarters the scaled mass; a third variant halves Δt with the
-    mass (and the contact stiffness) held, so the time integration and the mass scaling are told
-    apart."""
+    removed volume and the mean push the feed takes within 10 % when the contact penalty factor is
+    halved, and when Δt is halved with the scaled mass (and the contact stiffness) held."""
     from thrsim.physics.reaming_case import bone_mesh
 
     base = socket_window_case(WINDOW_FRAMES)
@@ -245,7 +244,7 @@ CHECKS = [
           "half Δt, half and double reamer mass", reaming_convergence,
           tuple(f"reaming-convergence-{name}-{figure}" for name in VARIANTS for figure in ("removed-volume", "mean-advance")), slow=True),
     Check("reaming-socket-window", f"a socket window at 1 mm/s, {WINDOW_FRAMES} frames: energy balance within {ENERGY_TOLERANCE:.0%}; "
-          f"removed volume and mean push within {WINDOW_TOLERANCE:.0%} with half contact factor, half Δt, and half Δt with the "
+          f"removed volume and mean push within {WINDOW_TOLERANCE:.0%} with half contact factor, and half Δt with the "
           "scaled mass held", reaming_socket_window,
           ("reaming-socket-window-energy-balance",) + tuple(f"reaming-socket-window-{name}-{figure}" for name in WINDOW_VARIANTS
                                                           for figure in ("removed-volume", "mean-push")), slow=True),

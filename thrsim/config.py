@@ -249,8 +249,8 @@ class CrushableFoam(_Frozen):
 
     plastic_poisson_ratio: float = Field(0.0, ge=0.0, lt=0.5, description="ν_p: lateral over axial plastic strain in uniaxial crushing")
     tissue_density_kg_m3: float = Field(1900.0, gt=0, le=1e5, description="ρ_s of the bone tissue the trabeculae are made of")
-    densification_coefficient: float = Field(2.3, ge=1.0, description="D of Gibson and Ashby's densification law")
-    densification_exponent: float = Field(1.0, gt=0.0, description="m of Gibson and Ashby's densification law")
+    densification_coefficient: float = Field(2.3, ge=1.0, le=100.0, description="D of Gibson and Ashby's densification law")
+    densification_exponent: float = Field(1.0, gt=0.0, le=10.0, description="m of Gibson and Ashby's densification law")
 
     @property
     def yield_ellipse_alpha(self) -> float:

@@ -223,6 +223,7 @@ def element_update(s, m):
         alpha = alpha_of[row]
         dpeeq = 0.0
         flow_stress = 0.0
+        deviator_scale = 1.0
         triaxiality = 0.0
         fracturing = True  # whether this step's plastic strain counts toward ductile damage
         if alpha > 0.0:
@@ -236,15 +237,9 @@ def element_update(s, m):
                     c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row],
                 )  # fmt: skip
             if dpeeq > 0.0:
-                deviator = 1.0 / (1.0 + 6.0 * mu * gamma)
-                dxx *= deviator
-                dyy *= deviator
-                dzz *= deviator
-                sxy *= deviator
-                syz *= deviator
-                szx *= deviator
+                deviator_scale = 1.0 / (1.0 + 6.0 * mu * gamma)
                 pressure /= 1.0 + 2.0 * (lam + 2.0 * mu / 3.0) * alpha * alpha * gamma
-                q_new = deviator * q_trial
+                q_new = deviator_scale * q_trial
                 flow_stress = math.sqrt((q_new * q_new + alpha * alpha * pressure * pressure) / (1.0 + alpha * alpha / 9.0))
                 fracturing = 3.0 * pressure > -q_new * (1.0 - 1e-9)
                 # hydrostatic tension (q = 0) reads as a large positive triaxiality
@@ -258,17 +253,18 @@ def element_update(s, m):
                 else 0.0
             )
             if dpeeq > 0.0:
-                factor = 1.0 - 3.0 * mu * dpeeq / q_trial
-                dxx *= factor
-                dyy *= factor
-                dzz *= factor
-                sxy *= factor
-                syz *= factor
-                szx *= factor
-                q_new = factor * q_trial
+                deviator_scale = 1.0 - 3.0 * mu * dpeeq / q_trial
+                q_new = deviator_scale * q_trial
                 flow_stress = q_new
                 triaxiality = pressure / q_new
         if dpeeq > 0.0:
+            # both returns scale the deviator; only the foam's also moves the mean stress
+            dxx *= deviator_scale
+            dyy *= deviator_scale
+            dzz *= deviator_scale
+            sxy *= deviator_scale
+            syz *= deviator_scale
+            szx *= deviator_scale
             sxx, syy, szz = dxx + pressure, dyy + pressure, dzz + pressure
             peeq[e] += dpeeq
             plastic_work[e] += (1.0 - damage[e]) * flow_stress * dpeeq * volume[e]

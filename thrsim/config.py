@@ -241,7 +241,8 @@ class CrushableFoam(_Frozen):
     Yield surface √(q² + α²p²) = √(1 + α²/9)·σ_c(ε̂), associated flow, hardening in the uniaxial
     compressive plastic strain ε̂ (Deshpande & Fleck, J Mech Phys Solids 2000; ABAQUS's isotropic
     crushable foam): the bone's JC curve as plateau, times Gibson and Ashby's densification
-    (1/D)·(ε_D/(ε_D − ε̂))^m once that exceeds 1, with ε_D = 1 − 1.4·ρ/ρ_s (Cellular Solids, 1997).
+    (1/D)·(ε_D/(ε_D − ε̂))^m once that exceeds 1, with ε_D = 1 − 1.4·ρ/ρ_s (Cellular Solids, 1997),
+    up to the tissue's own strength; there the bone is fully dense, and it fractures as solid bone.
     Plastic Poisson ratio 0 (α = 3/√2): crushed cellular solids barely spread sideways (Gibson &
     Ashby; Deshpande & Fleck). Confidence: low to moderate (the form is standard for trabecular bone
     and metal foams; ν_p, D and m are the generic foam values, not fitted to acetabular bone).
@@ -251,6 +252,12 @@ class CrushableFoam(_Frozen):
     tissue_density_kg_m3: float = Field(1900.0, gt=0, le=1e5, description="ρ_s of the bone tissue the trabeculae are made of")
     densification_coefficient: float = Field(2.3, ge=1.0, le=100.0, description="D of Gibson and Ashby's densification law")
     densification_exponent: float = Field(1.0, gt=0.0, le=10.0, description="m of Gibson and Ashby's densification law")
+    densified_flow_stress_pa: float = Field(
+        JohnsonCookHardening.model_fields["a_pa"].default,
+        gt=0.0,
+        le=1e10,
+        description="σ_c's ceiling: crushed bone is no stronger than the tissue it is made of (the cortical yield A)",
+    )
 
     @property
     def yield_ellipse_alpha(self) -> float:

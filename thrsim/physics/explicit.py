@@ -105,6 +105,7 @@ class MaterialConstants(NamedTuple):
     eps_d: np.ndarray  # densification strain ε_D (inf without compaction)
     coef_d: np.ndarray  # densification D
     exp_d: np.ndarray  # densification m
+    cap_d: np.ndarray  # the densified bone's flow stress, σ_c's ceiling (inf without compaction)
 
     @classmethod
     def of(cls, dt: float, tissues: Sequence[Tissue]) -> MaterialConstants:
@@ -131,6 +132,7 @@ class MaterialConstants(NamedTuple):
             eps_d=column(lambda t: t.compaction.densification_strain(t.material.density_kg_m3) if t.compaction else math.inf),
             coef_d=column(lambda t: t.compaction.densification_coefficient if t.compaction else 1.0),
             exp_d=column(lambda t: t.compaction.densification_exponent if t.compaction else 1.0),
+            cap_d=column(lambda t: t.compaction.densified_flow_stress_pa if t.compaction else math.inf),
         )
 
 
@@ -160,6 +162,7 @@ def element_update(s, m):
     eps_d_of = m.eps_d
     coef_d_of = m.coef_d
     exp_d_of = m.exp_d
+    cap_d_of = m.cap_d
     zone_elements = s.zone_elements
     # arrays taken out of the tuple before the parallel loop, one per statement: Numba 0.68's
     # parfor pass loses writes made through a tuple attribute inside prange, and writes to an
@@ -234,14 +237,15 @@ def element_update(s, m):
             if q_trial * q_trial + alpha * alpha * pressure * pressure > (1.0 + alpha * alpha / 9.0) * a_of[row] * a_of[row]:
                 gamma, dpeeq = foam_return(
                     q_trial, pressure, peeq[e], dt, mu, lam + 2.0 * mu / 3.0, alpha, a_of[row], b_of[row], n_of[row],
-                    c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row],
+                    c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row], cap_d_of[row],
                 )  # fmt: skip
             if dpeeq > 0.0:
                 deviator_scale = 1.0 / (1.0 + 6.0 * mu * gamma)
                 pressure /= 1.0 + 2.0 * (lam + 2.0 * mu / 3.0) * alpha * alpha * gamma
                 q_new = deviator_scale * q_trial
                 flow_stress = math.sqrt((q_new * q_new + alpha * alpha * pressure * pressure) / (1.0 + alpha * alpha / 9.0))
-                fracturing = 3.0 * pressure > -q_new * (1.0 - 1e-9)
+                # fully dense (at the tissue's strength) it fractures as solid bone, whatever the triaxiality
+                fracturing = 3.0 * pressure > -q_new * (1.0 - 1e-9) or flow_stress >= cap_d_of[row] * (1.0 - 1e-9)
                 # hydrostatic tension (q = 0) reads as a large positive triaxiality
                 triaxiality = pressure / max(q_new, 1e-9 * flow_stress)
         else:

@@ -111,16 +111,24 @@ def characteristic_length(volume: np.ndarray) -> np.ndarray:
 
 @njit(cache=True, inline="always")
 def crushed_flow_stress(
-    peeq: float, peeq_rate: float, a: float, b: float, n: float, c: float, rate0: float, eps_d: float, coef_d: float, exp_d: float
+    peeq: float,
+    peeq_rate: float,
+    a: float,
+    b: float,
+    n: float,
+    c: float,
+    rate0: float,
+    eps_d: float,
+    coef_d: float,
+    exp_d: float,
+    cap: float,
 ) -> float:
-    """Compressive flow stress σ_c (Pa) of the crushable foam: the JC plateau times densification.
-
-    Infinite at and past the densification strain ε_D: the cells cannot close further.
-    """
+    """Compressive flow stress σ_c (Pa) of the crushable foam: the JC plateau times densification,
+    at most ``cap`` (the tissue's strength, reached before the densification strain ε_D)."""
     if peeq >= eps_d:
-        return math.inf
+        return cap
     densify = pm.pow(eps_d / (eps_d - peeq), exp_d) / coef_d
-    return jc_yield_stress(peeq, peeq_rate, a, b, n, c, rate0) * max(1.0, densify)
+    return min(cap, jc_yield_stress(peeq, peeq_rate, a, b, n, c, rate0) * max(1.0, densify))
 
 
 @njit(cache=True)
@@ -140,6 +148,7 @@ def foam_return(
     eps_d: float,
     coef_d: float,
     exp_d: float,
+    cap: float,
 ) -> tuple[float, float]:
     """Plastic multiplier Δγ and ε̂ increment returning a trial stress to the crushable-foam surface.
 
@@ -150,7 +159,7 @@ def foam_return(
     """
     beta = math.sqrt(1.0 + alpha * alpha / 9.0)
     f_trial = math.sqrt(q_trial * q_trial + alpha * alpha * mean_trial * mean_trial)
-    static = crushed_flow_stress(peeq, 0.0, a, b, n, c, rate0, eps_d, coef_d, exp_d)
+    static = crushed_flow_stress(peeq, 0.0, a, b, n, c, rate0, eps_d, coef_d, exp_d, cap)
     if f_trial <= beta * static:
         return 0.0, 0.0
     shear_rate = 6.0 * shear_modulus
@@ -167,16 +176,13 @@ def foam_return(
         f = math.sqrt(q * q + alpha * alpha * mean * mean)
         dpeeq = 2.0 * beta * gamma * f
         p = peeq + dpeeq
-        if p >= eps_d:  # past full densification: Δγ is too large
-            z_hi = z
-            z = 0.5 * (z_lo + z_hi)
-            continue
         plateau = a + b * pm.pow(p, n)
         rate = dpeeq / dt
         rate_factor = 1.0 + c * pm.log(rate / rate0) if rate > rate0 else 1.0
-        densify = pm.pow(eps_d / (eps_d - p), exp_d) / coef_d
+        densify = pm.pow(eps_d / (eps_d - p), exp_d) / coef_d if p < eps_d else math.inf
         densify_factor = max(1.0, densify)
-        g = f - beta * plateau * rate_factor * densify_factor
+        capped = plateau * rate_factor * densify_factor >= cap
+        g = f - beta * (cap if capped else plateau * rate_factor * densify_factor)
         if abs(g) <= _RETURN_TOLERANCE * f_trial:
             return gamma, dpeeq
         if g > 0.0:
@@ -188,10 +194,10 @@ def foam_return(
         # dg/dz = Δγ·(df/dΔγ − β·dσ_c/dΔε̂ · dΔε̂/dΔγ)
         df = -(shear_rate * q * q / (1.0 + shear_rate * gamma) + bulk_rate * alpha * alpha * mean * mean / (1.0 + bulk_rate * gamma)) / f
         dx = 2.0 * beta * (f + gamma * df)
-        dsigma = b * n * pm.pow(p, n - 1.0) * rate_factor * densify_factor
-        if densify > 1.0:
+        dsigma = 0.0 if capped else b * n * pm.pow(p, n - 1.0) * rate_factor * densify_factor
+        if densify > 1.0 and not capped:
             dsigma += plateau * rate_factor * exp_d * densify_factor / (eps_d - p)
-        if rate > rate0:
+        if rate > rate0 and not capped:
             dsigma += plateau * densify_factor * c / dpeeq
         newton = z - g / (gamma * (df - beta * dsigma * dx))
         z = newton if z_lo < newton < z_hi else 0.5 * (z_lo + z_hi)

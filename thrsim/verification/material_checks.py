@@ -214,7 +214,7 @@ def _foam_path(mode: str) -> CheckResult:
     beta = math.sqrt(1.0 + alpha * alpha / 9.0)
     eps_d = foam.densification_strain(material.density_kg_m3)
     args = (hardening.a_pa, hardening.b_pa, hardening.n, hardening.c, hardening.reference_strain_rate_s)
-    densify = (eps_d, foam.densification_coefficient, foam.densification_exponent)
+    densify = (eps_d, foam.densification_coefficient, foam.densification_exponent, foam.densified_flow_stress_pa)
     with Stopwatch() as watch:
         element = SingleTet(material, hardening, bone.damage, compaction=foam)
         first = 0.02 * hardening.a_pa / material.youngs_modulus_pa

@@ -1,6 +1,6 @@
 """thrsim: physically-based and learned simulation of acetabular reaming."""
 
-__version__ = "0.5.3"
+__version__ = "0.5.4"
 
 
 def __getattr__(name: str):

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pytest
 
-PINNED_DIGEST = "d98e38e40b233ccd1dcb44fced1387914d003ae926423a3a32add367e30b2984"
+PINNED_DIGEST = "9620f6df634415921344e6c553ac81c8a97f07fe911556c2a9204bfdbf097828"
 ROOT = Path(__file__).resolve().parents[2]
 
 _CASE = """

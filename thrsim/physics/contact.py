@@ -63,10 +63,18 @@ class ContactArrays(NamedTuple):
     normal_force: np.ndarray  # (N, 3) resultant normal force N on the bone (the force less friction), N
     penalty_energy: np.ndarray  # (N,) ½ k g², J
     cutting_damage: np.ndarray  # (N,) damage this step's tooth cutting adds to every active element at the node
+    previous_du: np.ndarray  # (N, 3) the node's last increment Δu(n−½), kept before the solid steps
 
     @classmethod
     def zeros(cls, n_nodes: int) -> ContactArrays:
-        return cls(np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros((n_nodes, 3)), np.zeros(n_nodes), np.zeros(n_nodes))
+        return cls(
+            np.zeros((n_nodes, 3)),
+            np.zeros((n_nodes, 3)),
+            np.zeros((n_nodes, 3)),
+            np.zeros(n_nodes),
+            np.zeros(n_nodes),
+            np.zeros((n_nodes, 3)),
+        )
 
 
 @njit(cache=True)
@@ -249,28 +257,46 @@ def contact_totals(out, nodes, totals):
 
 
 @njit(cache=True)
+def keep_previous_increment(out, nodes, du):
+    """Keep each touched node's last increment Δu(n−½) before the solid steps (see
+    :func:`contact_step_work`)."""
+    for index in range(len(nodes)):
+        node = nodes[index]
+        if out.force[node, 0] != 0.0 or out.force[node, 1] != 0.0 or out.force[node, 2] != 0.0:
+            for i in range(3):
+                out.previous_du[node, i] = du[node, i]
+
+
+@njit(cache=True)
 def contact_step_work(out, nodes, du, axis, axial_speed, advance, dt, work):
     """Work of the step's contact forces, each through the displacement it acted over.
 
     The reamer surface at a node moved by (ω D × (p − c))·Δt + D·Δs (spin, then the reamer's
-    actual axial step Δs), the node by Δu (v(n+½)·Δt). Adds to ``work``: [0] the motor's spin
-    work Σ f·(ω D × (p − c))·Δt, [1] the work on the bone Σ f·Δu, [2] friction, the tangential
-    force through the relative slip, [3] the normal forces through the relative approach
-    (penalty energy stored plus contact damping dissipated). Summed in node order.
+    actual axial step Δs), the node by ½(Δu(n−½) + Δu(n+½)): the force of step n works through the
+    mean of the increments before and after it, the trapezoidal rule with which the bone's
+    kinetic energy at half steps closes (Belytschko, Liu & Moran, Nonlinear Finite Elements for
+    Continua and Structures, 2000, §6.2.3; Δu(n+½) alone over-books f·Δt²·a/2 a step wherever
+    the touched nodes accelerate). Adds to ``work``: [0] the motor's spin work Σ f·(ω D × (p −
+    c))·Δt, [1] the work on the bone, [2] friction, the tangential force through the relative
+    slip, [3] the normal forces through the relative approach (penalty energy stored plus
+    contact damping dissipated). Summed in node order.
     """
     for index in range(len(nodes)):
         node = nodes[index]
         fx, fy, fz = out.force[node, 0], out.force[node, 1], out.force[node, 2]
         if fx == 0.0 and fy == 0.0 and fz == 0.0:
             continue
+        ux = 0.5 * (out.previous_du[node, 0] + du[node, 0])
+        uy = 0.5 * (out.previous_du[node, 1] + du[node, 1])
+        uz = 0.5 * (out.previous_du[node, 2] + du[node, 2])
         sx = (out.surface_velocity[node, 0] - axial_speed * axis[0]) * dt
         sy = (out.surface_velocity[node, 1] - axial_speed * axis[1]) * dt
         sz = (out.surface_velocity[node, 2] - axial_speed * axis[2]) * dt
         work[0] += fx * sx + fy * sy + fz * sz
-        work[1] += fx * du[node, 0] + fy * du[node, 1] + fz * du[node, 2]
-        rx = sx + advance * axis[0] - du[node, 0]
-        ry = sy + advance * axis[1] - du[node, 1]
-        rz = sz + advance * axis[2] - du[node, 2]
+        work[1] += fx * ux + fy * uy + fz * uz
+        rx = sx + advance * axis[0] - ux
+        ry = sy + advance * axis[1] - uy
+        rz = sz + advance * axis[2] - uz
         normal_work = out.normal_force[node, 0] * rx + out.normal_force[node, 1] * ry + out.normal_force[node, 2] * rz
         work[3] += normal_work
         work[2] += fx * rx + fy * ry + fz * rz - normal_work

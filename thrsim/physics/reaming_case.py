@@ -31,7 +31,16 @@ from thrsim.geometry.mesh import CANCELLOUS, CORTICAL, SIDE, TetMesh
 from thrsim.geometry.reamer import build_reamer, frame_rotation
 from thrsim.geometry.reaming_path import INITIAL_GAP_M, along_axis, bone_in_path, breach_faces, breach_reason, clear_start, tip_exit_depth
 from thrsim.geometry.socket import generate_socket
-from thrsim.physics.contact import ContactArrays, ContactLaw, ReamerPose, ReamerTeeth, contact_step_work, contact_totals, reamer_contact
+from thrsim.physics.contact import (
+    ContactArrays,
+    ContactLaw,
+    ReamerPose,
+    ReamerTeeth,
+    contact_step_work,
+    contact_totals,
+    keep_previous_increment,
+    reamer_contact,
+)
 from thrsim.physics.explicit import ExplicitSolid, Tissue, solid_step, tissues_of
 from thrsim.physics.support import foundation_stiffness
 
@@ -171,6 +180,7 @@ def advance_reaming(
         contacts = reamer_contact(nodes, solid, pose, teeth, law, contact)
         contact_totals(contact, solid.contact_nodes, totals)
         axial_force = totals[0] * axis[0] + totals[1] * axis[1] + totals[2] * axis[2]
+        keep_previous_increment(contact, solid.contact_nodes, solid.du)
         solid_step(solid, constants)
         if drive.feed == drive.feed:  # feed control: the advance is prescribed, the push follows
             damper = 0.0

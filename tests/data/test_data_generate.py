@@ -287,3 +287,10 @@ def test_a_worker_capped_after_numba_started_its_threads_still_compiles():
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-500:]
     assert run.stdout.split() == ["1"]
+
+
+def test_a_local_pool_states_the_threads_each_case_gets(tmp_path):
+    """Asked for one thread a case, the pool says so (it said cores ÷ workers) and its workers use one."""
+    result = run_sweep(tmp_path / "ds", small_plan(), solver="synthetic", workers=1, threads=1)
+    assert result.executor == "local process pool, 1 worker(s) × 1 thread(s)"
+    assert read_manifest(tmp_path / "ds")["runs"][-1]["threads_per_case"] == 1

@@ -97,18 +97,18 @@ def _worker_init(threads: int) -> None:
 
 class LocalExecutor:
     """A process pool on this machine: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
-    start method. Each worker limits its numerical threads to cores ÷ workers and, on Linux, asks
+    start method. Each worker limits its numerical threads to ``threads`` (default cores ÷ workers) and, on Linux, asks
     the kernel to kill it when the parent dies (``PR_SET_PDEATHSIG``), so a ``kill -9`` of the
     parent leaves no orphan solver running. A worker killed mid-case breaks the pool; the caller
     restarts it (:meth:`restart`) and resubmits the cases in flight. Workers ignore Ctrl-C (the
     terminal sends it to them too): the caller decides, and :meth:`stop` ends them at once."""
 
-    def __init__(self, workers: int = 1):
+    def __init__(self, workers: int = 1, threads: int | None = None):
         if workers < 1:
             raise ThrsimInputError(f"must be at least 1, got {workers}", "workers")
         self.workers = workers
         cores = os.cpu_count() or 1
-        self.threads_per_worker = max(1, cores // workers)
+        self.threads_per_worker = threads or max(1, cores // workers)
         self.description = f"local process pool, {workers} worker(s) × {self.threads_per_worker} thread(s)"
         self._pool = self._new_pool()
 
@@ -232,7 +232,8 @@ class DaskExecutor:
             pass
 
 
-def make_executor(workers: int = 1, scheduler: str | None = None, connect_timeout_s: float = 5.0) -> Executor:
+def make_executor(workers: int = 1, scheduler: str | None = None, connect_timeout_s: float = 5.0, threads: int | None = None) -> Executor:
+    """A Dask executor on ``scheduler``, else a local pool of ``workers`` with ``threads`` each (default cores ÷ workers)."""
     if scheduler:
         return DaskExecutor(scheduler, connect_timeout_s=connect_timeout_s)
-    return LocalExecutor(workers)
+    return LocalExecutor(workers, threads)

@@ -416,7 +416,7 @@ def run_sweep(
     target = check_sweep_target(root, plan, solver=solver, template_overrides=template_overrides)
     own_executor = executor is None
     if executor is None:
-        executor = make_executor(workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s)
+        executor = make_executor(workers=workers, scheduler=scheduler, connect_timeout_s=connect_timeout_s, threads=threads)
     if threads is None:  # local: the cores shared among the workers; Dask: 1 (scale with worker processes)
         threads = getattr(executor, "threads_per_worker", 1)
     started = time.perf_counter()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import pytest
+
 from thrsim.data.synthetic import block_mesh
 from thrsim.learn.bench import _four_times_area, time_production, time_thesis_way, untrained_model
 from thrsim.learn.settings import preset
@@ -36,11 +38,16 @@ def test_the_socket_model_is_timed_pushed_with_its_reamers_one_after_another(tin
     from thrsim.learn.bench import SOCKET_BENCH_REAMERS_MM, time_socket_steps
     from thrsim.learn.model_dir import load_model
 
-    (row,) = time_socket_steps(load_model(tiny_socket_model), frames=3, element_sizes_mm=(2.5,))
-    pushed = row["pushed"]
-    assert row["weights"] == "trained" and pushed["reamers_mm"] == list(SOCKET_BENCH_REAMERS_MM)
-    assert (
-        pushed["frames"] == 3 * len(SOCKET_BENCH_REAMERS_MM)
-        and pushed["step_ms_max"] >= pushed["step_ms_p99"] >= pushed["step_ms_median"] > 0
-    )
-    assert pushed["depth_mm"] >= 0.0 and pushed["removed_volume_mm3"] >= 0.0
+    model = load_model(tiny_socket_model)
+    (row,) = time_socket_steps(model, frames=3, element_sizes_mm=(2.5,), compile=True)
+    assert row["weights"] == "trained"
+    for pushed in (row["pushed"], row["pushed_compiled"]):
+        assert pushed["reamers_mm"] == list(SOCKET_BENCH_REAMERS_MM)
+        assert (
+            pushed["frames"] == 3 * len(SOCKET_BENCH_REAMERS_MM)
+            and pushed["step_ms_max"] >= pushed["step_ms_p99"] >= pushed["step_ms_median"] > 0
+        )
+        assert pushed["depth_mm"] >= 0.0 and pushed["removed_volume_mm3"] >= 0.0
+    # the same chain reams the same bone, compiled or not, and the caller's model stays eager
+    assert row["pushed_compiled"]["removed_volume_mm3"] == pytest.approx(row["pushed"]["removed_volume_mm3"], rel=0.05)
+    assert row["pushed_compiled"]["network"] in ("compiled", "eager") and not getattr(model.gn, "network_compiled", False)

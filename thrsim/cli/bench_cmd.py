@@ -61,7 +61,8 @@ def bench(
     compile_network: bool = typer.Option(
         True,
         "--compile/--no-compile",
-        help="--reaming-page: the served network compiled, as thrsim serve runs it (--no-compile: the server starts sooner, steps slower)",
+        help="--reaming-page: the served network compiled, as thrsim serve runs it (--no-compile: the server starts sooner, steps slower); "
+        "--socket --learned: the pushed whole socket timed compiled too",
     ),
     headset: bool = typer.Option(
         False,
@@ -111,7 +112,7 @@ def bench(
 
             socket_model = loaded if loaded is not None and reads_any_mesh(loaded.settings) else load_model(SHIPPED_SOCKET_MODEL)
             loaded = None if loaded is socket_model else loaded
-            result["learned_socket"] = {"whole_socket": time_socket_steps(socket_model)}
+            result["learned_socket"] = {"whole_socket": time_socket_steps(socket_model, compile=compile_network)}
         result["learned"] = run_learned_benchmarks(loaded, solver_seconds_per_frame=result["solver"]["seconds_per_frame"])
     if reaming_page:
         result["reaming_page"] = _reaming_page(model, browser_seconds, whole)

@@ -201,14 +201,18 @@ SOCKET_BENCH_PUSH_N = 310.0
 
 
 def time_socket_steps(
-    model: LoadedModel | None, frames: int = 40, element_sizes_mm: tuple[float, ...] = SOCKET_ELEMENT_SIZES_MM
+    model: LoadedModel | None,
+    frames: int = 40,
+    element_sizes_mm: tuple[float, ...] = SOCKET_ELEMENT_SIZES_MM,
+    compile: bool = False,
 ) -> list[dict]:
     """ms per step of a socket model (``model``; None: untrained socket weights) on the whole default
     socket at each element size: tool-forced, the reamer reamed straight in along the socket's axis
     at 3 mm/s one size up (so every size times the same path; the first five steps left out as
     warm-up), and pushed, as a trainee reams (a model with a reaction head): each reamer of
     :data:`SOCKET_BENCH_REAMERS_MM` ``frames`` frames at :data:`SOCKET_BENCH_PUSH_N`, every step
-    counted, a new reamer's start and its approach in free air included."""
+    counted, a new reamer's start and its approach in free air included; with ``compile`` the pushed
+    chain again with the network compiled, as ``thrsim serve`` runs it (``pushed_compiled``)."""
     from thrsim.config import SocketConfig
     from thrsim.geometry.socket import generate_socket
 
@@ -216,6 +220,7 @@ def time_socket_steps(
     reamer_mm = socket.socket_diameter_mm + 2.0
     axis = np.array([0.0, 0.0, -1.0])
     rows = []
+    compiled_model: LoadedModel | None = None
     for size in element_sizes_mm:
         started = time.perf_counter()
         mesh = generate_socket(socket.model_copy(update={"element_size_mm": size}))
@@ -238,17 +243,33 @@ def time_socket_steps(
             "weights": "trained" if model is not None else "initial",
         }  # fmt: skip
         if used.settings.arch.reaction_head:
-            simulator.reset()
-            pushed = []
-            for reamer in SOCKET_BENCH_REAMERS_MM:
-                simulator.withdraw()
-                pushed += [simulator.step(axis, SOCKET_BENCH_PUSH_N, reamer_mm=reamer).seconds * 1e3 for _ in range(frames)]
-            ms = np.array(pushed)
-            row["pushed"] = {
-                "reamers_mm": list(SOCKET_BENCH_REAMERS_MM), "push_n": SOCKET_BENCH_PUSH_N, "frames": len(ms),
-                "step_ms_median": float(np.median(ms)), "step_ms_p99": float(np.percentile(ms, 99)), "step_ms_max": float(ms.max()),
-                "frames_per_s_worst": 1e3 / float(ms.max()), "depth_mm": simulator.depth_m * 1e3,
-                "removed_volume_mm3": simulator.removed_volume_m3 * 1e9,
-            }  # fmt: skip
+            row["pushed"] = _time_pushed_chain(simulator, axis, frames)
+            if compile:
+                if compiled_model is None:  # compiling changes the network in place; one copy serves every mesh
+                    compiled_model = replace(used, gn=copy.deepcopy(used.gn))
+                started = time.perf_counter()
+                compiled = ReamingSimulator(model=compiled_model, mesh=mesh, compile=True)
+                row["pushed_compiled"] = _time_pushed_chain(compiled, axis, frames) | {
+                    "network": "compiled" if compiled.compiled else "eager",
+                    "compile_s": time.perf_counter() - started,
+                    "compile_error": compiled.compile_error,
+                }
         rows.append(row)
     return rows
+
+
+def _time_pushed_chain(simulator: ReamingSimulator, axis: np.ndarray, frames: int) -> dict:
+    """Every step of :data:`SOCKET_BENCH_REAMERS_MM` one after another, ``frames`` frames each at
+    :data:`SOCKET_BENCH_PUSH_N`, from intact bone."""
+    simulator.reset()
+    pushed = []
+    for reamer in SOCKET_BENCH_REAMERS_MM:
+        simulator.withdraw()
+        pushed += [simulator.step(axis, SOCKET_BENCH_PUSH_N, reamer_mm=reamer).seconds * 1e3 for _ in range(frames)]
+    ms = np.array(pushed)
+    return {
+        "reamers_mm": list(SOCKET_BENCH_REAMERS_MM), "push_n": SOCKET_BENCH_PUSH_N, "frames": len(ms),
+        "step_ms_median": float(np.median(ms)), "step_ms_p99": float(np.percentile(ms, 99)), "step_ms_max": float(ms.max()),
+        "frames_per_s_worst": 1e3 / float(ms.max()), "depth_mm": simulator.depth_m * 1e3,
+        "removed_volume_mm3": simulator.removed_volume_m3 * 1e9,
+    }  # fmt: skip

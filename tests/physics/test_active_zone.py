@@ -6,6 +6,7 @@ import numpy as np
 
 from thrsim.config import (
     BoneMaterial,
+    BonePatchConfig,
     JohnsonCookDamage,
     JohnsonCookHardening,
     ReamerConfig,
@@ -68,3 +69,18 @@ def test_a_socket_case_integrates_a_small_share_of_the_bone():
     zone = simulation.solid.arrays.zone_elements
     distance = np.linalg.norm(simulation.mesh.centroids[zone] - simulation.centre, axis=1)
     assert distance.max() < simulation.reamer.outer_radius + simulation.zone_halo_m + 2 * 1.5e-3
+
+
+def test_a_frame_reports_its_progress_at_each_choice_of_the_zone():
+    """A whole-socket frame can take minutes: within it ``progress`` gets the share done, then the whole frame."""
+    case = ReamingCaseConfig(
+        inclination_deg=0.0, anteversion_deg=0.0, frames=2, solver=SolverConfig(active_zone="on", zone_steps=1500),
+        bone=BonePatchConfig(element_size_mm=1.6),
+    )  # fmt: skip
+    simulation = ReamingCase(case)
+    seen: list[tuple[float, int]] = []
+    simulation.run(2, progress=lambda done, total: seen.append((done, total)))
+    share = 1500 / simulation.steps_per_frame, 3000 / simulation.steps_per_frame
+    expected = [share[0], share[1], 1, 1 + share[0], 1 + share[1], 2]
+    assert np.allclose([done for done, _ in seen], expected) and {total for _, total in seen} == {2}
+    assert [done for done, _ in seen if float(done).is_integer()] == [1, 2]  # whole frames only once recorded

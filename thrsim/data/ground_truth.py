@@ -19,7 +19,7 @@ from thrsim.physics.reaming_case import ENERGY_NAMES, ReamingCase
 def run_case(
     case: ReamingCaseConfig,
     out: Path | None,
-    progress: Callable[[int, int], None] | None = None,
+    progress: Callable[[float, int], None] | None = None,
     mesh: TetMesh | None = None,
     checkpoint: Path | None = None,
     checkpoint_every_s: float = CHECKPOINT_EVERY_S,

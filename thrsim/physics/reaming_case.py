@@ -17,6 +17,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from typing import NamedTuple
 
 import numba
@@ -380,8 +381,9 @@ class ReamingCase:
         self.contact.cutting_damage[idle] = 0.0
         return int(in_zone.sum())
 
-    def advance_frame(self) -> None:
-        """One frame of steps; with the active zone, the zone is chosen again every ``solver.zone_steps``."""
+    def advance_frame(self, part_done: Callable[[float], None] | None = None) -> None:
+        """One frame of steps; with the active zone, the zone is chosen again every ``solver.zone_steps``
+        and ``part_done`` told the share of the frame done after each choice but the last."""
         if not self.zone_enabled:
             self.advance(self.steps_per_frame)
             return
@@ -391,6 +393,8 @@ class ReamingCase:
             self.zone_sizes.append(self.select_zone(steps))
             self.advance(steps)
             done += steps
+            if part_done is not None and done < self.steps_per_frame:
+                part_done(done / self.steps_per_frame)
 
     def advance(self, steps: int) -> None:
         """Run ``steps`` steps of bone and reamer in one compiled loop (statistics accumulate in
@@ -519,10 +523,12 @@ class ReamingCase:
         return bone_in_path(self.mesh.nodes[alive] + self.solid.displacement[alive], self.centre, self.axis, self.reamer.outer_radius)
 
     def run(
-        self, frames: int, progress: Callable[[int, int], None] | None = None, on_frame: Callable[[int], None] | None = None
+        self, frames: int, progress: Callable[[float, int], None] | None = None, on_frame: Callable[[int], None] | None = None
     ) -> tuple[FrameLog, dict]:
         """Simulate up to ``frames`` frames (from where :meth:`restore` left it, else from frame 0);
-        ``on_frame(k)`` runs after frame k is recorded (a checkpoint may be taken there), then ``progress``."""
+        ``on_frame(k)`` runs after frame k is recorded (a checkpoint may be taken there), then
+        ``progress(k, frames)``; within a frame ``progress`` gets the fraction done too (k − 1 + share,
+        after each choice of the active zone: a whole-socket frame can take minutes)."""
         log = self.log
         if not log.time:
             self.record(log)
@@ -531,7 +537,7 @@ class ReamingCase:
         resumed_at = self.frames_done
         for frame in range(self.frames_done + 1, frames + 1):
             self.start_frame_statistics()
-            self.advance_frame()
+            self.advance_frame(None if progress is None else partial(_within_frame, progress, frame, frames))
             self.check_stable(frame)
             if self.first_contact_frame is not None:
                 # a frame of free fall, through a hole or past the bone, is not recorded
@@ -722,3 +728,7 @@ def _stalled(log: FrameLog) -> bool:
 
 def _or_minus_one(value: int | None) -> int:
     return -1 if value is None else value
+
+
+def _within_frame(progress: Callable[[float, int], None], frame: int, frames: int, share: float) -> None:
+    progress(frame - 1 + share, frames)

@@ -28,7 +28,7 @@ def test_a_checkpoint_keeps_every_state_array():
     a new state field must be added to SOLID_STATE (a resumed case would silently differ)."""
     rebuilt = {
         "tets", "zone_elements", "zone_nodes", "contact_nodes", "material", "grads", "volume", "char_length", "bulk_viscosity",
-        "offsets", "entries", "support_stiffness", "held",
+        "offsets", "entries", "support_stiffness", "held", "static_flow_stress", "static_flow_peeq",
     }  # fmt: skip
     assert set(SolidArrays._fields) - set(SOLID_STATE) == rebuilt and set(SOLID_STATE) <= set(SolidArrays._fields)
 

@@ -26,7 +26,14 @@ from thrsim.config import BoneMaterial, CrushableFoam, JohnsonCookDamage, Johnso
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.tet_metrics import minimum_altitudes
-from thrsim.physics.material import characteristic_length, damage_initiation_increment, foam_return, jc_radial_return
+from thrsim.physics.material import (
+    characteristic_length,
+    crushed_flow_stress,
+    damage_initiation_increment,
+    foam_return,
+    jc_radial_return,
+    jc_yield_stress,
+)
 from thrsim.physics.tet_kinematics import MassScaling, lumped_nodal_mass, mass_scaling, node_element_csr, shape_gradients
 
 #: ABAQUS/Explicit's default linear bulk viscosity coefficient: damps ringing at contact impacts
@@ -63,6 +70,8 @@ class SolidArrays(NamedTuple):
     damage_work: np.ndarray  # (E,) J
     viscous_work: np.ndarray  # (E,) J, bulk viscosity
     viscous_pressure: np.ndarray  # (E,) Pa, the bulk-viscosity pressure applied in the last step
+    static_flow_stress: np.ndarray  # (E,) Pa, the flow stress at rest (rate 0) at ``static_flow_peeq``, kept to skip
+    static_flow_peeq: np.ndarray  # (E,) the εᵖ it was computed at (NaN: not yet); recomputed when εᵖ differs
     element_force: np.ndarray  # (E, 4, 3)
     nodal_mass: np.ndarray  # (N,)
     inverse_mass: np.ndarray  # (N,), 0 for orphaned nodes
@@ -184,6 +193,8 @@ def element_update(s, m):
     viscous_work = s.viscous_work
     element_force = s.element_force
     viscous_pressure = s.viscous_pressure
+    static_flow_stress = s.static_flow_stress
+    static_flow_peeq = s.static_flow_peeq
     cutting_damage = s.cutting_damage
     for index in prange(len(zone_elements)):
         e = zone_elements[index]
@@ -235,9 +246,15 @@ def element_update(s, m):
             # σ_c is never under A: inside √(1 + α²/9)·A the step is elastic, with no call into the return
             gamma = 0.0
             if q_trial * q_trial + alpha * alpha * pressure * pressure > (1.0 + alpha * alpha / 9.0) * a_of[row] * a_of[row]:
+                if static_flow_peeq[e] != peeq[e]:
+                    static_flow_stress[e] = crushed_flow_stress(
+                        peeq[e], 0.0, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row],
+                        exp_d_of[row], cap_d_of[row],
+                    )  # fmt: skip
+                    static_flow_peeq[e] = peeq[e]
                 gamma, dpeeq = foam_return(
-                    q_trial, pressure, peeq[e], dt, mu, lam + 2.0 * mu / 3.0, alpha, a_of[row], b_of[row], n_of[row],
-                    c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row], cap_d_of[row],
+                    q_trial, pressure, peeq[e], static_flow_stress[e], dt, mu, lam + 2.0 * mu / 3.0, alpha, a_of[row], b_of[row],
+                    n_of[row], c_of[row], rate0_of[row], eps_d_of[row], coef_d_of[row], exp_d_of[row], cap_d_of[row],
                 )  # fmt: skip
             if dpeeq > 0.0:
                 deviator_scale = 1.0 / (1.0 + 6.0 * mu * gamma)
@@ -251,11 +268,13 @@ def element_update(s, m):
         else:
             # the flow stress is never under A: at or below it the step is elastic, with no call into the
             # return mapping (whose own first test, against A + B·εᵖⁿ, would say the same at a power's cost)
-            dpeeq = (
-                jc_radial_return(q_trial, peeq[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row])
-                if q_trial > a_of[row]
-                else 0.0
-            )
+            if q_trial > a_of[row]:
+                if static_flow_peeq[e] != peeq[e]:
+                    static_flow_stress[e] = jc_yield_stress(peeq[e], 0.0, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row])
+                    static_flow_peeq[e] = peeq[e]
+                dpeeq = jc_radial_return(
+                    q_trial, peeq[e], static_flow_stress[e], dt, mu, a_of[row], b_of[row], n_of[row], c_of[row], rate0_of[row]
+                )
             if dpeeq > 0.0:
                 deviator_scale = 1.0 - 3.0 * mu * dpeeq / q_trial
                 q_new = deviator_scale * q_trial
@@ -500,6 +519,8 @@ class ExplicitSolid:
         self.active = np.ones(n_el, dtype=np.uint8)
         self.viscous_work = np.zeros(n_el)
         self.viscous_pressure = np.zeros(n_el)
+        self.static_flow_stress = np.zeros(n_el)
+        self.static_flow_peeq = np.full(n_el, np.nan)
         self.element_force = np.zeros((n_el, 4, 3))
         self.external_force = np.zeros((n_nodes, 3))
         self.cutting_damage = np.zeros(n_nodes)
@@ -517,7 +538,8 @@ class ExplicitSolid:
             offsets=self.offsets, entries=self.entries, support_stiffness=self.support_stiffness, held=self.held,
             active=self.active, accounted=self._accounted, stress=self.stress, peeq=self.peeq, damage=self.damage,
             initiation=self.initiation, plastic_work=self.plastic_work, damage_work=self.damage_work,
-            viscous_work=self.viscous_work, viscous_pressure=self.viscous_pressure, element_force=self.element_force, nodal_mass=self.nodal_mass,
+            viscous_work=self.viscous_work, viscous_pressure=self.viscous_pressure,
+            static_flow_stress=self.static_flow_stress, static_flow_peeq=self.static_flow_peeq, element_force=self.element_force, nodal_mass=self.nodal_mass,
             inverse_mass=self.inverse_mass, elements_at_node=self.elements_at_node, velocity=self.velocity,
             displacement=self.displacement, du=self.du, external_force=self.external_force,
             cutting_damage=self.cutting_damage, debris=self.debris,

@@ -36,20 +36,31 @@ def jc_yield_stress(peeq: float, peeq_rate: float, a: float, b: float, n: float,
 
 @njit(cache=True)
 def jc_radial_return(
-    q_trial: float, peeq: float, dt: float, shear_modulus: float, a: float, b: float, n: float, c: float, rate0: float
+    q_trial: float,
+    peeq: float,
+    static: float,
+    dt: float,
+    shear_modulus: float,
+    a: float,
+    b: float,
+    n: float,
+    c: float,
+    rate0: float,
 ) -> float:
-    """Plastic strain increment Δεᵖ ≥ 0 that returns a trial von Mises stress to the JC surface.
+    """Plastic strain increment Δεᵖ ≥ 0 that returns a trial von Mises stress to the JC surface;
+    ``static`` is the flow stress at ``peeq`` and rate 0 (:func:`jc_yield_stress`; the caller keeps
+    it per element, since most elements with plastic history stay elastic step after step).
 
     Solves g(Δ) = q_trial − 3GΔ − σ_y(εᵖ + Δ, Δ/dt) = 0, strictly decreasing in Δ. The root can
     lie many decades below q_trial/3G (εᵖⁿ with n = 0.08 and the rate logarithm both have
     infinite slope at zero), so Newton's method runs on z = ln Δ, where both become smooth,
     safeguarded by bisection in z. Returns 0 when the trial state is elastic.
     """
-    if q_trial <= jc_yield_stress(peeq, 0.0, a, b, n, c, rate0):
+    if q_trial <= static:
         return 0.0
     z_lo, z_hi = _LOG_FLOOR, pm.log(q_trial / (3.0 * shear_modulus))
     # start from the elastic-perfectly-plastic estimate, itself an upper bound of the root
-    excess = q_trial - jc_yield_stress(peeq, 0.0, a, b, n, c, rate0)
+    excess = q_trial - static
     z = min(pm.log(excess / (3.0 * shear_modulus)), z_hi)
     for _ in range(_RETURN_ITERATIONS):
         x = pm.exp(z)
@@ -136,6 +147,7 @@ def foam_return(
     q_trial: float,
     mean_trial: float,
     peeq: float,
+    static: float,
     dt: float,
     shear_modulus: float,
     bulk_modulus: float,
@@ -156,10 +168,10 @@ def foam_return(
     Δε̂ = σ:Δεᵖ/σ_c = 2βΔγ·f with β = √(1 + α²/9); the residual f − β·σ_c(ε̂ + Δε̂) falls
     strictly with Δγ. Newton's method on z = ln Δγ (as :func:`jc_radial_return`, for the same
     infinite slopes at zero), safeguarded by bisection. Returns (0, 0) when the trial is elastic.
+    ``static`` is σ_c at ``peeq`` and rate 0 (:func:`crushed_flow_stress`), kept per element by the caller.
     """
     beta = math.sqrt(1.0 + alpha * alpha / 9.0)
     f_trial = math.sqrt(q_trial * q_trial + alpha * alpha * mean_trial * mean_trial)
-    static = crushed_flow_stress(peeq, 0.0, a, b, n, c, rate0, eps_d, coef_d, exp_d, cap)
     if f_trial <= beta * static:
         return 0.0, 0.0
     shear_rate = 6.0 * shear_modulus

@@ -548,6 +548,11 @@ class LabelConfig(_Frozen):
     tau: float = 0.42
     von_mises_scale_pa: float = Field(1e7, gt=0)
     removed_threshold: float = Field(0.3, gt=0, lt=1)
+    crushed_bone_is_lost: bool = Field(
+        False,
+        description="read a crushable foam's plastic strain (compaction) as material lost, as eq. 47 reads every element's; "
+        "False: its damage takes that place (crushed bone stays, denser)",
+    )
 
 
 class SafeZone(_Frozen):

@@ -32,6 +32,33 @@ def test_alpha_values():
     assert alpha([0.2], [0.0], config=custom)[0] == pytest.approx(0.8)
 
 
+def test_crushed_bone_that_stays_is_not_removed():
+    """A crushable foam's plastic strain is compaction: its damage counts as material lost instead."""
+    peeq, vm, status = [[0.6, 0.6, 0.6]], [[5e6, 5e6, 5e6]], [[1, 1, 0]]
+    damage = [[0.0, 0.9, 0.0]]
+    compacting = np.array([True, True, True])
+    a = alpha(peeq, vm, status, damage=damage, compacting=compacting)
+    assert removed(a).tolist() == [[False, True, True]]  # crushed and kept / fractured / deleted
+    np.testing.assert_allclose(a[0, 0], 1 - 0.42 * (1 - 0.38 * 0.5), atol=1e-6)  # as intact bone at that stress
+    assert removed(alpha(peeq, vm, status)).all()  # eq. 47 as written reads the compaction as lost
+    assert removed(alpha(peeq, vm, status, LabelConfig(crushed_bone_is_lost=True), damage=damage, compacting=compacting)).all()
+    with pytest.raises(ThrsimInputError, match="damage"):
+        alpha(peeq, vm, status, compacting=compacting)
+
+
+def test_the_socket_s_cancellous_bone_compacts_unless_written_before_it_could():
+    from thrsim.data.labels import compacting_elements
+    from thrsim.geometry.mesh import TetMesh
+
+    mesh = TetMesh(
+        np.eye(4, 3), np.array([[0, 1, 2, 3], [0, 1, 2, 3]]), material=np.array([0, 1]), material_names=("cortical", "cancellous")
+    )
+    assert compacting_elements({}, mesh).tolist() == [False, True]
+    old = {"cancellous": {"specific_cutting_energy_j_m3": 1e8}}  # a solver before 0.5.2 wrote no compaction
+    assert compacting_elements(old, mesh).tolist() == [False, False]
+    assert compacting_elements({"cancellous": {"compaction": None}}, mesh).tolist() == [False, False]
+
+
 @settings(max_examples=60, deadline=None)
 @given(st.floats(0, 10), st.floats(0, 1e9), st.integers(0, 1))
 def test_alpha_bounded_and_zero_when_removed(peeq, vm, status):

@@ -38,6 +38,13 @@ def test_a_reamer_one_size_up_reams_the_native_socket(tmp_path):
         # once seated on the rim the bone pushes back against the feed, and the motor works to turn the teeth
         assert reaction[-1] @ axis < 0 and torque[-1] > 0
         assert f.attrs["bone"] == "socket" and f.attrs["reamer_diameter_mm"] == pytest.approx(48.0)
+        cancellous, kept = f["mesh/material"][()] == 1, f["frames/status"][-1] == 1
+        crushed = cancellous & kept & (f["frames/peeq"][-1] > 0.42)  # past eq. 47's threshold by its strain alone
+    # the rim's crush compacts the cancellous bone behind it: crushed bone stays, and the labels a model learns keep it
+    from thrsim.learn.cases import load_cases
+
+    _, (case,) = load_cases(out)
+    assert crushed.any() and not (case.alpha[-1] < 0.3)[crushed].any()
 
 
 def test_a_pre_reamed_socket_starts_from_its_cavity():

@@ -16,7 +16,7 @@ import numpy as np
 from thrsim.config import LabelConfig
 from thrsim.data.case_file import CaseReader
 from thrsim.data.generate import MANIFEST, read_manifest
-from thrsim.data.labels import alpha
+from thrsim.data.labels import alpha, compacting_elements
 from thrsim.errors import ThrsimInputError
 
 ALPHA_BINS = np.linspace(0.0, 1.0, 51)
@@ -89,6 +89,8 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
         forces[force] = forces.get(force, 0) + 1
         with CaseReader(path) as reader:
             frames_total += reader.n_frames
+            config = reader.attrs.get("config")
+            compacting = compacting_elements(config if isinstance(config, dict) else {}, reader.mesh)
             for t in range(reader.n_frames):
                 frame = reader.frame(t)
                 status = frame["status"]
@@ -102,7 +104,7 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
                 if n:
                     peeq_range = [min(peeq_range[0], float(peeq.min())), max(peeq_range[1], float(peeq.max()))]
                     vm_range = [min(vm_range[0], float(vm.min())), max(vm_range[1], float(vm.max()))]
-                raw = alpha(peeq, vm, None, labels)
+                raw = alpha(peeq, vm, None, labels, damage=frame.get("damage"), compacting=compacting)
                 gone = status == 0
                 hist_removed += np.histogram(raw[gone], bins=ALPHA_BINS)[0]
                 hist_remaining += np.histogram(raw[~gone], bins=ALPHA_BINS)[0]

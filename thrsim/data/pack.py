@@ -27,6 +27,7 @@ from thrsim.atomic import atomic_path, hdf5_in_memory
 from thrsim.config import LabelConfig
 from thrsim.data.case_file import OPTIONAL_PER_ELEMENT, OPTIONAL_PER_FRAME, CaseReader, attr_value, data_digest, decode_attrs, file_sha256
 from thrsim.data.labels import alpha as alpha_label
+from thrsim.data.labels import compacting_elements
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import TetMesh
 from thrsim.geometry.mesh_io import read_mesh_group, write_mesh_group
@@ -142,7 +143,11 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
     status = reader.series("status")
     if status is None:
         raise ThrsimInputError(f"{reader.path}: no /frames/status to pack")
-    alpha = alpha_label(reader.series("peeq"), reader.series("von_mises"), status, labels)
+    config = reader.attrs.get("config")
+    alpha = alpha_label(
+        reader.series("peeq"), reader.series("von_mises"), status, labels, damage=reader.series("damage"),
+        compacting=compacting_elements(config if isinstance(config, dict) else {}, reader.mesh),
+    )  # fmt: skip
     group.create_dataset("alpha", data=quantise_alpha(alpha), chunks=(min(4096, alpha.shape[1]), alpha.shape[0]), **_ALPHA_COMPRESSION)
     group.create_dataset("removed_frame", data=removal_frames(status, str(reader.path)), compression="gzip", compression_opts=9)
     for name in OPTIONAL_PER_ELEMENT:

@@ -19,6 +19,7 @@ import numpy as np
 from thrsim.config import FRAME_RATE_HZ, PUSH_FORCE_N, LabelConfig, ReamerConfig, ReamerHoldConfig, ReamingCaseConfig
 from thrsim.data.case_file import data_digest, read_case
 from thrsim.data.labels import alpha as alpha_label
+from thrsim.data.labels import compacting_elements
 from thrsim.data.pack import is_pack, read_pack
 from thrsim.errors import ThrsimInputError
 from thrsim.geometry.mesh import WINDOW_SIDE, TetMesh
@@ -30,7 +31,7 @@ from thrsim.physics.reaming_case import cutting_energies
 class CaseArrays:
     case_id: str
     path: Path
-    alpha: np.ndarray  # (T, E) float32, eq. 47
+    alpha: np.ndarray  # (T, E) float32, eq. 47 (a crushable foam: its damage for its plastic strain)
     positions: np.ndarray  # (T, 3) m, reamer centre
     axis: np.ndarray  # (3,) unit D
     force_n: float
@@ -155,7 +156,9 @@ def _case_arrays(
 def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, labels: LabelConfig) -> tuple[TetMesh, CaseArrays]:
     case = read_case(path)
     frames = case.frames
-    alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels)
+    config = case.attrs.get("config")
+    compacting = compacting_elements(config if isinstance(config, dict) else {}, case.mesh)
+    alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels, damage=frames.damage, compacting=compacting)
     return case.mesh, _case_arrays(
         case_id,
         path,

@@ -680,6 +680,13 @@ def case_tissues(case: ReamingCaseConfig) -> tuple[Tissue, dict[str, Tissue]]:
     }
 
 
+def compacting_elements(case: ReamingCaseConfig, mesh: TetMesh) -> np.ndarray:
+    """(E,) bool: the elements whose tissue is a crushable foam (crushed, it compacts and stays)."""
+    cortical, others = case_tissues(case)
+    compacts = np.array([tissue.compaction is not None for tissue in tissues_of(mesh, cortical, others)], dtype=bool)
+    return compacts[mesh.element_material]
+
+
 def cutting_energies(case: ReamingCaseConfig, mesh: TetMesh) -> np.ndarray:
     """The cutting law's specific energy u_c (J/m³) of each of the mesh's materials, in its tag order."""
     by_name = {CORTICAL: case.contact.specific_cutting_energy_j_m3, CANCELLOUS: case.cancellous.specific_cutting_energy_j_m3}

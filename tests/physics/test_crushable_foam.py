@@ -108,7 +108,11 @@ def test_the_flow_stress_each_element_keeps_is_the_one_computed_afresh() -> None
     mesh = TetMesh(box.nodes, box.tets, box.node_sets, box.fixed_nodes, material=lower, material_names=("cortical", "cancellous"))
     solids = [
         ExplicitSolid(
-            mesh, BoneMaterial(), JohnsonCookHardening(), JohnsonCookDamage(), target_dt_s=None,
+            mesh,
+            BoneMaterial(),
+            JohnsonCookHardening(),
+            JohnsonCookDamage(),
+            target_dt_s=None,
             other_tissues={"cancellous": Tissue(BONE.material, BONE.hardening, BONE.damage, FOAM)},
         )  # fmt: skip
         for _ in range(2)

@@ -114,7 +114,7 @@ def test_the_flow_stress_each_element_keeps_is_the_one_computed_afresh() -> None
             JohnsonCookDamage(),
             target_dt_s=None,
             other_tissues={"cancellous": Tissue(BONE.material, BONE.hardening, BONE.damage, FOAM)},
-        )  # fmt: skip
+        )
         for _ in range(2)
     ]
     top = np.flatnonzero(np.isclose(mesh.nodes[:, 2], mesh.nodes[:, 2].max()))

@@ -70,7 +70,7 @@ class SolidArrays(NamedTuple):
     damage_work: np.ndarray  # (E,) J
     viscous_work: np.ndarray  # (E,) J, bulk viscosity
     viscous_pressure: np.ndarray  # (E,) Pa, the bulk-viscosity pressure applied in the last step
-    static_flow_stress: np.ndarray  # (E,) Pa, the flow stress at rest (rate 0) at ``static_flow_peeq``, kept to skip
+    static_flow_stress: np.ndarray  # (E,) Pa, flow stress at rate 0 at static_flow_peeq: an elastic step skips its powers
     static_flow_peeq: np.ndarray  # (E,) the εᵖ it was computed at (NaN: not yet); recomputed when εᵖ differs
     element_force: np.ndarray  # (E, 4, 3)
     nodal_mass: np.ndarray  # (N,)

@@ -269,3 +269,31 @@ def test_removal_is_one_frame_per_element_and_revival_is_refused():
     assert removal_frames(status, "x").tolist() == [2, 1, -1]
     with pytest.raises(ThrsimInputError, match="comes back"):
         removal_frames(np.array([[1], [0], [1]], dtype=np.uint8), "x")
+
+
+@pytest.mark.timeout(900)  # a whole socket solved for two frames, on a coarse mesh
+def test_a_socket_s_crushed_cancellous_bone_is_packed_as_bone_and_an_older_pack_of_it_is_refused(tmp_path, monkeypatch, capsys):
+    """The rim's crush compacts the cancellous bone behind it; the pack's labels keep it, and a pack
+    whose label constants predate that (eq. 47 reading compaction as loss) is refused, not misread."""
+    plan = tmp_path / "plan.json"
+    plan.write_text(json.dumps({
+        "train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": [], "test_pushed_windows": [],
+        "whole_sockets": [[46, 48, 0, 0, 230, "train"]], "whole_socket_element_size_mm": 2.5,
+    }))  # fmt: skip
+    root, pack = tmp_path / "ds", tmp_path / "pack.h5"
+    args = ["dataset", "--bone", "socket", "--socket-plan", str(plan), "--frames", "2", "--out", str(root), "--threads", "1"]
+    code, _, err = run_main(monkeypatch, capsys, *args)
+    assert code == 0, err
+    write_pack(root, pack)
+    (case_file,) = (root / "cases").glob("*.h5")
+    with h5py.File(case_file, "r") as f:
+        cancellous, kept = f["mesh/material"][()] == 1, f["frames/status"][-1] == 1
+        crushed = cancellous & kept & (f["frames/peeq"][-1] > 0.42)
+    _, (case,) = load_cases(pack, one_mesh=False)
+    assert crushed.any() and not (case.alpha[-1] < 0.3)[crushed].any()
+    with h5py.File(pack, "r+") as f:  # as a pack made before the labels kept crushed bone
+        labels = json.loads(f.attrs["labels"])
+        del labels["crushed_bone_is_lost"]
+        f.attrs["labels"] = json.dumps(labels)
+    with pytest.raises(ThrsimInputError, match="pack its dataset again"):
+        read_pack(pack)

@@ -400,6 +400,7 @@ def _read_pack_file(
     try:
         version = int(f.attrs.get("version", -1))
         packed_labels = LabelConfig.model_validate_json(f.attrs["labels"]).model_dump()
+        labels_know_crushed_bone = "crushed_bone_is_lost" in json.loads(f.attrs["labels"])
         levels, damage_levels = (
             float(f.attrs.get(key, default)) for key, default in (("alpha_levels", None), ("damage_levels", DAMAGE_LEVELS))
         )
@@ -429,6 +430,12 @@ def _read_pack_file(
         if version == PACK_VERSION_OWN_MESHES:  # each case its mesh: its own, or its file's (files of a pack differ)
             own_mesh = read_mesh_group(group_at(g, "mesh", path)) if "mesh" in g else mesh
         elements = (own_mesh or mesh).n_tets
+        config = attrs.get("config")
+        if not labels_know_crushed_bone and compacting_elements(config if isinstance(config, dict) else {}, own_mesh or mesh).any():
+            raise ThrsimInputError(
+                f"{path}: case {case_id}'s cancellous bone compacts, and the pack was made before its labels kept crushed bone: "
+                "pack its dataset again"
+            )
         quantised = read_dataset(g, "alpha", path, "u", (elements, None))
         frames = quantised.shape[1]
         status = _status_from(read_dataset(g, "removed_frame", path, "iu", (elements,)), frames)

@@ -90,7 +90,7 @@ def dataset_info(root: str | os.PathLike, labels: LabelConfig | None = None, *, 
         with CaseReader(path) as reader:
             frames_total += reader.n_frames
             config = reader.attrs.get("config")
-            compacting = compacting_elements(config if isinstance(config, dict) else {}, reader.mesh)
+            compacting = compacting_elements(config, reader.mesh)
             for t in range(reader.n_frames):
                 frame = reader.frame(t)
                 status = frame["status"]

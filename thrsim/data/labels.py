@@ -42,12 +42,14 @@ def removed(alpha_values, config: LabelConfig = DEFAULT_LABELS) -> np.ndarray:
     return np.asarray(alpha_values) < config.removed_threshold
 
 
-def compacting_elements(case_config: dict, mesh: TetMesh) -> np.ndarray:
+def compacting_elements(case_config: object, mesh: TetMesh) -> np.ndarray:
     """(E,) bool: the elements of ``mesh`` that compact when crushed, by a case file's settings
-    (the solver's defaults where a setting is absent; a cancellous bone written without a
-    ``compaction`` setting is from a solver before 0.5.2, whose cancellous bone did not compact)."""
+    (the solver's defaults where a setting, or the settings, are absent; a cancellous bone written
+    without a ``compaction`` setting is from a solver before 0.5.2, whose cancellous bone did not compact)."""
     from thrsim.physics.reaming_case import compacting_elements as of_case  # Numba: loaded only here
 
+    if not isinstance(case_config, dict):
+        case_config = {}
     cancellous = case_config.get("cancellous")
     if isinstance(cancellous, dict) and "compaction" not in cancellous:
         case_config = {**case_config, "cancellous": {**cancellous, "compaction": None}}

@@ -146,7 +146,7 @@ def _write_case_group(group: h5py.Group, reader: CaseReader, entry: dict, labels
     config = reader.attrs.get("config")
     alpha = alpha_label(
         reader.series("peeq"), reader.series("von_mises"), status, labels, damage=reader.series("damage"),
-        compacting=compacting_elements(config if isinstance(config, dict) else {}, reader.mesh),
+        compacting=compacting_elements(config, reader.mesh),
     )  # fmt: skip
     group.create_dataset("alpha", data=quantise_alpha(alpha), chunks=(min(4096, alpha.shape[1]), alpha.shape[0]), **_ALPHA_COMPRESSION)
     group.create_dataset("removed_frame", data=removal_frames(status, str(reader.path)), compression="gzip", compression_opts=9)
@@ -431,7 +431,7 @@ def _read_pack_file(
             own_mesh = read_mesh_group(group_at(g, "mesh", path)) if "mesh" in g else mesh
         elements = (own_mesh or mesh).n_tets
         config = attrs.get("config")
-        if not labels_know_crushed_bone and compacting_elements(config if isinstance(config, dict) else {}, own_mesh or mesh).any():
+        if not labels_know_crushed_bone and compacting_elements(config, own_mesh or mesh).any():
             raise ThrsimInputError(
                 f"{path}: case {case_id}'s cancellous bone compacts, and the pack was made before its labels kept crushed bone: "
                 "pack its dataset again"

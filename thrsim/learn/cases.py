@@ -157,7 +157,7 @@ def _read_case(path: Path, case_id: str, split: str | None, digest: str | None, 
     case = read_case(path)
     frames = case.frames
     config = case.attrs.get("config")
-    compacting = compacting_elements(config if isinstance(config, dict) else {}, case.mesh)
+    compacting = compacting_elements(config, case.mesh)
     alpha = alpha_label(frames.peeq, frames.von_mises, frames.status, labels, damage=frames.damage, compacting=compacting)
     return case.mesh, _case_arrays(
         case_id,

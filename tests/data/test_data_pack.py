@@ -231,6 +231,36 @@ def test_packs_gather_a_sweep_run_in_parts(dataset, tmp_path, monkeypatch, capsy
     assert pack.read_bytes() == before  # a refused merge leaves the pack as it was
 
 
+def test_a_sweep_solved_on_two_machines_skips_what_the_pack_holds(dataset, tmp_path, monkeypatch, capsys):
+    pack = tmp_path / "pack"
+    first = tmp_path / "first-machine"
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(first), *SWEEP[2:], "--inclinations", "0,15", "--json")
+    assert code == 0, err
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(first), "--out", str(pack), "--json")
+    assert code == 0 and json.loads(out)["cases"] == 4, err
+
+    second = tmp_path / "second-machine"
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(second), *SWEEP, "--except-packed", str(pack), "--json")
+    assert code == 0, err
+    assert json.loads(out)["cases"] == 3 and sorted(read_manifest(second)["cases"]) == sorted(
+        set(read_manifest(dataset)["cases"]) - set(read_manifest(first)["cases"])
+    )
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "pack", str(second), "--out", str(pack), "--json")
+    assert code == 0 and json.loads(out)["cases"] == 7, err
+    whole = tmp_path / "whole.h5"
+    assert run_main(monkeypatch, capsys, "dataset", "pack", str(dataset), "--out", str(whole))[0] == 0
+    assert _same_cases(read_pack(pack)[1], read_pack(whole)[1])  # as if one machine had solved it all
+
+    code, out, err = run_main(monkeypatch, capsys, "dataset", "--out", str(tmp_path / "third"), *SWEEP, "--except-packed", str(pack))
+    assert code == 0 and "nothing to run" in err and not (tmp_path / "third").exists()
+    other = tmp_path / "other-frames"  # another identity: the frame count is part of it
+    args = [*SWEEP[:4], "--frames", "6", *SWEEP[6:], "--except-packed", str(pack)]
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(other), *args)
+    assert code == 2 and "a pack of another dataset" in err and err.count("\n") == 1 and not other.exists()
+    code, _, err = run_main(monkeypatch, capsys, "dataset", "--out", str(other), *SWEEP, "--except-packed", str(dataset / "manifest.json"))
+    assert code == 2 and "not a learning pack" in err and err.count("\n") == 1 and not other.exists()
+
+
 def test_bad_targets_and_sources_get_one_line(dataset, tmp_path, monkeypatch, capsys):
     code, _, err = run_main(monkeypatch, capsys, "dataset", "pack", str(tmp_path / "nothing"), "--out", str(tmp_path / "p.h5"))
     assert code != 0 and "not a thrsim dataset" in err and err.count("\n") == 1

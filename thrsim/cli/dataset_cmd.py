@@ -111,6 +111,13 @@ def dataset(
         hidden=True,
         help=f"one of thrsim's own: {', '.join(_SOLVER_CHOICES)} (synthetic: the pipeline tests' stand-in, not physics)",
     ),
+    except_packed: Path | None = typer.Option(
+        None,
+        "--except-packed",
+        help="skip the cases this learning pack of the same dataset holds (a plan solved across machines or sessions: "
+        "pack what is done, solve the rest, pack them into the same pack)",
+        metavar="PACK",
+    ),
     dry_run: bool = typer.Option(False, "--dry-run", help="print the planned cases and splits, run nothing"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -123,7 +130,7 @@ def dataset(
     """
     if ctx.invoked_subcommand is not None:
         return
-    from thrsim.data.generate import run_sweep
+    from thrsim.data.generate import check_sweep_target, run_sweep, without_packed
     from thrsim.data.sweep import DEFAULT_SPLIT, SocketSplitRule, SplitRule, parse_list, plan_socket_sweep, plan_sweep
 
     if out is None:
@@ -160,10 +167,10 @@ def dataset(
             element_sizes_mm=sizes,
         )
         split = DEFAULT_SPLIT
+    target = check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
+    if except_packed is not None:
+        plan = without_packed(plan, except_packed, target.identity)
     if dry_run:
-        from thrsim.data.generate import check_sweep_target
-
-        check_sweep_target(out, plan, solver=solver, template_overrides=template_overrides)  # what the run would refuse
         rows = [{**c.params(), "case_id": c.case_id, "split": split.of(c)} for c in plan.cases]
         payload = {"cases": len(plan.cases), "requested": plan.requested, "notes": plan.notes, "plan": rows}
         if as_json:
@@ -174,6 +181,12 @@ def dataset(
             print_table("sweep plan", {"physical cases": len(plan.cases), "grid points asked": plan.requested})
         return
 
+    if not plan.cases:
+        if as_json:
+            print_json({"out": str(out), "cases": 0, "generated": 0, "notes": plan.notes})
+        else:
+            err_console.print(f"every case of the plan is in {except_packed}: nothing to run", soft_wrap=True)
+        return
     progress: Progress | None = None
     task = None
     state = {"frames": 0, "t0": time.perf_counter()}

@@ -23,7 +23,7 @@ import socket
 import time
 import uuid
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -388,6 +388,20 @@ def check_sweep_target(
     if not callable(solver):
         resolve_solver(solver)  # an unknown solver is an input error, found before any work
     return SweepTarget(template, name, identity, manifest)
+
+
+def without_packed(plan: SweepPlan, pack: str | os.PathLike, identity: dict) -> SweepPlan:
+    """``plan`` less the cases a learning pack of this same dataset holds: a plan solved across
+    machines or sessions (pack what is done, solve the rest anywhere, pack them into that pack)."""
+    from thrsim.data.pack import packed_case_ids
+
+    identity_hash, held = packed_case_ids(pack)
+    if identity_hash != config_hash(identity):
+        raise ThrsimInputError(
+            f"{pack}: a pack of another dataset (solver, thrsim version or case settings differ from this sweep's)", "except_packed"
+        )
+    kept = [case for case in plan.cases if case.case_id not in held]
+    return replace(plan, cases=kept, notes=[*plan.notes, f"{len(plan.cases) - len(kept)} case(s) of the plan are in {pack}: not run"])
 
 
 def run_sweep(

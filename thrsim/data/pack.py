@@ -77,6 +77,23 @@ def is_pack(path: str | os.PathLike) -> bool:
     return bool(files) and all(_is_pack_file(f) for f in files)
 
 
+def packed_case_ids(path: str | os.PathLike) -> tuple[str, frozenset[str]]:
+    """The dataset identity hash and the case ids a learning pack (a file or a folder) holds."""
+    files = pack_files(path)
+    if not files or not all(f.is_file() and _is_pack_file(f) for f in files):
+        raise ThrsimInputError(f"{path}: not a learning pack", "except_packed")
+    hashes: set[str] = set()
+    case_ids: set[str] = set()
+    for file in files:
+        with h5py.File(file, "r") as f:
+            identity_hash = f.attrs.get("identity_hash", "")
+            hashes.add(identity_hash.decode() if isinstance(identity_hash, bytes) else str(identity_hash))
+            case_ids.update(f["cases"].keys() if "cases" in f else ())
+    if len(hashes) != 1:
+        raise ThrsimInputError(f"{path}: its files are packs of different datasets", "except_packed")
+    return hashes.pop(), frozenset(case_ids)
+
+
 def _is_pack_file(path: Path) -> bool:
     try:
         with h5py.File(path, "r") as f:

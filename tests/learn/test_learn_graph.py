@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -232,3 +233,17 @@ def test_threads_sharing_a_graph_get_the_subgraphs_and_regions_each_would_alone(
         for run in runs:
             for (nodes, senders, region), (nodes0, senders0, region0) in zip(run, alone, strict=True):
                 assert np.array_equal(nodes, nodes0) and np.array_equal(senders, senders0) and np.array_equal(region, region0)
+
+
+def test_cavity_depth_error_is_the_whole_cavity_s_so_a_window_that_cuts_nothing_new_errs_by_what_the_solver_cut():
+    from thrsim.learn.evaluation import cavity_depth_error_mm
+
+    axis = np.array([0.0, 0.0, -1.0])
+    depth = -GRAPH.centroids[:, 2]  # along the axis from a start at z = 0
+    start = np.zeros(3)
+    before = depth < np.quantile(depth, 0.2)  # the cavity when the window starts
+    solver = depth < np.quantile(depth, 0.4)
+    expected = (depth[solver].max() - depth[before].max()) * 1e3
+    assert cavity_depth_error_mm(GRAPH, before, solver, start, axis) == pytest.approx(expected, abs=1e-9)
+    assert expected > 0 and cavity_depth_error_mm(GRAPH, solver, solver, start, axis) == 0.0
+    assert cavity_depth_error_mm(GRAPH, solver, np.zeros_like(solver), start, axis) is None  # the solver cut nothing

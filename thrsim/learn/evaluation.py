@@ -87,6 +87,14 @@ def cavity_depth_mm(graph: StaticGraph, removed: np.ndarray, start: np.ndarray, 
     return float(((graph.centroids[removed] - start) @ axis).max()) * 1e3
 
 
+def cavity_depth_error_mm(graph: StaticGraph, predicted: np.ndarray, true: np.ndarray, start: np.ndarray, axis: np.ndarray) -> float | None:
+    """|predicted − true| depth of the whole cavity (every removed element, those removed before the
+    window included: a window that cuts nothing new leaves the cavity as deep as it was); None when the
+    solver's cavity is empty, the solver's depth when the prediction's is."""
+    depths = [cavity_depth_mm(graph, removed, start, axis) for removed in (predicted, true)]
+    return None if depths[1] is None else abs((depths[0] or 0.0) - depths[1])
+
+
 def group_key(model: LoadedModel, case: CaseArrays) -> str:
     """The row a case's windows count in: its γ (patch) or its reamer size in mm (socket)."""
     if reads_any_mesh(model.settings):
@@ -237,10 +245,10 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 diameters = [sphere_diameter_mm(surface) for surface in surfaces]
                 if diameters[0] is not None and diameters[1] is not None:
                     errors[mode][g]["diameter_error_mm"].append(abs(diameters[0] - diameters[1]))
-                depths = [cavity_depth_mm(graph, mask & ~initial, case.positions[start], case.axis) for mask in (final_pred, final_true)]
-                if depths[1] is not None:
-                    errors[mode][g]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
-                    by_control[mode][_control(case)]["depth_error_mm"].append(abs((depths[0] or 0.0) - depths[1]))
+                depth_error = cavity_depth_error_mm(graph, final_pred, final_true, case.positions[start], case.axis)
+                if depth_error is not None:
+                    errors[mode][g]["depth_error_mm"].append(depth_error)
+                    by_control[mode][_control(case)]["depth_error_mm"].append(depth_error)
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)

@@ -479,14 +479,15 @@ class SocketSweepConfig(_Frozen):
     push_pressures_n_mm2: tuple[float, ...] = (0.2, 0.35, 0.5, 0.8)
     test_pushed_windows: tuple[tuple[float, float], ...] = ((30.0, 270.0),)
     #: pushed whole sockets, the contact a seated reamer meets (a window is held at its cut sides):
-    #: (native socket, reamer size, inclination γ, anteversion θ, push N, split), solved at ``whole_socket_element_size_mm``
+    #: (native socket, reamer size, inclination γ, anteversion θ, push N, split), each solved at every ``whole_socket_element_sizes_mm``
     whole_sockets: tuple[tuple[float, float, float, float, float, str], ...] = (
         (46.0, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, 48.0, 15.0, 30.0, 230.0, "test"),
         (46.0, 48.0, 0.0, 0.0, 310.0, "train"), (46.0, 48.0, 15.0, 180.0, 150.0, "train"),
         (50.0, 52.0, 0.0, 0.0, 230.0, "train"), (44.0, 46.0, 30.0, 90.0, 270.0, "train"),
         (48.0, 50.0, 15.0, 300.0, 200.0, "test"),
     )  # fmt: skip
-    whole_socket_element_size_mm: float = Field(1.0, ge=0.3, le=3.0, description="the whole sockets' element size (mm)")
+    #: the element sizes (mm) every whole socket is meshed at: the trainer's 1.5 mm, then the finer 1.0 mm
+    whole_socket_element_sizes_mm: tuple[float, ...] = (1.5, 1.0)
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
     validation_cases: int = Field(6, ge=0, le=10_000)
     test_cases: int = Field(9, ge=0, le=10_000)
@@ -499,6 +500,13 @@ class SocketSweepConfig(_Frozen):
         unknown = sorted({v[5] for v in values} - {"train", "validation", "test"})
         if unknown:
             raise ValueError(f"unknown split(s) {unknown} of a whole socket: train, validation or test")
+        return values
+
+    @field_validator("whole_socket_element_sizes_mm")
+    @classmethod
+    def _element_sizes(cls, values: tuple[float, ...]) -> tuple[float, ...]:
+        if not values or len(set(values)) != len(values) or not all(0.3 <= v <= 3.0 for v in values):
+            raise ValueError(f"one or more distinct element sizes in [0.3, 3] mm, got {list(values)}")
         return values
 
     @field_validator("cancellous")

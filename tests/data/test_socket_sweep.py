@@ -29,11 +29,13 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     whole = [c for c in plan.cases if _settings(c)["socket.window_polar_deg"] is None]
     pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c) and c not in whole]
     fed = [c for c in plan.cases if "feed_mm_s" in _settings(c)]
-    # the pushed whole sockets: the plan's, at their element size, a seated reamer's contact to learn the law from
-    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in whole] == [w[2:] for w in config.whole_sockets]
-    for case, (socket_mm, reamer_mm, *_) in zip(whole, config.whole_sockets, strict=True):
+    # each of the plan's whole sockets at each of its element sizes, the trainer's 1.5 mm first
+    sizes = config.whole_socket_element_sizes_mm
+    assert sizes[0] == 1.5 and len(whole) == len(sizes) * len(config.whole_sockets)
+    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in whole] == [w[2:] for w in config.whole_sockets] * len(sizes)
+    for case, (size, (socket_mm, reamer_mm, *_)) in zip(whole, [(h, w) for h in sizes for w in config.whole_sockets], strict=True):
         built = case.case_config({"bone_kind": "socket"})
-        assert built.feed_mm_s is None and built.socket.element_size_mm == config.whole_socket_element_size_mm
+        assert built.feed_mm_s is None and built.socket.element_size_mm == size and case.case_id.endswith(f"_h{size:g}")
         assert built.socket.socket_diameter_mm == socket_mm and built.reamer.head_diameter_mm == head_diameter_for_size(reamer_mm)
     splits = Counter(c.split for c in fed)
     assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
@@ -94,7 +96,7 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "pushed_windows": [[0.0, 0.0, 44.0, 46.0]],
                 "push_pressures_n_mm2": [0.8],
                 "whole_sockets": [[44.0, 46.0, 0.0, 0.0, 230.0, "train"]],
-                "whole_socket_element_size_mm": 3.0,
+                "whole_socket_element_sizes_mm": [3.0],
                 "seed": 7,
             }
         )

@@ -390,13 +390,13 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
             made += 1
     pushed = [_pushed_case(config, window, pressure) for window in config.pushed_windows for pressure in config.push_pressures_n_mm2]
     cases.update((spec.case_id, spec) for spec in pushed)
-    whole = [_whole_socket_case(config, *entry) for entry in config.whole_sockets]
+    whole = [_whole_socket_case(config, size, *entry) for size in config.whole_socket_element_sizes_mm for entry in config.whole_sockets]
     cases.update((spec.case_id, spec) for spec in whole)
     pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
         f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
         f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
-        f"{len(whole)} pushed whole sockets at {config.whole_socket_element_size_mm:g} mm ({', '.join(s.split or '' for s in whole) or 'none'})",
+        f"{len(whole)} pushed whole sockets at {format_list(config.whole_socket_element_sizes_mm)} mm ({', '.join(s.split or '' for s in whole) or 'none'})",
     ]
     return SweepPlan(
         cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
@@ -435,11 +435,10 @@ def _pushed_case(config: SocketSweepConfig, window: tuple[float, float, float, f
 
 
 def _whole_socket_case(
-    config: SocketSweepConfig, socket_mm: float, reamer_mm: float, gamma: float, theta: float, push_n: float, split: str
+    config: SocketSweepConfig, size: float, socket_mm: float, reamer_mm: float, gamma: float, theta: float, push_n: float, split: str
 ) -> CaseSpec:
-    """A pushed whole socket: the native socket meshed whole, the reamer one size up driven by a set push."""
+    """A pushed whole socket: the native socket meshed whole at ``size`` mm, the reamer one size up driven by a set push."""
     theta = 0.0 if gamma == 0.0 else float(theta)
-    size = config.whole_socket_element_size_mm
     settings: list[tuple[str, Any]] = [
         ("socket.socket_diameter_mm", float(socket_mm)),
         ("socket.window_polar_deg", None),

@@ -1,16 +1,18 @@
 """The 0.5 dataset ships as learning packs: 51 socket windows at set feeds and 24 pushed, each with
-its own mesh and its reaction; beside them, the pushed whole sockets solved so far."""
+its own mesh and its reaction; beside them, the pushed whole sockets solved so far; and the plan
+solved again by solver 0.5.4, as far as it has gone."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from thrsim.config import SocketSweepConfig
+from thrsim.config import LabelConfig, SocketSweepConfig
 from thrsim.data.sweep import plan_socket_sweep
 from thrsim.learn.cases import load_cases
 
 PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
 WHOLE = PACK.parent / "socket-whole-0.5.1"
+PACK_054 = PACK.parent / "socket-0.5.4"
 
 
 def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_learns():
@@ -41,3 +43,24 @@ def test_the_whole_socket_pack_holds_the_plan_s_pushed_whole_sockets_meshed_whol
         assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.frames > 1
         assert {"cortical", "cancellous"} <= set(case.mesh.material_names)
     assert all(f.stat().st_size <= 15.5e6 for f in WHOLE.glob("part-*.h5"))
+
+
+def test_the_0_5_4_pack_holds_the_plan_s_cases_of_this_solver_with_labels_that_keep_crushed_bone():
+    import json
+
+    import h5py
+
+    plan = {case.case_id: case for case in plan_socket_sweep(SocketSweepConfig()).cases}
+    _, cases = load_cases(PACK_054, one_mesh=False)
+    assert all(case.case_id in plan and case.split == plan[case.case_id].split for case in cases)
+    windows = [case for case in cases if not case.case_id.startswith("whole_")]
+    whole = [case for case in cases if case.case_id.startswith("whole_")]
+    assert len(windows) == sum(not case_id.startswith("whole_") for case_id in plan)  # every window of the plan
+    assert {case.case_id for case in whole} >= {case_id for case_id in plan if case_id.endswith("_h1.5")}  # the trainer's mesh
+    assert all(case.reaction_n is not None and case.motor_torque_n_m is not None for case in cases)
+    files = sorted(PACK_054.glob("part-*.h5"))
+    assert files and all(f.stat().st_size <= 15.5e6 for f in files)
+    for file in files:
+        with h5py.File(file, "r") as f:
+            assert json.loads(f.attrs["identity"])["thrsim_version"] == "0.5.4"
+            assert json.loads(f.attrs["labels"]) == LabelConfig().model_dump()  # crushed cancellous bone stays bone

@@ -133,6 +133,30 @@ def test_a_stall_bounds_the_law_from_below_and_a_feed_fixes_it():
     assert torque.tolist() == pytest.approx([0.0, 0.0, 0.0, 0.0], abs=1e-6)
 
 
+def test_the_feed_loss_weighs_a_reaction_error_by_the_feed_it_would_cause():
+    import torch
+
+    from thrsim.learn.learned_simulator import balanced_feed_errors, law_errors
+
+    # seated at 230 N: the solver feeds 0.3 mm/s against a reaction of 229.4 N; damping 2,000 N·s/m
+    recorded = torch.tensor([[229.4, 0.5, 3e-4, 230.0, 2000.0]] * 3)
+    law = torch.tensor(
+        [
+            [199.4, 1e5, 0.5, 0.0],  # R(v) = A + B·v meets the record, so it balances the push at the recorded feed
+            [189.4, 1e5, 0.5, 0.0],  # 10 N short, stiff: balances at 0.40 mm/s
+            [217.9, 5e3, 0.5, 0.0],  # 10 N short, soft: balances at 1.7 mm/s
+        ]
+    )
+    force, _ = law_errors(law, recorded, torch.tensor([230.0, 0.5]))
+    assert force.tolist() == pytest.approx([0.0, -10.0 / 230.0, -10.0 / 230.0], abs=1e-5)  # the reaction's loss: a tie
+    errors = balanced_feed_errors(law, recorded).tolist()
+    assert abs(errors[0]) < 1e-3
+    assert errors[1] == pytest.approx(math.log1p(4.0) - math.log1p(3.0), rel=0.05)
+    assert errors[2] > 5 * errors[1]  # the feed's loss: the soft law would plunge
+    stalled = torch.tensor([[230.0, 0.5, 0.0, 230.0, 2000.0]])
+    assert float(balanced_feed_errors(torch.tensor([[240.0, 1e4, 0.5, 0.0]]), stalled)[0]) == 0.0  # holds the push: no feed
+
+
 def test_a_slow_frame_is_a_stall_only_if_it_cut_nothing(case):
     from thrsim.learn.training import REACTION_FRAMES, next_reaction
 
@@ -168,6 +192,8 @@ def test_the_law_can_learn_from_whole_sockets_only_with_a_share_of_each_epoch(sy
     settings = tiny_socket_settings(law_from="whole_socket", law_case_share=0.75, max_samples_per_epoch=8)
     trainer = Trainer(StaticGraph(mesh), [window, *cases[1:]], [], settings, 0.5)
     assert trainer.reaction_case_ids == {case.case_id for case in cases[1:]}  # a pushed window teaches no law
+    law_target = trainer._sample(int(np.flatnonzero(trainer.samples[:, 0] == 1)[0]), None)[4]
+    assert law_target[3:] == (cases[1].recorded_push_n(), cases[1].hold.axial_damping_n_s_m)  # what the feed's loss balances
     order = trainer._epoch_order(np.random.default_rng(0))
     in_law = [trainer.train_cases[trainer.samples[i, 0]].case_id in trainer.reaction_case_ids for i in order]
     assert len(order) == 8 and sum(in_law) == 6  # three quarters of the epoch from the law's cases

@@ -103,7 +103,8 @@ class GraphBatch:
     alpha: torch.Tensor
     update: torch.Tensor
     damage: torch.Tensor | None = None
-    #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s); NaN where unknown
+    #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s), the case's
+    #: push (N) and hold damping (N·s/m); NaN where unknown
     reaction: torch.Tensor | None = None
     #: per node, its share of a contact area (:func:`contact_weights`), which the reaction head's shares scale by
     contact_weight: torch.Tensor | None = None
@@ -338,12 +339,13 @@ def _full_edge_features(ids, senders, receivers, centroids, active_sub, out):
 def batch(
     parts: list[tuple[Subgraph, np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray]]],
     damage: list[np.ndarray] | None = None,
-    reaction: list[tuple[float, float, float]] | None = None,
+    reaction: list[tuple[float, ...]] | None = None,
     contact_weight: list[np.ndarray] | None = None,
 ) -> GraphBatch:
     """Concatenate subgraphs: ``parts`` holds (subgraph, α on its nodes, frame_arrays output);
     ``damage``, for models with damage, D on each part's nodes; ``reaction``, for training a
-    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s); ``contact_weight``,
+    reaction head, each part's next-frame (reaction N, torque N·m, feed m/s, push N, hold damping
+    N·s/m) (see :func:`thrsim.learn.training.next_reaction`); ``contact_weight``,
     for a reaction head, each part's :func:`contact_weights`."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
@@ -375,7 +377,7 @@ def batch(
         alpha=cat(alpha, np.float32),
         update=cat(update, np.bool_),
         damage=None if damage is None else cat(damage, np.float32),
-        reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(-1, 3),
+        reaction=None if reaction is None else torch.tensor(reaction, dtype=torch.float32).reshape(len(reaction), -1),
         contact_weight=None if contact_weight is None else cat(contact_weight, np.float32),
     )
 

@@ -60,6 +60,20 @@ _FEED_UNIT_M_S, _NODES_UNIT = 1e-3, 1000.0
 #: push, which says only that the law's reaction at no feed is at least as large (the push did not
 #: overcome it); a slow feed that cuts is not (:func:`thrsim.learn.training.next_reaction`)
 STALL_FEED_M_S = 2e-4
+#: the feed (m/s) the law's feed error is measured against on a log scale, log(1 + v/v₀): a seated
+#: reamer's 0.3 mm/s and an approach's 50 mm/s both count by their ratio to the record
+FEED_LOSS_SCALE_M_S = 1e-4
+
+
+def balanced_feed_errors(law: torch.Tensor, recorded: torch.Tensor) -> torch.Tensor:
+    """The error of the feed at which the recorded push meets each law and the hold's damping
+    (:func:`thrsim.learn.reaction_feed.feed_m_s`) against the recorded feed, on the scale
+    log(1 + v / :data:`FEED_LOSS_SCALE_M_S`); ``recorded`` (n, 5) is (reaction, torque, feed, push, damping).
+    A seated reamer's reaction meets the push within a newton or two, so a law fitted on its reaction
+    alone can balance at a feed many times the solver's: this error is what the rollout's feed sees."""
+    balanced = torch.clamp(recorded[:, 3] - law[:, 0], min=0.0) / (law[:, 1] + recorded[:, 4])
+    scale = FEED_LOSS_SCALE_M_S
+    return torch.log1p(balanced / scale) - torch.log1p(torch.clamp(recorded[:, 2], min=0.0) / scale)
 
 
 def law_errors(law: torch.Tensor, recorded: torch.Tensor, scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -108,6 +122,7 @@ class LearnedSimulator(nn.Module):
         self.removal_head = settings.arch.removal_head
         self.damage = settings.features.damage
         self.reaction_head = settings.arch.reaction_head
+        self.feed_loss_weight = settings.train.feed_loss_weight
         self.reaction_column = 1 + int(self.removal_head) + int(self.damage)
         outputs = self.reaction_column + 4 * int(self.reaction_head)
         if self.reaction_head:
@@ -191,15 +206,19 @@ class LearnedSimulator(nn.Module):
 
     def _reaction_loss(self, batch: GraphBatch, shares: torch.Tensor) -> torch.Tensor:
         """Squared error of the reaction and the torque at the recorded feed, in units of their root mean
-        square; at a stall (a recorded feed of 0) only a reaction at no feed below the recorded one counts."""
+        square; at a stall (a recorded feed of 0) only a reaction at no feed below the recorded one counts;
+        plus, weighted by ``train.feed_loss_weight``, the squared :func:`balanced_feed_errors`."""
         if batch.reaction is None:
             raise ValueError("a model with a reaction head needs the next frame's reaction, torque and feed")
         law = self.reaction_law(batch, shares)
-        known = torch.isfinite(batch.reaction).all(dim=1)
+        known = torch.isfinite(batch.reaction[:, :3]).all(dim=1)
         if not bool(known.any()):
             return shares.sum() * 0.0
         force, torque = law_errors(law[known], batch.reaction[known], self.reaction_scale)
-        return (force.square().mean() + torque.square().mean()) * 0.5
+        loss = (force.square().mean() + torque.square().mean()) * 0.5
+        if self.feed_loss_weight > 0.0:
+            loss = loss + self.feed_loss_weight * balanced_feed_errors(law[known], batch.reaction[known]).square().mean()
+        return loss
 
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
         """Nodes the loss sees and the model updates: in the region and active at t."""

@@ -137,6 +137,13 @@ class TrainSettings(_Frozen):
         description="the cases a reaction head's law learns from: every pushed case, or the pushed whole sockets only "
         "(a window is held at its cut sides, which stiffens it beyond the socket it is cut from: the benchmarks page)",
     )
+    feed_loss_weight: float = Field(
+        0.0,
+        ge=0,
+        le=100,
+        description="weight, beside the reaction's, of the error of the feed at which the recorded push meets the law "
+        "(log scale; 0: the law learns the reaction alone)",
+    )
     law_case_share: float | None = Field(
         None, gt=0, lt=1, description="share of each epoch's frame pairs drawn from the law's cases (None: in proportion to their frames)"
     )

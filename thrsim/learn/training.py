@@ -85,6 +85,8 @@ class Trainer:
             if settings.arch.reaction_head and not pushed:
                 raise ThrsimInputError("the law learns from pushed whole sockets (train.law_from) and the training split has none")
         self.reaction_case_ids = pushed or {case.case_id for case in train}
+        # the push each law case was reamed with, which the balanced feed of the law's loss meets
+        self.pushes = {case.case_id: case.recorded_push_n() for case in train if case.case_id in self.reaction_case_ids}
         self.samples = np.array([(c, t) for c, case in enumerate(train) for t in range(case.frames - 1)], dtype=np.int64)
         if len(self.samples) == 0:
             raise ThrsimInputError("the training cases hold no frame pairs")
@@ -170,7 +172,7 @@ class Trainer:
 
     def _sample(self, index: int, rng: np.random.Generator | None):
         """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes, and
-        the next frame's (reaction, torque, feed) (see :func:`next_reaction`)."""
+        the next frame's (reaction, torque, feed) (see :func:`next_reaction`), the case's push and hold damping."""
         case_index, t = self.samples[index]
         case = self.train_cases[case_index]
         pushed = self._pushed_steps(int(t), rng)
@@ -211,7 +213,9 @@ class Trainer:
             damage_in,
             case.alpha[t + 1][sub.nodes],
             damage_next,
-            next_reaction(case, int(t) + 1, self.threshold) if case.case_id in self.reaction_case_ids else (math.nan,) * 3,
+            (*next_reaction(case, int(t) + 1, self.threshold), self.pushes[case.case_id], case.hold.axial_damping_n_s_m)
+            if case.case_id in self.reaction_case_ids
+            else (math.nan,) * 5,
             contact_weights(graph, sub),
         )
 

@@ -64,3 +64,6 @@ def test_the_0_5_4_pack_holds_the_plan_s_cases_of_this_solver_with_labels_that_k
         with h5py.File(file, "r") as f:
             assert json.loads(f.attrs["identity"])["thrsim_version"] == "0.5.4"
             assert json.loads(f.attrs["labels"]) == LabelConfig().model_dump()  # crushed cancellous bone stays bone
+    # one split alone reads too, where a pack file holds none of its cases (evaluate --split test)
+    _, test_cases = load_cases(PACK_054, splits=("test",), one_mesh=False)
+    assert {case.case_id for case in test_cases} == {case.case_id for case in cases if case.split == "test"}

@@ -400,7 +400,7 @@ def read_pack(
             shard_mesh, cases = _read_pack_file(shard, f, splits, labels)
         if mesh is None:
             mesh = shard_mesh
-        elif not _same_mesh(mesh, shard_mesh) and not any(case.mesh is not None for case in cases):
+        elif cases and not _same_mesh(mesh, shard_mesh) and not any(case.mesh is not None for case in cases):
             raise ThrsimInputError(f"{shard}: its mesh differs from the other pack files'")
         for case in cases:
             if case.case_id in out:

@@ -60,6 +60,7 @@ def test_the_0_5_4_pack_holds_the_plan_s_cases_of_this_solver_with_labels_that_k
     assert all(case.reaction_n is not None and case.motor_torque_n_m is not None for case in cases)
     files = sorted(PACK_054.glob("part-*.h5"))
     assert files and all(f.stat().st_size <= 15.5e6 for f in files)
+    assert sum(case.case_id.endswith("_h1") for case in whole) >= 4  # the 1.0 mm whole sockets solved so far
     for file in files:
         with h5py.File(file, "r") as f:
             assert json.loads(f.attrs["identity"])["thrsim_version"] == "0.5.4"

@@ -201,6 +201,18 @@ def test_the_law_can_learn_from_whole_sockets_only_with_a_share_of_each_epoch(sy
         Trainer(StaticGraph(mesh), [window], [], settings, 0.5)
 
 
+def test_the_feed_loss_adds_to_a_training_step_s_loss_only_when_weighted(synthetic_dataset):
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    losses = []
+    for weight in (0.0, 1.0):
+        trainer = Trainer(StaticGraph(mesh), cases, [], tiny_socket_settings(feed_loss_weight=weight), 0.5)
+        inputs, alpha_next, damage_next = trainer._batch([trainer._sample(i, None) for i in range(0, len(trainer.samples), 3)])
+        losses.append(trainer.gn.loss(inputs, alpha_next, damage_next).item())
+    assert all(math.isfinite(loss) for loss in losses) and losses[1] > losses[0]  # same seed, same network: the feed's error added
+
+
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):
     from thrsim.learn.evaluation import evaluate
 

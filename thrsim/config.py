@@ -478,13 +478,15 @@ class SocketSweepConfig(_Frozen):
     #: the push over the window's area of the native socket, N/mm² (the cutting threshold is near 0.3)
     push_pressures_n_mm2: tuple[float, ...] = (0.2, 0.35, 0.5, 0.8)
     test_pushed_windows: tuple[tuple[float, float], ...] = ((30.0, 270.0),)
-    #: pushed whole sockets, the contact a seated reamer meets (a window is held at its cut sides):
-    #: (native socket, reamer size, inclination γ, anteversion θ, push N, split), each solved at every ``whole_socket_element_sizes_mm``
+    #: pushed whole sockets, the contact a seated reamer meets (a window is held at its cut sides), one
+    #: size up and line to line (the first reamer of a sequence): (native socket, reamer size, inclination γ, anteversion θ, push N, split), each solved at every ``whole_socket_element_sizes_mm``
     whole_sockets: tuple[tuple[float, float, float, float, float, str], ...] = (
         (46.0, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, 48.0, 15.0, 30.0, 230.0, "test"),
         (46.0, 48.0, 0.0, 0.0, 310.0, "train"), (46.0, 48.0, 15.0, 180.0, 150.0, "train"),
         (50.0, 52.0, 0.0, 0.0, 230.0, "train"), (44.0, 46.0, 30.0, 90.0, 270.0, "train"),
         (48.0, 50.0, 15.0, 300.0, 200.0, "test"),
+        (46.0, 46.0, 0.0, 0.0, 230.0, "train"), (52.0, 52.0, 15.0, 180.0, 270.0, "train"),
+        (44.0, 44.0, 30.0, 270.0, 180.0, "train"), (48.0, 48.0, 15.0, 135.0, 230.0, "test"),
     )  # fmt: skip
     #: the element sizes (mm) every whole socket is meshed at: the trainer's 1.5 mm, then the finer 1.0 mm
     whole_socket_element_sizes_mm: tuple[float, ...] = (1.5, 1.0)

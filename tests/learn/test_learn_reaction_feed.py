@@ -13,6 +13,7 @@ import math
 
 import numpy as np
 import pytest
+import torch
 from learn_helpers import tiny_socket_settings
 
 from thrsim.config import ReamerHoldConfig
@@ -211,6 +212,32 @@ def test_the_feed_loss_adds_to_a_training_step_s_loss_only_when_weighted(synthet
         inputs, alpha_next, damage_next = trainer._batch([trainer._sample(i, None) for i in range(0, len(trainer.samples), 3)])
         losses.append(trainer.gn.loss(inputs, alpha_next, damage_next).item())
     assert all(math.isfinite(loss) for loss in losses) and losses[1] > losses[0]  # same seed, same network: the feed's error added
+
+
+def test_the_overshoot_constraint_moves_seated_reamers_deeper_and_asks_the_law_for_the_push(synthetic_dataset):
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    trainer = Trainer(StaticGraph(mesh), cases, [], tiny_socket_settings(overshoot_loss_weight=1.0, overshoot_mm=(0.5, 0.5)), 0.5)
+    rng = np.random.default_rng(0)
+    drawn = [(i, trainer._overshoot_sample(i, rng)) for i in range(len(trainer.samples))]
+    seated = [(i, d) for i, d in drawn if d is not None]
+    assert seated and len(seated) < len(drawn)  # the approach (a reaction under half the push) is left out
+    index, ((sub, _, (nodes, _, _)), _, target, _) = seated[0]
+    case = trainer.train_cases[trainer.samples[index, 0]]
+    assert target[0] == target[3] == case.recorded_push_n() and target[2] == 0.0  # the push, met at no feed
+    plain_sub, _, (plain, _, _) = trainer._sample(index, None)[0]
+    assert sub.n_region >= plain_sub.n_region  # deeper, the teeth reach at least as much bone
+    assert nodes.shape != plain.shape or not np.allclose(nodes, plain)  # the nodes' features, relative to the teeth, moved
+    overshoot = trainer._overshoot_batch(np.arange(len(trainer.samples)), rng)
+    assert overshoot is not None
+    loss = trainer.gn.overshoot_loss(overshoot)
+    law = trainer.gn.reaction_law(overshoot, trainer.gn.outputs(overshoot).reaction)
+    expected = (torch.clamp(overshoot.reaction[:, 3] - law[:, 0], min=0.0) / trainer.gn.reaction_scale[0]).square().mean()
+    assert math.isfinite(loss.item()) and loss.item() == pytest.approx(expected.item())
+    assert (overshoot.reaction[:, 3] > law[:, 0]).any() and loss.item() > 0.0  # an untrained law falls short of the push
+    loss.backward()  # it trains the reaction head
+    assert any(p.grad is not None and p.grad.abs().sum() > 0 for p in trainer.gn.parameters())
 
 
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):

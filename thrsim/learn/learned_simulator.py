@@ -220,6 +220,17 @@ class LearnedSimulator(nn.Module):
             loss = loss + self.feed_loss_weight * balanced_feed_errors(law[known], batch.reaction[known]).square().mean()
         return loss
 
+    def overshoot_loss(self, batch: GraphBatch) -> torch.Tensor:
+        """Squared shortfall, in units of the reaction's root mean square, of each law's reaction at no feed
+        below the push (``batch.reaction[:, 3]``), on states where the reamer sits deeper than the solver's
+        in bone not yet cut: a rigid reamer cannot hold there under that push, so the balanced feed is 0."""
+        shares = self.outputs(batch).reaction
+        if batch.reaction is None or shares is None:
+            raise ValueError("the overshoot loss needs a reaction head and each state's push")
+        law = self.reaction_law(batch, shares)
+        shortfall = torch.clamp(batch.reaction[:, 3] - law[:, 0], min=0.0) / self.reaction_scale[0]
+        return shortfall.square().mean()
+
     def trainable_mask(self, batch: GraphBatch) -> torch.Tensor:
         """Nodes the loss sees and the model updates: in the region and active at t."""
         return batch.update & (batch.alpha >= self.threshold)

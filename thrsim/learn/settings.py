@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from thrsim.learn.advance import Kind
 
@@ -144,9 +144,26 @@ class TrainSettings(_Frozen):
         description="weight, beside the reaction's, of the error of the feed at which the recorded push meets the law "
         "(log scale; 0: the law learns the reaction alone)",
     )
+    overshoot_loss_weight: float = Field(
+        0.0,
+        ge=0,
+        le=100,
+        description="weight of the overshoot constraint: the reamer moved deeper than the solver's into bone not yet cut "
+        "(train.overshoot_mm) must meet a reaction at no feed at least the push (0: off)",
+    )
+    overshoot_mm: tuple[float, float] = Field(
+        (0.3, 1.5), description="the range (mm) the overshoot constraint moves a seated reamer deeper, drawn uniformly"
+    )
     law_case_share: float | None = Field(
         None, gt=0, lt=1, description="share of each epoch's frame pairs drawn from the law's cases (None: in proportion to their frames)"
     )
+
+    @field_validator("overshoot_mm")
+    @classmethod
+    def _overshoot_range(cls, value: tuple[float, float]) -> tuple[float, float]:
+        if not 0.0 < value[0] <= value[1] <= 10.0:
+            raise ValueError(f"an overshoot range 0 < low ≤ high ≤ 10 mm, got {list(value)}")
+        return value
 
 
 class ModelSettings(_Frozen):

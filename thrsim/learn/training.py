@@ -30,7 +30,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import LOWEST_CV, case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
-from thrsim.learn.features import ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import STALL_FEED_M_S, LearnedSimulator
 from thrsim.learn.metrics import Counts
@@ -219,6 +219,51 @@ class Trainer:
             contact_weights(graph, sub),
         )
 
+    def _overshoot_sample(self, index: int, rng: np.random.Generator):
+        """The law's input at a frame pair of a law case with the reamer moved deeper along its axis than the
+        solver's (``train.overshoot_mm``), with the case's push; None where the reamer is not seated
+        (its recorded reaction under half the push: approaching, the bone ahead may still give way)."""
+        case_index, t = self.samples[index]
+        case = self.train_cases[case_index]
+        if case.case_id not in self.reaction_case_ids:
+            return None
+        push = self.pushes[case.case_id]
+        reaction = next_reaction(case, int(t) + 1, self.threshold)[0]
+        if not reaction >= 0.5 * push:
+            return None
+        low, high = self.settings.train.overshoot_mm
+        centre = case.positions[t + 1] + rng.uniform(low, high) * 1e-3 * case.axis
+        graph, alpha_t = self.graphs[case.case_id], case.alpha[t]
+        active_t = alpha_t >= self.threshold
+        sub = select_subgraph(graph, self.settings.features, active_t, centre, case.teeth_radius_m)
+        if sub.n_region == 0:
+            return None
+        alpha_in = alpha_t[sub.nodes].astype(np.float32)
+        damage_in = case.damage[t][sub.nodes].astype(np.float32) if self.settings.features.damage and case.damage is not None else None
+        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
+        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
+        arrays = frame_arrays(
+            graph,
+            sub,
+            alpha_in,
+            reamer,
+            self.settings.features.feature_set,
+            self.threshold,
+            active_t,
+            damage_in,
+            self.settings.features.corners,
+            case.element_cutting_energy_j_m3,
+        )
+        return (sub, alpha_in, arrays), damage_in, (push, 0.0, 0.0, push, case.hold.axial_damping_n_s_m), contact_weights(graph, sub)
+
+    def _overshoot_batch(self, chosen: np.ndarray, rng: np.random.Generator) -> GraphBatch | None:
+        """The overshoot constraint's inputs for the drawn frame pairs of seated law cases (None: none drawn)."""
+        drawn = [d for d in (self._overshoot_sample(int(i), rng) for i in chosen) if d is not None]
+        if not drawn:
+            return None
+        with_damage = self.settings.features.damage
+        return batch([d[0] for d in drawn], [d[1] for d in drawn] if with_damage else None, [d[2] for d in drawn], [d[3] for d in drawn])
+
     def _batch(self, drawn: list) -> tuple:
         """Network inputs, α(t+1) and D(t+1) (None without damage) of drawn samples."""
         with_damage = self.settings.features.damage
@@ -257,10 +302,13 @@ class Trainer:
         for b in range(batches):
             chosen = order[b * t.batch_size : (b + 1) * t.batch_size]
             inputs, alpha_next, damage_next = self._batch([self._sample(int(i), rng) for i in chosen])
+            overshoot = self._overshoot_batch(chosen, rng) if t.overshoot_loss_weight > 0.0 and self.settings.arch.reaction_head else None
             for name, model in (("gn", self.gn), ("mlp", self.mlp)):
                 optimiser = self.optimisers[name]
                 optimiser.zero_grad(set_to_none=True)
                 loss = model.loss(inputs, alpha_next, damage_next)
+                if overshoot is not None:
+                    loss = loss + t.overshoot_loss_weight * model.overshoot_loss(overshoot)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(model.parameters(), t.gradient_clip)
                 optimiser.step()

@@ -488,6 +488,12 @@ class SocketSweepConfig(_Frozen):
         (46.0, 46.0, 0.0, 0.0, 230.0, "train"), (52.0, 52.0, 15.0, 180.0, 270.0, "train"),
         (44.0, 44.0, 30.0, 270.0, 180.0, "train"), (48.0, 48.0, 15.0, 135.0, 230.0, "test"),
     )  # fmt: skip
+    #: pushed whole sockets from a cavity prepared by the last reamer (a sequence's next step, cancellous bone
+    #: exposed): (native socket, prepared cavity, reamer size, γ, θ, push N, split), meshed like ``whole_sockets``
+    prepared_whole_sockets: tuple[tuple[float, float, float, float, float, float, str], ...] = (
+        (44.0, 46.0, 48.0, 0.0, 0.0, 230.0, "train"), (50.0, 52.0, 54.0, 15.0, 90.0, 230.0, "train"),
+        (44.0, 46.0, 48.0, 15.0, 180.0, 270.0, "train"), (46.0, 48.0, 50.0, 15.0, 30.0, 230.0, "test"),
+    )  # fmt: skip
     #: the element sizes (mm) every whole socket is meshed at: the trainer's 1.5 mm, then the finer 1.0 mm
     whole_socket_element_sizes_mm: tuple[float, ...] = (1.5, 1.0)
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
@@ -496,10 +502,10 @@ class SocketSweepConfig(_Frozen):
     frames: FrameCount = 60
     seed: int = 0
 
-    @field_validator("whole_sockets")
+    @field_validator("whole_sockets", "prepared_whole_sockets")
     @classmethod
     def _known_split(cls, values: tuple) -> tuple:
-        unknown = sorted({v[5] for v in values} - {"train", "validation", "test"})
+        unknown = sorted({v[-1] for v in values} - {"train", "validation", "test"})
         if unknown:
             raise ValueError(f"unknown split(s) {unknown} of a whole socket: train, validation or test")
         return values

@@ -31,12 +31,15 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     fed = [c for c in plan.cases if "feed_mm_s" in _settings(c)]
     # each of the plan's whole sockets at each of its element sizes, the trainer's 1.5 mm first
     sizes = config.whole_socket_element_sizes_mm
-    assert sizes[0] == 1.5 and len(whole) == len(sizes) * len(config.whole_sockets)
-    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in whole] == [w[2:] for w in config.whole_sockets] * len(sizes)
-    for case, (size, (socket_mm, reamer_mm, *_)) in zip(whole, [(h, w) for h in sizes for w in config.whole_sockets], strict=True):
+    # native (one size up or line to line), then from a prepared cavity (a sequence's next step)
+    entries = [(w[0], None, *w[1:]) for w in config.whole_sockets] + list(config.prepared_whole_sockets)
+    assert config.prepared_whole_sockets and sizes[0] == 1.5 and len(whole) == len(sizes) * len(entries)
+    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in whole] == [w[3:] for w in entries] * len(sizes)
+    for case, (size, (socket_mm, prepared_mm, reamer_mm, *_)) in zip(whole, [(h, w) for h in sizes for w in entries], strict=True):
         built = case.case_config({"bone_kind": "socket"})
         assert built.feed_mm_s is None and built.socket.element_size_mm == size and case.case_id.endswith(f"_h{size:g}")
         assert built.socket.socket_diameter_mm == socket_mm and built.reamer.head_diameter_mm == head_diameter_for_size(reamer_mm)
+        assert built.pre_ream_mm == prepared_mm and ("_p" in case.case_id) == (prepared_mm is not None)
     splits = Counter(c.split for c in fed)
     assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
     # every pushed window at every pressure, along the socket's axis; the held-out windows only in test
@@ -96,6 +99,7 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "pushed_windows": [[0.0, 0.0, 44.0, 46.0]],
                 "push_pressures_n_mm2": [0.8],
                 "whole_sockets": [[44.0, 46.0, 0.0, 0.0, 230.0, "train"]],
+                "prepared_whole_sockets": [],
                 "whole_socket_element_sizes_mm": [3.0],
                 "seed": 7,
             }
@@ -169,8 +173,19 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     ("plan", "says"),
     [
         ({"train_cases": 0}, "set-feed socket cases need train_cases"),
-        ({"train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": [], "whole_sockets": []}, "no case"),
+        (
+            {
+                "train_cases": 0,
+                "validation_cases": 0,
+                "test_cases": 0,
+                "pushed_windows": [],
+                "whole_sockets": [],
+                "prepared_whole_sockets": [],
+            },
+            "no case",
+        ),
         ({"whole_sockets": [[46, 48, 0, 0, 230, "holdout"]]}, "unknown split"),
+        ({"prepared_whole_sockets": [[46, 48, 50, 0, 0, 230, "holdout"]]}, "unknown split"),
         ({"cancellous": ["spongy"]}, "unknown cancellous"),
         ({"windows": 3}, "windows"),
     ],

@@ -49,7 +49,7 @@ def dataset(
         "--bone",
         help="patch: the orientation sweep of the thesis's patch; socket: the 0.5 plan of socket windows reamed one size up at "
         f"set feeds ({_SOCKET_SWEEP.train_cases + _SOCKET_SWEEP.validation_cases + _SOCKET_SWEEP.test_cases} cases), pushed "
-        f"windows and {len(_SOCKET_SWEEP.whole_sockets)} pushed whole sockets, each meshed at {format_list(_SOCKET_SWEEP.whole_socket_element_sizes_mm)} mm "
+        f"windows and {len(_SOCKET_SWEEP.whole_sockets) + len(_SOCKET_SWEEP.prepared_whole_sockets)} pushed whole sockets, each meshed at {format_list(_SOCKET_SWEEP.whole_socket_element_sizes_mm)} mm "
         "(the orientation and force lists do not apply)",
     ),
     inclinations: str = typer.Option(

@@ -354,7 +354,11 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
     fed_cases = config.train_cases + config.validation_cases + config.test_cases
     if fed_cases and (not config.train_cases or not train_steps or not tilted):
         raise ThrsimInputError("set-feed socket cases need train_cases, a reamer step to train on and a tilt above 0°")
-    if not fed_cases and not (config.pushed_windows and config.push_pressures_n_mm2) and not config.whole_sockets:
+    if (
+        not fed_cases
+        and not (config.pushed_windows and config.push_pressures_n_mm2)
+        and not (config.whole_sockets or config.prepared_whole_sockets)
+    ):
         raise ThrsimInputError("the socket plan has no case: give set-feed cases (train_cases), pushed windows or whole sockets")
     axes = {
         "step": _Balanced(train_steps, rng),
@@ -390,7 +394,11 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
             made += 1
     pushed = [_pushed_case(config, window, pressure) for window in config.pushed_windows for pressure in config.push_pressures_n_mm2]
     cases.update((spec.case_id, spec) for spec in pushed)
-    whole = [_whole_socket_case(config, size, *entry) for size in config.whole_socket_element_sizes_mm for entry in config.whole_sockets]
+    whole = [
+        _whole_socket_case(config, size, *entry)
+        for size in config.whole_socket_element_sizes_mm
+        for entry in [(w[0], None, *w[1:]) for w in config.whole_sockets] + list(config.prepared_whole_sockets)
+    ]
     cases.update((spec.case_id, spec) for spec in whole)
     pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
@@ -435,9 +443,18 @@ def _pushed_case(config: SocketSweepConfig, window: tuple[float, float, float, f
 
 
 def _whole_socket_case(
-    config: SocketSweepConfig, size: float, socket_mm: float, reamer_mm: float, gamma: float, theta: float, push_n: float, split: str
+    config: SocketSweepConfig,
+    size: float,
+    socket_mm: float,
+    prepared_mm: float | None,
+    reamer_mm: float,
+    gamma: float,
+    theta: float,
+    push_n: float,
+    split: str,
 ) -> CaseSpec:
-    """A pushed whole socket: the native socket meshed whole at ``size`` mm, the reamer one size up driven by a set push."""
+    """A pushed whole socket: the socket meshed whole at ``size`` mm, native or prepared to ``prepared_mm``,
+    the reamer driven by a set push."""
     theta = 0.0 if gamma == 0.0 else float(theta)
     settings: list[tuple[str, Any]] = [
         ("socket.socket_diameter_mm", float(socket_mm)),
@@ -445,9 +462,12 @@ def _whole_socket_case(
         ("socket.element_size_mm", size),
         *_reamer(float(reamer_mm)),
     ]
+    if prepared_mm is not None:
+        settings.append(("pre_ream_mm", float(prepared_mm)))
+    prepared = "" if prepared_mm is None else f"_p{prepared_mm:g}"
     return CaseSpec(
         inclination_deg=float(gamma), anteversion_deg=theta, force_n=float(push_n), frames=config.frames, settings=tuple(settings),
-        label=f"whole_s{socket_mm:g}_r{reamer_mm:g}_g{gamma:g}t{theta:g}_F{push_n:g}_h{size:g}", split=split,
+        label=f"whole_s{socket_mm:g}{prepared}_r{reamer_mm:g}_g{gamma:g}t{theta:g}_F{push_n:g}_h{size:g}", split=split,
     )  # fmt: skip
 
 

@@ -170,6 +170,24 @@ class Trainer:
         noisy = np.clip(values + rng.normal(0.0, sigma, len(values)).astype(np.float32), low, 1.0)
         return np.where(active, noisy, values).astype(np.float32)
 
+    def _features(self, case: CaseArrays, t: int, graph, sub, alpha_in, centre, active_t, damage_in) -> tuple:
+        """The network's inputs on ``sub`` at frame pair t → t + 1, the reamer's head at ``centre`` after the recorded advance."""
+        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
+        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
+        features = self.settings.features
+        return frame_arrays(
+            graph,
+            sub,
+            alpha_in,
+            reamer,
+            features.feature_set,
+            self.threshold,
+            active_t,
+            damage_in,
+            features.corners,
+            case.element_cutting_energy_j_m3,
+        )
+
     def _sample(self, index: int, rng: np.random.Generator | None):
         """((subgraph, α in, features), D in or None, α(t+1), D(t+1) or None) on the subgraph's nodes, and
         the next frame's (reaction, torque, feed) (see :func:`next_reaction`), the case's push and hold damping."""
@@ -193,20 +211,7 @@ class Trainer:
         active = alpha_in >= self.threshold
         alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
         damage_in = None if not with_damage or damage_t is None else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
-        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
-        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
-        arrays = frame_arrays(
-            graph,
-            sub,
-            alpha_in,
-            reamer,
-            self.settings.features.feature_set,
-            self.threshold,
-            active_t,
-            damage_in,
-            self.settings.features.corners,
-            case.element_cutting_energy_j_m3,
-        )
+        arrays = self._features(case, int(t), graph, sub, alpha_in, centre, active_t, damage_in)
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
         return (
             (sub, alpha_in, arrays),
@@ -240,20 +245,7 @@ class Trainer:
             return None
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         damage_in = case.damage[t][sub.nodes].astype(np.float32) if self.settings.features.damage and case.damage is not None else None
-        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
-        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
-        arrays = frame_arrays(
-            graph,
-            sub,
-            alpha_in,
-            reamer,
-            self.settings.features.feature_set,
-            self.threshold,
-            active_t,
-            damage_in,
-            self.settings.features.corners,
-            case.element_cutting_energy_j_m3,
-        )
+        arrays = self._features(case, int(t), graph, sub, alpha_in, centre, active_t, damage_in)
         return (sub, alpha_in, arrays), damage_in, (push, 0.0, 0.0, push, case.hold.axial_damping_n_s_m), contact_weights(graph, sub)
 
     def _overshoot_batch(self, chosen: np.ndarray, rng: np.random.Generator) -> GraphBatch | None:

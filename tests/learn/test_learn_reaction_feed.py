@@ -39,7 +39,8 @@ def case(synthetic_dataset):
 
 def _parts(model, case):
     step = LearnedStep(model.gn, model.graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
-    feed = ReactionFeed(model.mesh, case.teeth_radius_m, model.threshold, case.frame_dt_s, ReamerHoldConfig())
+    margin_m = model.settings.features.reach_margin_mm * 1e-3
+    feed = ReactionFeed(model.graph, case.teeth_radius_m, margin_m, model.threshold, case.frame_dt_s, ReamerHoldConfig())
     return step, feed
 
 
@@ -74,6 +75,24 @@ def test_in_free_air_the_reamer_cuts_nothing_and_stops_at_the_bone(socket_model,
     contact = advance_to_support(socket_model.mesh.nodes, away, case.axis, case.teeth_radius_m, 1)
     assert free < contact < 0.1
     assert feed.advance_m(step.reaction_law, state.alpha, away, case.axis, 1e6) == pytest.approx(contact)  # never past the bone
+
+
+def test_closing_in_the_reamer_stops_where_the_cutting_front_holds_the_bone(socket_model, case):
+    # a front reach barely past the teeth: the first node touches the teeth before any element's
+    # centroid is in reach, so stopping at the touch would leave the law empty and the reamer stuck
+    features = socket_model.settings.features.model_copy(update={"reach_margin_mm": 0.01})
+    step = LearnedStep(socket_model.gn, socket_model.graph, features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
+    feed = ReactionFeed(socket_model.graph, case.teeth_radius_m, 1e-5, socket_model.threshold, case.frame_dt_s, ReamerHoldConfig())
+    centre = case.positions[0] - 0.1 * case.axis
+    state = BoneState.start(case.alpha[0])
+    step(state, centre, case.axis, 1e6, 0.0, case.omega_rad_s)
+    stop = feed.advance_m(step.reaction_law, state.alpha, centre, case.axis, 1e6)
+    active = state.alpha >= socket_model.threshold
+    attached = socket_model.mesh.nodes[np.unique(socket_model.mesh.tets[active])]
+    assert stop > advance_to_support(attached, centre, case.axis, case.teeth_radius_m, 1)
+    step(state, centre + stop * case.axis, case.axis, 1e6, stop, case.omega_rad_s)
+    assert step.last.region > 0 and step.reaction_law.any()  # the front holds bone: the law, not the free air, moves it on
+    assert feed.advance_m(step.reaction_law, state.alpha, centre + stop * case.axis, case.axis, 230.0, stop) > 0.0
 
 
 def test_pulled_back_the_reamer_cuts_nothing(socket_model, case):

@@ -71,7 +71,8 @@ def _steppers(model: LoadedModel, case: CaseArrays, graph: StaticGraph) -> dict:
     if reads_any_mesh(model.settings):
         modes: dict[str, tuple[object, object]] = {"tool_forced": (learned, None), "mlp": (mlp, None), "geometric": (geometric, None)}
         if model.settings.arch.reaction_head:
-            pushed = ReactionFeed(graph.mesh, case.teeth_radius_m, model.threshold, case.frame_dt_s, model.hold)
+            margin_m = model.settings.features.reach_margin_mm * 1e-3
+            pushed = ReactionFeed(graph, case.teeth_radius_m, margin_m, model.threshold, case.frame_dt_s, model.hold)
             autonomous = LearnedStep(model.gn, graph, features, case.teeth_radius_m, energy)
             modes = {"autonomous": (autonomous, pushed), **modes, "mlp": (mlp, pushed)}
         return modes

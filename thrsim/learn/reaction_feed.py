@@ -6,7 +6,9 @@ is the v at which the push meets the bone's reaction law (:mod:`thrsim.learn.lea
 R(v) = A + B·v, A and B ≥ 0) and the damper: v = max(0, F − A) / (B + c). Hence no push, no feed;
 more push, never less feed; a reaction above the push stalls the reamer. In contact a frame goes
 part way from its last advance to that balance (the law depends on the advance it saw). With nothing
-in contact (A = B = 0) the reamer closes in at F / c but stops where the first bone enters the teeth.
+in contact (A = B = 0) the reamer closes in at F / c but stops where bone enters the teeth and the
+network's cutting front sees it (the front finds elements by centroid, so a coarse element can touch
+the teeth before the front holds it: stopping at the touch alone would leave the law empty for ever).
 """
 
 from __future__ import annotations
@@ -16,9 +18,11 @@ import math
 import numpy as np
 
 from thrsim.config import ReamerHoldConfig
-from thrsim.geometry.mesh import TetMesh
-from thrsim.learn.graph import attached_nodes
+from thrsim.learn.graph import StaticGraph, attached_nodes
 from thrsim.learn.reamer_feed import advance_to_support
+
+#: how far past the point where the first element enters the front's reach a reamer closing in stops (1 µm: inside, not on, the boundary)
+FRONT_ENTRY_M = 1e-6
 
 #: the share of the balanced advance a frame in contact takes, the rest its last advance (see ReactionFeed.advance_m)
 FEED_RELAXATION = 0.5
@@ -41,9 +45,12 @@ def felt_at_push(law: np.ndarray, force_n: float, damping_n_s_m: float) -> tuple
 class ReactionFeed:
     """The advance of one autonomous frame of a socket model (see the module)."""
 
-    def __init__(self, mesh: TetMesh, teeth_radius_m: float, threshold: float, frame_dt_s: float, hold: ReamerHoldConfig):
-        self.tets, self.nodes = np.asarray(mesh.tets), np.asarray(mesh.nodes)
-        self.teeth_radius_m, self.threshold, self.frame_dt_s = teeth_radius_m, threshold, frame_dt_s
+    def __init__(
+        self, graph: StaticGraph, teeth_radius_m: float, reach_margin_m: float, threshold: float, frame_dt_s: float, hold: ReamerHoldConfig
+    ):
+        self.graph, self.tets, self.nodes = graph, np.asarray(graph.mesh.tets), np.asarray(graph.mesh.nodes)
+        self.teeth_radius_m, self.reach_margin_m = teeth_radius_m, reach_margin_m
+        self.threshold, self.frame_dt_s = threshold, frame_dt_s
         self.damping_n_s_m = hold.axial_damping_n_s_m
 
     def advance_m(
@@ -62,6 +69,26 @@ class ReactionFeed:
             balanced = feed_m_s(law, force_n, self.damping_n_s_m) * self.frame_dt_s
             return FEED_RELAXATION * balanced + (1.0 - FEED_RELAXATION) * max(last_advance_m, 0.0)
         free = force_n / self.damping_n_s_m * self.frame_dt_s
-        attached = attached_nodes(self.tets, alpha >= self.threshold, len(self.nodes))
+        active = alpha >= self.threshold
+        attached = attached_nodes(self.tets, active, len(self.nodes))
         contact = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, 1)
-        return free if math.isinf(contact) else min(free, contact)
+        if math.isinf(contact):
+            return free
+        front = self.graph.centroids[self.graph.exposed(active)]
+        seen = advance_into_ball(front, centre, axis, self.teeth_radius_m + self.reach_margin_m) + FRONT_ENTRY_M
+        return min(free, max(contact, seen))
+
+
+def advance_into_ball(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, radius_m: float) -> float:
+    """Smallest advance s ≥ 0 along ``axis`` after which one of ``points`` lies within ``radius_m`` of
+    the centre c + s·D (0 when one already does; inf when none ever will): p enters the ball at
+    s = a − √(a² − |r|² + ρ²), r = p − c, a = r·D, if the far crossing a + √(…) is still ahead."""
+    rel = points - centre
+    along = rel @ axis
+    disc = along * along - np.einsum("ij,ij->i", rel, rel) + radius_m * radius_m
+    ahead = disc >= 0.0
+    root = np.sqrt(disc[ahead])
+    ahead_far = along[ahead] + root >= 0.0
+    if not ahead_far.any():
+        return float("inf")
+    return max(0.0, float((along[ahead] - root)[ahead_far].min()))

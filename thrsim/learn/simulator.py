@@ -170,7 +170,14 @@ class ReamingSimulator:
             energy = element_cutting_energy({"cancellous": CANCELLOUS_PRESETS[cancellous].model_dump()}, model.mesh)
         self._step = LearnedStep(model.gn, model.graph, model.settings.features, model.teeth_radius_m, energy)
         self._feed: ReamerFeed | ReactionFeed = (
-            ReactionFeed(model.mesh, model.teeth_radius_m, model.threshold, model.frame_dt_s, model.hold)
+            ReactionFeed(
+                model.graph,
+                model.teeth_radius_m,
+                model.settings.features.reach_margin_mm * 1e-3,
+                model.threshold,
+                model.frame_dt_s,
+                model.hold,
+            )
             if self.socket
             else model.reamer_feed()
         )

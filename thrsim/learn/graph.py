@@ -126,6 +126,23 @@ class StaticGraph:
             self.neighbours, self._inner_tet, active, self.centroids, centre, reach_m * reach_m, hops, self._scratch_arrays()[1]
         )
 
+    def front_entry_m(self, active: np.ndarray, centre: np.ndarray, axis: np.ndarray, reach_m: float) -> float:
+        """Smallest advance s ≥ 0 along ``axis`` after which an exposed active element's centroid lies
+        within ``reach_m`` of the centre c + s·D, as :meth:`region` looks for the cutting front (0 when
+        one already does, inf when none ever will)."""
+        active = np.ascontiguousarray(active, dtype=np.bool_)
+        return float(
+            _front_entry(
+                self.neighbours,
+                self._inner_tet,
+                active,
+                self.centroids,
+                np.ascontiguousarray(centre, dtype=np.float64),
+                np.ascontiguousarray(axis, dtype=np.float64),
+                reach_m,
+            )
+        )
+
     def subgraph(self, region: np.ndarray, halo_hops: int) -> Subgraph:
         """The region plus ``halo_hops`` face-hops around it, with the edges among them."""
         local = self._scratch_arrays()[0]
@@ -188,20 +205,49 @@ def _inner_face_table(mesh: TetMesh) -> np.ndarray:
 
 
 @njit(cache=True)
+def _exposed(neighbours, inner_tet, active, element):
+    """An active element on the bone's free surface (see :meth:`StaticGraph.exposed`)."""
+    if not active[element]:
+        return False
+    if inner_tet[element]:
+        return True
+    for k in range(4):
+        neighbour = neighbours[element, k]
+        if neighbour >= 0 and not active[neighbour]:
+            return True
+    return False
+
+
+@njit(cache=True)
+def _front_entry(neighbours, inner_tet, active, centroids, centre, axis, reach):
+    """Smallest advance along ``axis`` after which an exposed element's centroid is within ``reach``
+    (see :meth:`StaticGraph.front_entry_m`): a point p enters the ball at s = a − √(a² − |r|² + ρ²),
+    r = p − c, a = r·D, while the far crossing a + √(…) is still ahead."""
+    best = np.inf
+    for element in range(len(active)):
+        rx = centroids[element, 0] - centre[0]
+        ry = centroids[element, 1] - centre[1]
+        rz = centroids[element, 2] - centre[2]
+        along = rx * axis[0] + ry * axis[1] + rz * axis[2]
+        disc = along * along - (rx * rx + ry * ry + rz * rz) + reach * reach
+        if disc < 0.0:
+            continue
+        root = np.sqrt(disc)
+        if along + root < 0.0 or along - root >= best:
+            continue
+        if _exposed(neighbours, inner_tet, active, element):
+            best = max(0.0, along - root)
+    return best
+
+
+@njit(cache=True)
 def _cutting_front(neighbours, inner_tet, active, centroids, centre, reach_squared, hops, mark):
     """Sorted ids of the exposed active elements within reach, grown ``hops`` face-hops into the
     active bone (see :meth:`StaticGraph.region`); ``mark`` is all False on entry and on exit."""
     ids = np.empty(len(active), dtype=np.int64)
     count = 0
     for element in range(len(active)):
-        if not active[element]:
-            continue
-        exposed = inner_tet[element]
-        for k in range(4):
-            neighbour = neighbours[element, k]
-            if neighbour >= 0 and not active[neighbour]:
-                exposed = True
-        if not exposed:
+        if not _exposed(neighbours, inner_tet, active, element):
             continue
         dx = centroids[element, 0] - centre[0]
         dy = centroids[element, 1] - centre[1]

@@ -74,21 +74,5 @@ class ReactionFeed:
         contact = advance_to_support(self.nodes[attached], centre, axis, self.teeth_radius_m, 1)
         if math.isinf(contact):
             return free
-        front = self.graph.centroids[self.graph.exposed(active)]
-        seen = advance_into_ball(front, centre, axis, self.teeth_radius_m + self.reach_margin_m) + FRONT_ENTRY_M
+        seen = self.graph.front_entry_m(active, centre, axis, self.teeth_radius_m + self.reach_margin_m) + FRONT_ENTRY_M
         return min(free, max(contact, seen))
-
-
-def advance_into_ball(points: np.ndarray, centre: np.ndarray, axis: np.ndarray, radius_m: float) -> float:
-    """Smallest advance s ≥ 0 along ``axis`` after which one of ``points`` lies within ``radius_m`` of
-    the centre c + s·D (0 when one already does; inf when none ever will): p enters the ball at
-    s = a − √(a² − |r|² + ρ²), r = p − c, a = r·D, if the far crossing a + √(…) is still ahead."""
-    rel = points - centre
-    along = rel @ axis
-    disc = along * along - np.einsum("ij,ij->i", rel, rel) + radius_m * radius_m
-    ahead = disc >= 0.0
-    root = np.sqrt(disc[ahead])
-    ahead_far = along[ahead] + root >= 0.0
-    if not ahead_far.any():
-        return float("inf")
-    return max(0.0, float((along[ahead] - root)[ahead_far].min()))

@@ -108,9 +108,7 @@ class StaticGraph:
 
     def exposed(self, active: np.ndarray) -> np.ndarray:
         """Active elements on the bone's free surface: a removed neighbour, or a face on the articular side."""
-        table = self.neighbours
-        removed_neighbour = ((table >= 0) & ~active[np.maximum(table, 0)]).any(axis=1)
-        return active & (removed_neighbour | self._inner_tet)
+        return _exposed_elements(self.neighbours, self._inner_tet, np.ascontiguousarray(active, dtype=np.bool_))
 
     def region(self, active: np.ndarray, centre: np.ndarray, reach_m: float, hops: int) -> np.ndarray:
         """Sorted ids of the elements that can change this frame.
@@ -216,6 +214,15 @@ def _exposed(neighbours, inner_tet, active, element):
         if neighbour >= 0 and not active[neighbour]:
             return True
     return False
+
+
+@njit(cache=True)
+def _exposed_elements(neighbours, inner_tet, active):
+    """:func:`_exposed` of every element (bool per element)."""
+    out = np.zeros(len(active), dtype=np.bool_)
+    for element in range(len(active)):
+        out[element] = _exposed(neighbours, inner_tet, active, element)
+    return out
 
 
 @njit(cache=True)

@@ -4,11 +4,11 @@ The solver's hand-held reamer is an effective mass on an axial damper (``ReamerH
 M·s̈ = F − R − c·ṡ. Over a frame the inertia term is small beside the others, so the frame's feed
 is the v at which the push meets the bone's reaction law (:mod:`thrsim.learn.learned_simulator`,
 R(v) = A + B·v, A and B ≥ 0) and the damper: v = max(0, F − A) / (B + c). Hence no push, no feed;
-more push, never less feed; a reaction above the push stalls the reamer. In contact a frame goes
-part way from its last advance to that balance (the law depends on the advance it saw). With nothing
-in contact (A = B = 0) the reamer closes in at F / c but stops where bone enters the teeth and the
-network's cutting front sees it (the front finds elements by centroid, so a coarse element can touch
-the teeth before the front holds it: stopping at the touch alone would leave the law empty for ever).
+more push, never less feed; a reaction above the push stalls the reamer. In contact a balance below
+the last advance is taken at once, one above it part way (the law depends on the advance it saw).
+With nothing in contact (A = B = 0) the reamer closes in at F / c but stops where bone enters the
+teeth and the network's cutting front sees it (the front finds elements by centroid, so a coarse
+element can touch the teeth before the front holds it: stopping at the touch would leave no law).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from thrsim.learn.reamer_feed import advance_to_support
 #: how far past the point where the first element enters the front's reach a reamer closing in stops (1 µm: inside, not on, the boundary)
 FRONT_ENTRY_M = 1e-6
 
-#: the share of the balanced advance a frame in contact takes, the rest its last advance (see ReactionFeed.advance_m)
+#: the share of a higher balance a frame in contact takes, the rest its last advance (see ReactionFeed.advance_m)
 FEED_RELAXATION = 0.5
 
 
@@ -59,15 +59,18 @@ class ReactionFeed:
         """Advance along ``axis`` (m) over the next frame under ``force_n``, given the reaction law the
         last step predicted (None or all zero: nothing in contact) after advancing ``last_advance_m``.
 
-        In contact the advance relaxes toward the balance (:data:`FEED_RELAXATION`): the law is read
-        after the last frame's advance, and a network that saw a deep advance predicts a stiff bone,
-        one that saw none a soft one, so balancing each frame on the last law alone swings between
-        stalling and plunging; the relaxed advance settles where the law and the feed agree."""
+        In contact a balance below the last advance is taken at once: the hold's inertia is small
+        over a frame, so a stiffer bone slows the reamer within it (coasting on would carry a seating
+        reamer past the seat, where the teeth cut a layer the solver keeps). A balance above the last
+        advance is approached part way (:data:`FEED_RELAXATION`): the law is read after the last
+        frame's advance, and a network that saw none predicts a soft bone, so speeding up to its
+        balance at once would swing between stalling and plunging."""
         if not force_n > 0.0:
             return 0.0
         if law is not None and (law[0] > 0.0 or law[1] > 0.0):
             balanced = feed_m_s(law, force_n, self.damping_n_s_m) * self.frame_dt_s
-            return FEED_RELAXATION * balanced + (1.0 - FEED_RELAXATION) * max(last_advance_m, 0.0)
+            relaxed = FEED_RELAXATION * balanced + (1.0 - FEED_RELAXATION) * max(last_advance_m, 0.0)
+            return min(balanced, relaxed)
         free = force_n / self.damping_n_s_m * self.frame_dt_s
         active = alpha >= self.threshold
         attached = attached_nodes(self.tets, active, len(self.nodes))

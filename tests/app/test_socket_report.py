@@ -25,8 +25,9 @@ from thrsim.session.reaming import read_reaming
 pytestmark = pytest.mark.timeout(900)
 
 STEP = 1 / 60
-#: a coarse socket: the report's arithmetic, not the mesh's resolution, is under test
-ELEMENT_MM = 5.0
+#: a coarse socket: the report's arithmetic, not the mesh's resolution, is under test (fine enough
+#: that the reamers reach neither the medial wall nor the modelled bone's cut edge)
+ELEMENT_MM = 3.0
 #: the reamers and the simulated seconds each reams
 SEQUENCE = ((46, 0.5), (48, 0.75))
 
@@ -134,10 +135,9 @@ def test_the_depth_map_of_the_socket_is_drawn_against_the_planned_cup(session):
     assert found["fractions"]["on plan"] + found["fractions"]["over-reamed"] > 0.0  # the 48 mm reamer cut to the plan somewhere
     anterior, superior = map_axes(np.array([0.0, 0.0, 1.0]))
     assert anterior == pytest.approx([0.0, 1.0, 0.0]) and superior == pytest.approx([-1.0, 0.0, 0.0])  # the patch frame's +x is inferior
-    classes, error = found["classes"], found["error_mm"]
+    classes = found["classes"]
     cells = classes.shape[0]
     grid = (found["extent_mm"][1] - found["extent_mm"][0]) / cells
-    middle = (np.arange(cells) - cells / 2 + 0.5) * grid
     # the cells a removed element lies in (below the rim): never "not reached"
     removed = final["alpha"] < final["threshold"]
     centre = record.cavity["centroids_m"][removed] * 1e3
@@ -146,21 +146,55 @@ def test_the_depth_map_of_the_socket_is_drawn_against_the_planned_cup(session):
     reamed = np.zeros_like(classes, dtype=bool)
     reamed[index[inside, 0], index[inside, 1]] = True
     assert not np.any(classes[reamed] == CLASSES.index("not reached"))
-    # the native surface lies deepest at the fossa, 25° from the pole toward inferior: superior is up on the map
+
+
+def test_the_depth_map_has_superior_up(tmp_path):
+    """The native surface lies deepest at the fossa, 25° from the pole toward inferior: after the 46 mm
+    reamer alone (line to line, it leaves the fossa), the deepest native cells lie below the map's middle."""
+    scripted = SocketSession(tmp_path, ELEMENT_MM, STEP)
+    scripted.send(type="plan", cup_diameter_mm=48, medialisation_mm=0, superior_shift_mm=0, inclination_deg=40, anteversion_deg=15)
+    scripted.send(type="reamer_size", size_mm=46)
+    scripted.send(type="run", action="start")
+    for _ in range(30):
+        scripted.tick()
+    scripted.send(type="run", action="pause")
+    sim = scripted.live.trainer.simulator
+    removed = sim.alpha < sim.model.threshold
+    record = read_reaming(read_session(scripted.live.save(tmp_path)).groups["reaming"])
+    found = cavity_map(record)
+    anterior, superior = map_axes(np.array([0.0, 0.0, 1.0]))
+    classes, error = found["classes"], found["error_mm"]
+    cells = classes.shape[0]
+    grid = (found["extent_mm"][1] - found["extent_mm"][0]) / cells
+    middle = (np.arange(cells) - cells / 2 + 0.5) * grid
+    centre = record.cavity["centroids_m"][removed] * 1e3
+    index = np.floor((np.column_stack([centre @ anterior, centre @ superior]) - found["extent_mm"][0]) / grid).astype(int)
+    inside = ((index >= 0) & (index < cells)).all(axis=1) & (centre[:, 2] < 0.0)
+    reamed = np.zeros_like(classes, dtype=bool)
+    reamed[index[inside, 0], index[inside, 1]] = True
     native = ~reamed & (classes >= 0)
     beyond = np.where(classes == CLASSES.index("native hollow"), np.inf, error)  # a hollow (no surface to measure) is deepest of all
     deepest = np.argwhere(native & (beyond >= np.nanpercentile(np.where(native, beyond, np.nan), 90)))
-    assert float(np.mean(middle[deepest[:, 1]])) < -2.0
+    assert len(deepest) and float(np.mean(middle[deepest[:, 1]])) < -2.0
 
 
-def test_the_reamer_reaching_cancellous_bone_is_an_event_once_a_reamer(session):
-    trainer, _, path = session
-    said = [e for e in read_reaming(read_session(path).groups["reaming"]).events if e["kind"] == "cancellous_reached"]
-    layers = [s["cutting_layer"] for s in session[1]["states"]]
-    # the coarse socket's layers alternate from frame to frame at the plate: the event is once for the 48 mm reamer all the same
-    assert layers.count("cancellous") >= 1 and [e["detail"] for e in said] == [
-        "the 48 mm reamer left the subchondral plate for cancellous bone"
+def test_the_reamer_reaching_cancellous_bone_is_an_event_once_a_reamer(tmp_path):
+    """Reamed one size up the 48 mm reamer seats in the plate; the 50 mm one after it reaches the
+    cancellous bone: one event for each reamer that did, however often the layer changes under it."""
+    scripted = SocketSession(tmp_path, ELEMENT_MM, STEP)
+    layers: dict[int, list] = {}
+    for size, seconds in ((48, 0.5), (50, 0.25)):
+        scripted.send(type="reamer_size", size_mm=size)
+        scripted.send(type="run", action="start")
+        layers[size] = [scripted.tick()["cutting_layer"] for _ in range(int(round(seconds / STEP)))]
+        scripted.send(type="run", action="pause")
+    said = [
+        e["detail"]
+        for e in read_reaming(read_session(scripted.live.save(tmp_path)).groups["reaming"]).events
+        if e["kind"] == "cancellous_reached"
     ]
+    reached = [size for size in layers if "cancellous" in layers[size]]
+    assert 50 in reached and said == [f"the {size} mm reamer left the subchondral plate for cancellous bone" for size in reached]
 
 
 def test_a_socket_perforated_and_undone_still_counts_and_scores(tmp_path):

@@ -1,10 +1,11 @@
 """A whole-socket session end to end: a real ``thrsim serve`` on 127.0.0.1 with the shipped socket
-model (the native 46 mm socket meshed coarse) and a headless Chromium trainee who reams with the
-46 mm reamer and then the 48 mm one (keys), hears the cue as the 48 mm reamer reaches cancellous
-bone, reads the bone left before the medial wall (and its warning), sees native bone beyond the plan apart from
-reamed bone, ends the session and reads a report whose figures are those of the saved file; and a
-trainee at 1280×720 who reaches every control of the panels, and is warned before the 52 mm reamer
-pushed at 400 N breaks through the edge of the modelled bone."""
+model (the native 46 mm socket meshed at 3 mm) and a headless Chromium trainee who reams with the
+46 mm reamer, the 48 mm one (which seats in the subchondral plate, reamed one size up) and the
+50 mm one (keys), hears the cue as the 50 mm reamer reaches cancellous bone, reads the bone left
+before the medial wall (and its warning), sees native bone beyond the plan apart from reamed bone,
+ends the session and reads a report whose figures are those of the saved file; and a trainee at
+1280×720 (the socket meshed coarse, 5 mm) who reaches every control of the panels, and is warned
+before the 52 mm reamer pushed at 400 N breaks through the edge of the modelled bone."""
 
 from __future__ import annotations
 
@@ -28,13 +29,24 @@ pytestmark = [
 WAIT_MS = 300_000  # a loaded machine steps the socket slower than real time
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory):
+def _served(tmp_path_factory, element_mm: str):
     served = ServedTrainer(
-        tmp_path_factory.mktemp("sessions"), "--model", str(SHIPPED_SOCKET_MODEL), "--socket-element-size", "5", timeout=600
+        tmp_path_factory.mktemp("sessions"), "--model", str(SHIPPED_SOCKET_MODEL), "--socket-element-size", element_mm, timeout=600
     )
     yield served
     served.stop()
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """The socket meshed at 3 mm: fine enough that the reamers reach neither the wall nor the cut edge."""
+    yield from _served(tmp_path_factory, "3")
+
+
+@pytest.fixture(scope="module")
+def served_coarse(tmp_path_factory):
+    """The socket meshed at 5 mm: its cut edge close enough for the 52 mm reamer to break through."""
+    yield from _served(tmp_path_factory, "5")
 
 
 def _ream(page, size_mm: int, until_s: float) -> None:
@@ -65,7 +77,9 @@ def test_a_socket_session_from_the_page_to_its_report(served, browser):
     page.check("#cue-sound")
     _ream(page, 46, 0.5)
     _ream(page, 48, 1.25)
-    # the cue sounded once, when the 48 mm reamer left the subchondral plate for cancellous bone
+    assert page.evaluate("trainer.stats.events.includes('cancellous_reached')") is False  # one size up: still in the plate
+    _ream(page, 50, 1.45)
+    # the cue sounded once, when the 50 mm reamer left the subchondral plate for cancellous bone
     page.wait_for_function("trainer.stats.events.includes('cancellous_reached')", timeout=30_000)
     assert (
         page.evaluate("trainer.stats.cues") == page.evaluate("trainer.stats.events.filter((k) => k === 'cancellous_reached').length") == 1
@@ -104,10 +118,10 @@ def test_a_socket_session_from_the_page_to_its_report(served, browser):
     saved = page.evaluate("trainer.stats.saved")
     record = read_reaming(read_session(saved["file"]).groups["reaming"])
     found = metrics(record)
-    assert found["reamer_sequence_mm"] == [46.0, 48.0] and found["cavity_diameter_mm"] == 48.0
+    assert found["reamer_sequence_mm"] == [46.0, 48.0, 50.0] and found["cavity_diameter_mm"] == 50.0
     page.goto(urljoin(page.url, saved["report"]), timeout=60_000)
     report = page.inner_text("body")
-    assert "46 → 48 mm" in report and "planned 48 mm cup" in report
+    assert "46 → 48 → 50 mm" in report and "planned 48 mm cup" in report
     assert f"{record.removed_volume_mm3[-1]:.1f} mm³" in report
     for name in ("medial_wall_remaining_mm", "over_reaming_mm", "cavity_depth_error_mm"):
         assert f"{found[name]:.1f} mm" in report, name
@@ -153,14 +167,14 @@ def _every_control_reachable(page) -> None:
     assert not page.is_visible("#help")
 
 
-def test_the_panels_fit_or_scroll_within_and_the_page_warns_before_the_modelled_bones_edge(served, browser):
+def test_the_panels_fit_or_scroll_within_and_the_page_warns_before_the_modelled_bones_edge(served_coarse, browser):
     """At 1280×720 (and 1920×1080) every control and read-out of the panels is on screen or scrolls
     into view within its panel, the page never scrolls; the 52 mm reamer pushed at 400 N breaks
     through the socket's cut edge, and the page warned before it, in the edge's own words."""
     page = browser.new_page(viewport={"width": 1280, "height": 720})
     problems: list[str] = []
     page.on("pageerror", lambda error: problems.append(str(error)))
-    page.goto(served.url + "/reaming", timeout=60_000)
+    page.goto(served_coarse.url + "/reaming", timeout=60_000)
     page.wait_for_function("window.trainer && trainer.stats.framed && trainer.stats.states > 3", timeout=WAIT_MS)
     page.wait_for_timeout(500)  # the panels' text follows the next drawn frame
     _every_control_reachable(page)  # the tallest controls panel: the trainee's name asked first

@@ -135,17 +135,22 @@ def test_the_depth_map_of_the_socket_is_drawn_against_the_planned_cup(session):
     assert found["fractions"]["on plan"] + found["fractions"]["over-reamed"] > 0.0  # the 48 mm reamer cut to the plan somewhere
     anterior, superior = map_axes(np.array([0.0, 0.0, 1.0]))
     assert anterior == pytest.approx([0.0, 1.0, 0.0]) and superior == pytest.approx([-1.0, 0.0, 0.0])  # the patch frame's +x is inferior
-    classes = found["classes"]
-    cells = classes.shape[0]
-    grid = (found["extent_mm"][1] - found["extent_mm"][0]) / cells
     # the cells a removed element lies in (below the rim): never "not reached"
-    removed = final["alpha"] < final["threshold"]
+    reamed = _reamed_cells(found, record, final["alpha"] < final["threshold"])
+    assert not np.any(found["classes"][reamed] == CLASSES.index("not reached"))
+
+
+def _reamed_cells(found: dict, record, removed: np.ndarray) -> np.ndarray:
+    """The map's cells (seen along the patch frame's +z) that a removed element below the rim lies in."""
+    anterior, superior = map_axes(np.array([0.0, 0.0, 1.0]))
+    cells = found["classes"].shape[0]
+    grid = (found["extent_mm"][1] - found["extent_mm"][0]) / cells
     centre = record.cavity["centroids_m"][removed] * 1e3
     index = np.floor((np.column_stack([centre @ anterior, centre @ superior]) - found["extent_mm"][0]) / grid).astype(int)
     inside = ((index >= 0) & (index < cells)).all(axis=1) & (centre[:, 2] < 0.0)
-    reamed = np.zeros_like(classes, dtype=bool)
+    reamed = np.zeros_like(found["classes"], dtype=bool)
     reamed[index[inside, 0], index[inside, 1]] = True
-    assert not np.any(classes[reamed] == CLASSES.index("not reached"))
+    return reamed
 
 
 def test_the_depth_map_has_superior_up(tmp_path):
@@ -162,17 +167,10 @@ def test_the_depth_map_has_superior_up(tmp_path):
     removed = sim.alpha < sim.model.threshold
     record = read_reaming(read_session(scripted.live.save(tmp_path)).groups["reaming"])
     found = cavity_map(record)
-    anterior, superior = map_axes(np.array([0.0, 0.0, 1.0]))
     classes, error = found["classes"], found["error_mm"]
     cells = classes.shape[0]
-    grid = (found["extent_mm"][1] - found["extent_mm"][0]) / cells
-    middle = (np.arange(cells) - cells / 2 + 0.5) * grid
-    centre = record.cavity["centroids_m"][removed] * 1e3
-    index = np.floor((np.column_stack([centre @ anterior, centre @ superior]) - found["extent_mm"][0]) / grid).astype(int)
-    inside = ((index >= 0) & (index < cells)).all(axis=1) & (centre[:, 2] < 0.0)
-    reamed = np.zeros_like(classes, dtype=bool)
-    reamed[index[inside, 0], index[inside, 1]] = True
-    native = ~reamed & (classes >= 0)
+    middle = (np.arange(cells) - cells / 2 + 0.5) * (found["extent_mm"][1] - found["extent_mm"][0]) / cells
+    native = ~_reamed_cells(found, record, removed) & (classes >= 0)
     beyond = np.where(classes == CLASSES.index("native hollow"), np.inf, error)  # a hollow (no surface to measure) is deepest of all
     deepest = np.argwhere(native & (beyond >= np.nanpercentile(np.where(native, beyond, np.nan), 90)))
     assert len(deepest) and float(np.mean(middle[deepest[:, 1]])) < -2.0

@@ -496,13 +496,21 @@ class SocketSweepConfig(_Frozen):
     )  # fmt: skip
     #: the element sizes (mm) every whole socket is meshed at: the trainer's 1.5 mm, then the finer 1.0 mm
     whole_socket_element_sizes_mm: tuple[float, ...] = (1.5, 1.0)
+    #: long pushed whole sockets, a reamer held seated for seconds (the trainer's steps last that long):
+    #: (native socket, prepared cavity or None, reamer size, γ, θ, push N, split), run for
+    #: ``long_whole_socket_frames`` at the first of ``whole_socket_element_sizes_mm``
+    long_whole_sockets: tuple[tuple[float, float | None, float, float, float, float, str], ...] = (
+        (46.0, None, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, None, 46.0, 0.0, 0.0, 230.0, "train"),
+        (46.0, None, 48.0, 15.0, 30.0, 230.0, "test"),
+    )  # fmt: skip
+    long_whole_socket_frames: FrameCount = 240
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")
     validation_cases: int = Field(6, ge=0, le=10_000)
     test_cases: int = Field(9, ge=0, le=10_000)
     frames: FrameCount = 60
     seed: int = 0
 
-    @field_validator("whole_sockets", "prepared_whole_sockets")
+    @field_validator("whole_sockets", "prepared_whole_sockets", "long_whole_sockets")
     @classmethod
     def _known_split(cls, values: tuple) -> tuple:
         unknown = sorted({v[-1] for v in values} - {"train", "validation", "test"})

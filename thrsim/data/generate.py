@@ -373,14 +373,14 @@ def check_sweep_target(
 ) -> SweepTarget:
     """Every refusal a sweep can meet before it runs, without touching ``root``.
 
-    The plan asks one frame count, the solver is known, ``root`` is a dataset of this very
+    The plan asks one frame count (or names the dataset's, its long cases asking more), the solver is known, ``root`` is a dataset of this very
     configuration (or empty, or absent) and can be created. ``--dry-run`` calls this too, so
     what it approves, the run accepts.
     """
     frames = {c.frames for c in plan.cases}
-    if len(frames) != 1:
+    if plan.frames is None and len(frames) != 1:
         raise ThrsimInputError("every case of one dataset must ask for the same number of frames")
-    template = template_of(frames.pop(), template_overrides)
+    template = template_of(plan.frames or frames.pop(), template_overrides)
     name = solver_name(solver)
     identity = dataset_identity(template, name, tuple(c.element_size_mm for c in plan.cases))
     manifest = check_directory(root, identity, frozenset(f"{case.case_id}.h5" for case in plan.cases))

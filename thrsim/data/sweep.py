@@ -193,6 +193,8 @@ class SweepPlan:
     notes: list[str] = field(default_factory=list)
     requested: int = 0  # grid points before γ = 0 merging
     main_forces_n: tuple[float, ...] = DEFAULT_FORCES_N  # the forces of the full grid (the rest are extra)
+    #: the dataset's frame count where its cases differ (the socket's long whole sockets ask more); None: the one all ask
+    frames: int | None = None
 
 
 def plan_sweep(
@@ -399,15 +401,24 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
         for size in config.whole_socket_element_sizes_mm
         for entry in [(w[0], None, *w[1:]) for w in config.whole_sockets] + list(config.prepared_whole_sockets)
     ]
+    long = [
+        _whole_socket_case(config, config.whole_socket_element_sizes_mm[0], *entry, frames=config.long_whole_socket_frames)
+        for entry in config.long_whole_sockets
+    ]
+    whole += long
     cases.update((spec.case_id, spec) for spec in whole)
     pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
         f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
         f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
-        f"{len(whole)} pushed whole sockets at {format_list(config.whole_socket_element_sizes_mm)} mm ({', '.join(s.split or '' for s in whole) or 'none'})",
+        f"{len(whole) - len(long)} pushed whole sockets at {format_list(config.whole_socket_element_sizes_mm)} mm"
+        f" ({', '.join(s.split or '' for s in whole[: len(whole) - len(long)]) or 'none'})",
+        f"{len(long)} long pushed whole sockets, {config.long_whole_socket_frames} frames at {config.whole_socket_element_sizes_mm[0]:g} mm"
+        f" ({', '.join(s.split or '' for s in long) or 'none'})",
     ]
     return SweepPlan(
-        cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,)
+        cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,),
+        frames=config.frames,
     )
 
 
@@ -452,9 +463,10 @@ def _whole_socket_case(
     theta: float,
     push_n: float,
     split: str,
+    frames: int | None = None,
 ) -> CaseSpec:
     """A pushed whole socket: the socket meshed whole at ``size`` mm, native or prepared to ``prepared_mm``,
-    the reamer driven by a set push."""
+    the reamer driven by a set push for the plan's frames or ``frames`` (a long case, named by them)."""
     theta = 0.0 if gamma == 0.0 else float(theta)
     settings: list[tuple[str, Any]] = [
         ("socket.socket_diameter_mm", float(socket_mm)),
@@ -465,9 +477,11 @@ def _whole_socket_case(
     if prepared_mm is not None:
         settings.append(("pre_ream_mm", float(prepared_mm)))
     prepared = "" if prepared_mm is None else f"_p{prepared_mm:g}"
+    long = "" if frames is None else f"_f{frames}"
     return CaseSpec(
-        inclination_deg=float(gamma), anteversion_deg=theta, force_n=float(push_n), frames=config.frames, settings=tuple(settings),
-        label=f"whole_s{socket_mm:g}{prepared}_r{reamer_mm:g}_g{gamma:g}t{theta:g}_F{push_n:g}_h{size:g}", split=split,
+        inclination_deg=float(gamma), anteversion_deg=theta, force_n=float(push_n), frames=frames or config.frames,
+        settings=tuple(settings), label=f"whole_s{socket_mm:g}{prepared}_r{reamer_mm:g}_g{gamma:g}t{theta:g}_F{push_n:g}_h{size:g}{long}",
+        split=split,
     )  # fmt: skip
 
 

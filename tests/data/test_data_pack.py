@@ -308,7 +308,8 @@ def test_a_socket_s_crushed_cancellous_bone_is_packed_as_bone_and_an_older_pack_
     plan = tmp_path / "plan.json"
     plan.write_text(json.dumps({
         "train_cases": 0, "validation_cases": 0, "test_cases": 0, "pushed_windows": [], "test_pushed_windows": [],
-        "whole_sockets": [[46, 48, 0, 0, 230, "train"]], "prepared_whole_sockets": [], "whole_socket_element_sizes_mm": [2.5],
+        "whole_sockets": [[46, 48, 0, 0, 230, "train"]], "prepared_whole_sockets": [], "long_whole_sockets": [],
+        "whole_socket_element_sizes_mm": [2.5],
     }))  # fmt: skip
     root, pack = tmp_path / "ds", tmp_path / "pack.h5"
     args = ["dataset", "--bone", "socket", "--socket-plan", str(plan), "--frames", "2", "--out", str(root), "--threads", "1"]

@@ -26,8 +26,9 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     again = plan_socket_sweep(config)
     assert [c.case_id for c in plan.cases] == [c.case_id for c in again.cases]
     assert len({c.case_id for c in plan.cases}) == len(plan.cases)
-    whole = [c for c in plan.cases if _settings(c)["socket.window_polar_deg"] is None]
-    pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c) and c not in whole]
+    long = [c for c in plan.cases if c.frames != config.frames]
+    whole = [c for c in plan.cases if _settings(c)["socket.window_polar_deg"] is None and c not in long]
+    pushed = [c for c in plan.cases if "feed_mm_s" not in _settings(c) and c not in whole and c not in long]
     fed = [c for c in plan.cases if "feed_mm_s" in _settings(c)]
     # each of the plan's whole sockets at each of its element sizes, the trainer's 1.5 mm first
     sizes = config.whole_socket_element_sizes_mm
@@ -40,6 +41,14 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
         assert built.feed_mm_s is None and built.socket.element_size_mm == size and case.case_id.endswith(f"_h{size:g}")
         assert built.socket.socket_diameter_mm == socket_mm and built.reamer.head_diameter_mm == head_diameter_for_size(reamer_mm)
         assert built.pre_ream_mm == prepared_mm and ("_p" in case.case_id) == (prepared_mm is not None)
+    # the long whole sockets: a reamer held seated for seconds, at the trainer's mesh, named by their frames
+    assert [(c.inclination_deg, c.anteversion_deg, c.force_n, c.split) for c in long] == [w[3:] for w in config.long_whole_sockets]
+    assert {c.frames for c in long} == {config.long_whole_socket_frames} and config.long_whole_socket_frames > config.frames == plan.frames
+    for case, (socket_mm, prepared_mm, reamer_mm, *_) in zip(long, config.long_whole_sockets, strict=True):
+        built = case.case_config({"bone_kind": "socket"})
+        assert built.frames == config.long_whole_socket_frames and built.socket.element_size_mm == sizes[0]
+        assert case.case_id.endswith(f"_h{sizes[0]:g}_f{config.long_whole_socket_frames}") and built.pre_ream_mm == prepared_mm
+        assert built.socket.socket_diameter_mm == socket_mm and built.reamer.head_diameter_mm == head_diameter_for_size(reamer_mm)
     splits = Counter(c.split for c in fed)
     assert splits == {"train": config.train_cases, "validation": config.validation_cases, "test": config.test_cases}
     # every pushed window at every pressure, along the socket's axis; the held-out windows only in test
@@ -79,8 +88,8 @@ def test_the_plan_is_reproducible_balanced_and_holds_values_out():
     for case in plan.cases:
         built = case.case_config({"bone_kind": "socket"})
         assert built.reamer.tooth_count == teeth_for_diameter(built.reamer.head_diameter_mm)  # each size its own teeth
-        assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed or case in whole)
-        assert (built.socket.window_polar_deg is None) == (case in whole)
+        assert built.bone_kind == "socket" and (built.feed_mm_s is None) == (case in pushed or case in whole or case in long)
+        assert (built.socket.window_polar_deg is None) == (case in whole or case in long)
         assert CaseSpec(**json.loads(json.dumps(case.params()))) == case
 
 
@@ -100,6 +109,8 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "push_pressures_n_mm2": [0.8],
                 "whole_sockets": [[44.0, 46.0, 0.0, 0.0, 230.0, "train"]],
                 "prepared_whole_sockets": [],
+                "long_whole_sockets": [[44.0, None, 46.0, 0.0, 0.0, 310.0, "train"]],
+                "long_whole_socket_frames": 3,
                 "whole_socket_element_sizes_mm": [3.0],
                 "seed": 7,
             }
@@ -124,9 +135,11 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     )
     done = run_thrsim(*args, timeout=1200)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert json.loads(done.stdout)["generated"] == 4
+    assert json.loads(done.stdout)["generated"] == 5
     manifest = json.loads((out / "manifest.json").read_text())
     cases = manifest["cases"]
+    long = cases.pop("whole_s44_r46_g0t0_F310_h3_f3")  # a long whole socket: more frames than the plan's other cases
+    assert long["status"] == "complete" and long["frames"] == 4 and long["solver_summary"]["push_mean_n"] == pytest.approx(310.0)
     whole = cases.pop("whole_s44_r46_g0t0_F230_h3")  # the pushed whole socket, meshed whole at its own element size
     assert whole["status"] == "complete" and whole["split"] == "train" and whole["solver_summary"]["feed_mm_s"] is None
     assert whole["solver_summary"]["push_mean_n"] == pytest.approx(230.0)
@@ -138,7 +151,7 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     assert manifest["split_rule"]["test_feeds_mm_s"] == [25.0]
     assert all(e["solver_summary"]["bone"] == "socket" and e["solver_summary"]["feed_mm_s"] in (20.0, 25.0) for e in entries)
     again = run_thrsim(*args, timeout=600)
-    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 4
+    assert again.returncode == 0 and json.loads(again.stdout)["skipped"] == 5
     # the calibration reads the cases reamed along the socket's axis: more push, more seated feed
     info = run_thrsim("dataset", "info", str(out), "--json", timeout=600)
     assert info.returncode == 0, info.stderr[-2000:]
@@ -158,11 +171,12 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
     packed = run_thrsim("dataset", "pack", str(out), "--out", str(pack), "--json", timeout=600)
     assert packed.returncode == 0, packed.stderr[-2000:]
     mesh, cases = read_pack(pack)
-    assert len(cases) == 4 and all(case.mesh is not None for case in cases)  # its own, or its file's
+    assert len(cases) == 5 and all(case.mesh is not None for case in cases)  # its own, or its file's
+    assert sorted(case.alpha.shape[0] for case in cases) == [3, 3, 3, 3, 4]  # each case its own frames
     assert len({mesh_digest(case.mesh) for case in cases}) >= 3  # windows of their own meshes, and the whole socket
     # the law's cases are told apart from windows in the pack too (a window keeps its held sides)
     _, learned = load_cases(pack, one_mesh=False)
-    assert {case.case_id for case in learned if not case.is_window()} == {"whole_s44_r46_g0t0_F230_h3"}
+    assert {case.case_id for case in learned if not case.is_window()} == {"whole_s44_r46_g0t0_F230_h3", "whole_s44_r46_g0t0_F310_h3_f3"}
     for case in cases:
         own = case.mesh
         assert case.alpha.shape[1] == own.n_tets and case.status.shape == case.alpha.shape
@@ -181,11 +195,13 @@ def test_a_small_socket_dataset_runs_validates_and_resumes(tmp_path):
                 "pushed_windows": [],
                 "whole_sockets": [],
                 "prepared_whole_sockets": [],
+                "long_whole_sockets": [],
             },
             "no case",
         ),
         ({"whole_sockets": [[46, 48, 0, 0, 230, "holdout"]]}, "unknown split"),
         ({"prepared_whole_sockets": [[46, 48, 50, 0, 0, 230, "holdout"]]}, "unknown split"),
+        ({"long_whole_sockets": [[46, None, 48, 0, 0, 230, "holdout"]]}, "unknown split"),
         ({"cancellous": ["spongy"]}, "unknown cancellous"),
         ({"windows": 3}, "windows"),
     ],

@@ -359,7 +359,7 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
     if (
         not fed_cases
         and not (config.pushed_windows and config.push_pressures_n_mm2)
-        and not (config.whole_sockets or config.prepared_whole_sockets)
+        and not (config.whole_sockets or config.prepared_whole_sockets or config.long_whole_sockets)
     ):
         raise ThrsimInputError("the socket plan has no case: give set-feed cases (train_cases), pushed windows or whole sockets")
     axes = {
@@ -417,7 +417,10 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
         f" ({', '.join(s.split or '' for s in long) or 'none'})",
     ]
     return SweepPlan(
-        cases=list(cases.values()), notes=notes, requested=len(cases), main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,),
+        cases=list(cases.values()),
+        notes=notes,
+        requested=len(cases),
+        main_forces_n=(ReamingCaseConfig.model_fields["force_n"].default,),
         frames=config.frames,
     )
 

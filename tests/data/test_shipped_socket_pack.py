@@ -1,6 +1,6 @@
 """The 0.5 dataset ships as learning packs: 51 socket windows at set feeds and 24 pushed, each with
-its own mesh and its reaction; beside them, the pushed whole sockets solved so far; and the plan
-solved again by solver 0.5.4, as far as it has gone."""
+its own mesh and its reaction; beside them, the pushed whole sockets solved so far; the plan
+solved again by solver 0.5.4, as far as it has gone; and its long whole sockets, packed apart."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ from thrsim.learn.cases import load_cases
 PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
 WHOLE = PACK.parent / "socket-whole-0.5.1"
 PACK_054 = PACK.parent / "socket-0.5.4"
+LONG_054 = PACK.parent / "socket-long-0.5.4"
 
 
 def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_learns():
@@ -70,3 +71,16 @@ def test_the_0_5_4_pack_holds_the_plan_s_cases_of_this_solver_with_labels_that_k
     # one split alone reads too, where a pack file holds none of its cases (evaluate --split test)
     _, test_cases = load_cases(PACK_054, splits=("test",), one_mesh=False)
     assert {case.case_id for case in test_cases} == {case.case_id for case in cases if case.split == "test"}
+
+
+def test_the_long_pack_holds_the_plan_s_long_whole_sockets_held_seated_for_seconds():
+    config = SocketSweepConfig()
+    plan = {case.case_id: case for case in plan_socket_sweep(config).cases if case.frames == config.long_whole_socket_frames}
+    _, cases = load_cases(LONG_054, one_mesh=False)
+    assert {case.case_id for case in cases} == set(plan) and len(plan) == len(config.long_whole_sockets)
+    for case in cases:
+        # up to the plan's frames (a perforated case ends early), always past the 60 of every other case
+        assert case.split == plan[case.case_id].split and config.frames < case.frames - 1 <= config.long_whole_socket_frames
+        assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.set_feed_mm_s is None
+    assert {case.split for case in cases} == {"train", "test"}
+    assert all(f.stat().st_size <= 15.5e6 for f in LONG_054.glob("part-*.h5"))

@@ -501,7 +501,7 @@ class SocketSweepConfig(_Frozen):
     #: ``long_whole_socket_frames`` at the first of ``whole_socket_element_sizes_mm``
     long_whole_sockets: tuple[tuple[float, float | None, float, float, float, float, str], ...] = (
         (46.0, None, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, None, 46.0, 0.0, 0.0, 230.0, "train"),
-        (46.0, None, 48.0, 15.0, 30.0, 230.0, "test"),
+        (46.0, None, 48.0, 15.0, 30.0, 230.0, "test"), (44.0, None, 46.0, 30.0, 90.0, 270.0, "train"),
     )  # fmt: skip
     long_whole_socket_frames: FrameCount = 240
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")

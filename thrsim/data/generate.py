@@ -373,9 +373,9 @@ def check_sweep_target(
 ) -> SweepTarget:
     """Every refusal a sweep can meet before it runs, without touching ``root``.
 
-    The plan asks one frame count (or names the dataset's, its long cases asking more), the solver is known, ``root`` is a dataset of this very
-    configuration (or empty, or absent) and can be created. ``--dry-run`` calls this too, so
-    what it approves, the run accepts.
+    The plan asks one frame count (or names the dataset's, its long cases asking more), the solver
+    is known, ``root`` is a dataset of this very configuration (or empty, or absent) and can be
+    created. ``--dry-run`` calls this too, so what it approves, the run accepts.
     """
     frames = {c.frames for c in plan.cases}
     if plan.frames is None and len(frames) != 1:

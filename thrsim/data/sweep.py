@@ -405,14 +405,12 @@ def plan_socket_sweep(config: SocketSweepConfig | None = None) -> SweepPlan:
         _whole_socket_case(config, config.whole_socket_element_sizes_mm[0], *entry, frames=config.long_whole_socket_frames)
         for entry in config.long_whole_sockets
     ]
-    whole += long
-    cases.update((spec.case_id, spec) for spec in whole)
+    cases.update((spec.case_id, spec) for spec in whole + long)
     pushed_tests = sum(spec.split == "test" for spec in pushed)
     notes = [
         f"{config.train_cases} train, {config.validation_cases} validation, {config.test_cases} test window cases (seed {config.seed})",
         f"{len(pushed)} pushed windows ({len(pushed) - pushed_tests} train, {pushed_tests} test)",
-        f"{len(whole) - len(long)} pushed whole sockets at {format_list(config.whole_socket_element_sizes_mm)} mm"
-        f" ({', '.join(s.split or '' for s in whole[: len(whole) - len(long)]) or 'none'})",
+        f"{len(whole)} pushed whole sockets at {format_list(config.whole_socket_element_sizes_mm)} mm ({', '.join(s.split or '' for s in whole) or 'none'})",
         f"{len(long)} long pushed whole sockets, {config.long_whole_socket_frames} frames at {config.whole_socket_element_sizes_mm[0]:g} mm"
         f" ({', '.join(s.split or '' for s in long) or 'none'})",
     ]

@@ -123,6 +123,15 @@ _SEND_PUSHES = """(([count, period, step]) => {
 })"""
 
 
+# Every push the probe sent, and the push it restored last, acknowledged (other acknowledgements, of
+# the run's start or pause, interleave with them).
+_ALL_PUSHES_ACKNOWLEDGED = """(() => {
+  const probe = trainer.stats.pushProbe;
+  const pushes = trainer.stats.acks.slice(probe.acksFrom).filter((text) => text.startsWith("push "));
+  return pushes.length >= probe.sent.length + 1;
+})()"""
+
+
 def _pushes_in_order(page) -> dict:
     """Whether the probe's pushes were acknowledged, and shown in the states, in the order sent, and the
     most of them that first showed in one state the page received (a state the page skipped counts too)."""
@@ -167,7 +176,7 @@ def whole_reaming(page, reamers: tuple[int, ...], frames: int) -> dict:
         )
         page.evaluate("trainer.send({type: 'run', action: 'pause'})")
         page.wait_for_function("!trainer.stats.last.reaming.running && trainer.stats.pushProbe.done", timeout=60_000)
-        page.wait_for_function(f"trainer.stats.acks.length >= trainer.stats.pushProbe.acksFrom + {PROBE_PUSHES}", timeout=60_000)
+        page.wait_for_function(_ALL_PUSHES_ACKNOWLEDGED, timeout=60_000)
         orders.append(_pushes_in_order(page))
         reamed, kinds = page.evaluate(f"[trainer.stats.last.reaming.frame, trainer.stats.events.slice({events})]")
         done.append({"reamer_mm": size, "frames": reamed - first, "stopped_by": next((k for k in kinds if k in _BREACHES), None)})

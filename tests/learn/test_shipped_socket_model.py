@@ -65,3 +65,21 @@ def test_thrsim_ream_reams_the_whole_socket_with_the_shipped_model(tmp_path):
     )
     assert done.returncode == 0, done.stderr[-2000:]
     assert "reamer 46 mm" in done.stdout and "reamer 48 mm" in done.stdout
+
+
+def test_thrsim_ream_takes_the_next_reamer_once_the_last_is_seated(tmp_path):
+    """The default sequence at the trainer's mesh: each reamer seats (its advance over the last half second
+    falls under the rule's) before its frames run out, and none breaks through the bone."""
+    import json
+
+    from thrsim.learn.ream import SEATED_ADVANCE_MM
+
+    done = run_thrsim("ream", "--bone", "socket", "--reamers", "46,48,50", "--out", str(tmp_path / "r"), "--json", timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    summary = json.loads(done.stdout)
+    steps = summary["reamers"]
+    assert [step["ended"] for step in steps] == ["seated"] * 3 and summary["end_reason"] == "completed"
+    assert all(30 <= step["frames"] < 120 for step in steps)
+    travel = [step["travel_mm"] for step in steps]
+    assert travel == sorted(travel) and travel[-1] - travel[0] > SEATED_ADVANCE_MM
+    assert [step["removed_volume_mm3"] for step in steps] == sorted(step["removed_volume_mm3"] for step in steps)

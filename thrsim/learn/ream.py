@@ -159,8 +159,10 @@ def _picture(
     return save_png(image, png)
 
 
-#: frames a reamer stands still (advance under a micrometre each) before the next size is taken: seated
-SEATED_FRAMES = 30
+#: a reamer is seated, and the next size taken, once it advanced less than ``SEATED_ADVANCE_MM`` over
+#: the last ``SEATED_WINDOW_S``: the solver's long whole sockets seat so 31–53 frames in, then creep
+#: about 0.1 mm per 100 frames until, one size up, their plate gives way (frames 81–195; benchmarks page)
+SEATED_WINDOW_S, SEATED_ADVANCE_MM = 0.5, 0.2
 #: the whole socket's default element size for learned reaming (mm): the finest that steps at
 #: interactive rates on a 2-core CPU (see the benchmarks page, "socket model")
 SOCKET_ELEMENT_SIZE_MM = 1.5
@@ -214,17 +216,19 @@ def ream_socket(
             (0.0, *write_frame(staging, 0, simulator.mesh, simulator.alpha, simulator.removed, simulator.reamer_start(axis), axis, 0.0))
         ]
         frame, end_reason, step_ms = 0, None, []
+        window = max(1, round(SEATED_WINDOW_S / frame_dt))
         for size in reamers:
             simulator.withdraw()
-            still, results = 0, []
+            seated, results = False, []
             for _ in range(frames_per_reamer):
                 t0 = time.perf_counter()
                 state = simulator.step(axis, force, reamer_mm=size)
                 step_ms.append((time.perf_counter() - t0) * 1e3)
                 results.append(state)
-                still = still + 1 if state.advance_m < 1e-6 else 0
                 end_reason = state.end_reason
-                if end_reason is not None or still >= SEATED_FRAMES:
+                recent = [r.advance_m for r in results[-window:]]
+                seated = len(recent) == window and sum(recent) * 1e3 < SEATED_ADVANCE_MM
+                if end_reason is not None or seated:
                     break
             frame += len(results)
             last = results[-1]
@@ -238,7 +242,7 @@ def ream_socket(
             torques = [r.motor_torque_n_m for r in results if r.motor_torque_n_m is not None]
             steps.append({
                 "reamer_mm": size, "frames": len(results), "seconds": len(results) * frame_dt,
-                "ended": end_reason or ("seated" if still >= SEATED_FRAMES else "frames"),
+                "ended": end_reason or ("seated" if seated else "frames"),
                 "removed_volume_mm3": last.removed_volume_m3 * 1e9, "travel_mm": simulator.depth_m * 1e3,
                 "reaction_n_mean": float(np.mean(reactions)) if reactions else None,
                 "motor_torque_n_m_mean": float(np.mean(torques)) if torques else None,

@@ -502,6 +502,8 @@ class SocketSweepConfig(_Frozen):
     long_whole_sockets: tuple[tuple[float, float | None, float, float, float, float, str], ...] = (
         (46.0, None, 48.0, 0.0, 0.0, 230.0, "train"), (46.0, None, 46.0, 0.0, 0.0, 230.0, "train"),
         (46.0, None, 48.0, 15.0, 30.0, 230.0, "test"), (44.0, None, 46.0, 30.0, 90.0, 270.0, "train"),
+        (46.0, None, 48.0, 30.0, 0.0, 230.0, "train"), (46.0, 48.0, 50.0, 15.0, 90.0, 230.0, "train"),
+        (46.0, None, 48.0, 15.0, 180.0, 270.0, "train"), (50.0, None, 52.0, 15.0, 270.0, 200.0, "train"),
     )  # fmt: skip
     long_whole_socket_frames: FrameCount = 240
     train_cases: int = Field(36, ge=0, le=10_000, description="set-feed cases to train on (0: the pushed windows only)")

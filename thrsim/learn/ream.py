@@ -160,8 +160,8 @@ def _picture(
 
 
 #: a reamer is seated, and the next size taken, once it advanced less than ``SEATED_ADVANCE_MM`` over
-#: the last ``SEATED_WINDOW_S``: the solver's long whole sockets seat so 31–53 frames in, then creep
-#: about 0.1 mm per 100 frames until, one size up, their plate gives way (frames 81–195; benchmarks page)
+#: the last ``SEATED_WINDOW_S``: seven of the solver's eight long whole sockets seat so 31–58 frames
+#: in, before their plate gives way one size up (from frame 62 on; the benchmarks page)
 SEATED_WINDOW_S, SEATED_ADVANCE_MM = 0.5, 0.2
 #: the whole socket's default element size for learned reaming (mm): the finest that steps at
 #: interactive rates on a 2-core CPU (see the benchmarks page, "socket model")

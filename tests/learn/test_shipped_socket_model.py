@@ -78,6 +78,7 @@ def test_thrsim_ream_takes_the_next_reamer_once_the_last_is_seated(tmp_path):
     assert done.returncode == 0, done.stderr[-2000:]
     summary = json.loads(done.stdout)
     steps = summary["reamers"]
+    assert summary["seated_rule"]["advance_mm"] == SEATED_ADVANCE_MM
     assert [step["ended"] for step in steps] == ["seated"] * 3 and summary["end_reason"] == "completed"
     assert all(30 <= step["frames"] < 120 for step in steps)
     travel = [step["travel_mm"] for step in steps]

@@ -255,6 +255,7 @@ def ream_socket(
         summary = {
             "bone": "socket", "inclination_deg": inclination_deg, "anteversion_deg": anteversion_deg, "force_n": force, "side": side,
             "element_size_mm": element_size_mm, "cancellous": cancellous, "elements": simulator.n_elements,
+            "seated_rule": {"advance_mm": SEATED_ADVANCE_MM, "window_s": SEATED_WINDOW_S},
             "reamers": steps, "end_reason": end_reason or "completed",
             "end_reason_text": END_REASON_TEXT[end_reason or "completed"],
             "removed": int(simulator.removed.sum()), "removed_volume_mm3": simulator.removed_volume_m3 * 1e9,

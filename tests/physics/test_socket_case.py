@@ -44,7 +44,11 @@ def test_a_reamer_one_size_up_reams_the_native_socket(tmp_path):
     from thrsim.learn.cases import load_cases
 
     _, (case,) = load_cases(out)
-    assert crushed.any() and not (case.alpha[-1] < 0.3)[crushed].any()
+    assert crushed.any() and not (case.alpha[-1] < 0.3)[crushed].any() and case.bone_kind == "socket"
+    # a socket case is scored by the shipped socket model unless another is named
+    scored = run_thrsim("evaluate", "--data", str(out), "--json", timeout=600)
+    assert scored.returncode == 0, scored.stderr[-2000:]
+    assert json.loads(scored.stdout)["model"]["path"].endswith("socket") and "48" in json.loads(scored.stdout)
 
 
 def test_a_pre_reamed_socket_starts_from_its_cavity():

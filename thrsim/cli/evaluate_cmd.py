@@ -20,7 +20,9 @@ def evaluate(
     data: Path = typer.Option(
         ..., "--data", help="dataset directory (its test split unless --split) or one case file", metavar="DIR_OR_CASE"
     ),
-    model: Path | None = typer.Option(None, "--model", help="model directory (default: the shipped model)", metavar="MODEL_DIR"),
+    model: Path | None = typer.Option(
+        None, "--model", help="model directory (default: the shipped model of the data's bone: patch or socket)", metavar="MODEL_DIR"
+    ),
     split: str = typer.Option("test", "--split", help="split of a dataset directory to score: test, validation, train or all"),
     start_stride: int = typer.Option(30, "--start-stride", help="frames between the start frames of the rollout windows", metavar="N"),
     one_step_stride: int = typer.Option(
@@ -41,12 +43,12 @@ def evaluate(
     from thrsim.data.pack import is_pack
     from thrsim.learn.cases import load_cases
     from thrsim.learn.evaluation import evaluate as run_evaluation
-    from thrsim.learn.model_dir import load_model
+    from thrsim.learn.model_dir import load_model, shipped_model_for
 
     torch.set_num_threads(threads)
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
     mesh, cases = load_cases(data, splits=splits, one_mesh=False)
-    loaded = load_model(model, expect_mesh=mesh)
+    loaded = load_model(shipped_model_for(cases) if model is None else model, expect_mesh=mesh)
     report = run_evaluation(
         loaded,
         cases,

@@ -52,6 +52,7 @@ class CaseArrays:
     hold: ReamerHoldConfig = ReamerHoldConfig()  # the hand-held reamer's mass and damping the case was solved with
     set_feed_mm_s: float | None = None  # the feed a rig set (None: the push drove the reamer against the bone)
     reamer_centre_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)  # a point the reamer's axis passes through (bone frame)
+    bone_kind: str = "patch"  # the thesis's patch or the layered socket (its windows and the whole socket)
 
     def is_window(self) -> bool:
         """Whether the case's bone is a window of the socket (held at its cut sides), not a whole bone."""
@@ -150,6 +151,7 @@ def _case_arrays(
         hold=ReamerHoldConfig.model_validate(config.get("hold", {})),
         set_feed_mm_s=None if config.get("feed_mm_s") is None else float(config["feed_mm_s"]),
         reamer_centre_mm=tuple(float(v) for v in config.get("reamer_centre_mm") or (0.0, 0.0, 0.0)),  # type: ignore[arg-type]
+        bone_kind=str(config.get("bone_kind", "patch")),
     )
 
 

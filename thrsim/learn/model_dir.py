@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -35,6 +37,9 @@ from thrsim.learn.graph import StaticGraph, mesh_digest
 from thrsim.learn.learned_simulator import LearnedSimulator
 from thrsim.learn.reamer_feed import ReamerFeed
 from thrsim.learn.settings import ModelSettings
+
+if TYPE_CHECKING:
+    from thrsim.learn.cases import CaseArrays
 
 MODEL_FORMAT = "thrsim-model"
 MODEL_FORMAT_VERSION = 1
@@ -346,6 +351,11 @@ def read_advance(file: Path) -> ArrayRegressor:
 def reads_any_mesh(settings: ModelSettings) -> bool:
     """A socket model's inputs hold nothing of the bone frame: it runs on any mesh (windows, the whole socket)."""
     return settings.features.feature_set == "socket"
+
+
+def shipped_model_for(cases: Iterable[CaseArrays]) -> Path:
+    """The shipped model that learned the cases' bone: the socket model for socket cases, else the patch model."""
+    return SHIPPED_SOCKET_MODEL if any(case.bone_kind == "socket" for case in cases) else SHIPPED_MODEL
 
 
 def load_model(path: str | os.PathLike | None = None, expect_mesh: TetMesh | None = None) -> LoadedModel:

@@ -57,6 +57,18 @@ def test_training_lowers_the_loss_on_a_real_case(real):
     assert excess() < 0.9 * before, (before, excess())
 
 
+@pytest.mark.parametrize(("damage_noise", "damage_is_noisy"), [(None, True), (0.0, False)], ids=["as_alpha", "none"])
+def test_the_noise_on_input_damage_is_set_apart_from_alphas(real, damage_noise, damage_is_noisy):
+    trainer = _trainer(real, tiny_settings(alpha_noise=0.05, damage_noise=damage_noise, position_noise_mm=0.0))
+    index = int(np.argmax([trainer.train_cases[c].damage[t].max() for c, t in trainer.samples]))  # a pair with damaged bone
+    (sub, alpha_in, _), damage_in, *_ = trainer._sample(index, np.random.default_rng(3))
+    case_index, t = trainer.samples[index]
+    case = trainer.train_cases[case_index]
+    active = case.alpha[t][sub.nodes] >= trainer.threshold
+    assert not np.allclose(alpha_in[active], case.alpha[t][sub.nodes][active])
+    assert np.allclose(damage_in[active], case.damage[t][sub.nodes][active]) != damage_is_noisy
+
+
 @pytest.mark.parametrize("pushforward", [{}, {"pushforward_steps": 2, "pushforward_from_epoch": 1}], ids=["one_step", "pushforward"])
 def test_resumed_training_matches_an_uninterrupted_run(real, tmp_path, pushforward):
     settings = tiny_settings(epochs=2, **pushforward)

@@ -112,7 +112,10 @@ class TrainSettings(_Frozen):
     learning_rate: float = Field(1e-3, gt=0)
     final_learning_rate: float = Field(1e-4, gt=0)
     gradient_clip: float = Field(1.0, gt=0, description="largest gradient norm per step")
-    alpha_noise: float = Field(0.02, ge=0, description="σ of the Gaussian noise on input α and D (stable rollouts)")
+    alpha_noise: float = Field(0.02, ge=0, description="σ of the Gaussian noise on input α (and D, see damage_noise; stable rollouts)")
+    damage_noise: float | None = Field(
+        None, ge=0, le=1, description="σ of the noise on input D (None: alpha_noise); D grows by 0.01–0.06 a frame under a seated reamer"
+    )
     position_noise_mm: float = Field(0.05, ge=0, description="σ of the noise on the reamer centre")
     seed: int = 0
     max_samples_per_epoch: int | None = Field(None, ge=1, description="subsample the frame pairs each epoch")

@@ -162,9 +162,8 @@ class Trainer:
         self.gn.train(was_training)
         return state
 
-    def _noisy(self, values: np.ndarray, active: np.ndarray, low: float, rng: np.random.Generator | None) -> np.ndarray:
-        """``values`` with Gaussian noise (σ ``alpha_noise``) on active elements, clipped to [low, 1]."""
-        sigma = self.settings.train.alpha_noise
+    def _noisy(self, values: np.ndarray, active: np.ndarray, low: float, rng: np.random.Generator | None, sigma: float) -> np.ndarray:
+        """``values`` with Gaussian noise (σ ``sigma``) on active elements, clipped to [low, 1]."""
         if rng is None or sigma == 0:
             return values
         noisy = np.clip(values + rng.normal(0.0, sigma, len(values)).astype(np.float32), low, 1.0)
@@ -209,8 +208,14 @@ class Trainer:
         sub = select_subgraph(graph, self.settings.features, active_t, centre, case.teeth_radius_m)
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         active = alpha_in >= self.threshold
-        alpha_in = self._noisy(alpha_in, active, self.threshold, rng)
-        damage_in = None if not with_damage or damage_t is None else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng)
+        noise = self.settings.train
+        alpha_in = self._noisy(alpha_in, active, self.threshold, rng, noise.alpha_noise)
+        damage_sigma = noise.alpha_noise if noise.damage_noise is None else noise.damage_noise
+        damage_in = (
+            None
+            if not with_damage or damage_t is None
+            else self._noisy(damage_t[sub.nodes].astype(np.float32), active, 0.0, rng, damage_sigma)
+        )
         arrays = self._features(case, int(t), graph, sub, alpha_in, centre, active_t, damage_in)
         damage_next = case.damage[t + 1][sub.nodes] if with_damage else None
         return (

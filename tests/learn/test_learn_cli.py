@@ -147,6 +147,22 @@ def test_evaluate_json_is_keyed_by_inclination_then_horizon(tiny_model, syntheti
     assert "thesis Table 10" in table.stdout and "geometric" in table.stdout
 
 
+def test_evaluate_per_case_scores_each_case_from_its_first_frame_as_the_windows_do(tiny_model, synthetic_dataset):
+    args = ("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--json")
+    windows = json.loads(run_thrsim(*args).stdout)  # 12-frame cases: one window from frame 0 to the end each
+    result = run_thrsim(*args, "--per-case")
+    assert result.returncode == 0, result.stderr
+    rows = json.loads(result.stdout)["cases"]
+    assert len(rows) == 2 and {row["split"] for row in rows} == {"test"}
+    for row in rows:
+        gamma = "15" if "g015" in row["case_id"] else "30"
+        for mode, source in (("autonomous", windows), ("tool_forced", windows["tool_forced"]), ("geometric", windows["geometric"])):
+            assert row[mode]["f1"] == pytest.approx(source[gamma]["end"]["f1"]), (row["case_id"], mode)
+        assert row["tool_forced"]["reamer_end_error_mm"] == 0.0 and row["geometric"]["reamer_end_error_mm"] == 0.0
+    table = run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--per-case")
+    assert table.returncode == 0 and "reamer end mm" in table.stdout and "GN tool-forced" in table.stdout
+
+
 def test_evaluate_refuses_a_model_of_another_mesh(tiny_model, real_case):
     result = run_thrsim("evaluate", "--data", str(real_case), "--model", str(tiny_model), "--json")
     assert result.returncode == 2 and "another mesh" in result.stderr and result.stdout == ""

@@ -28,6 +28,9 @@ def evaluate(
     one_step_stride: int = typer.Option(
         1, "--one-step-stride", help="frames between the start frames of the one-step (t+1) windows", metavar="N"
     ),
+    per_case: bool = typer.Option(
+        False, "--per-case", help="instead of windows, each case from its first frame to its last, one row per case"
+    ),
     threads: int = typer.Option(1, "--threads", help="PyTorch threads", metavar="N"),
     as_json: bool = typer.Option(False, "--json", help="print one JSON object on stdout"),
 ) -> None:
@@ -42,6 +45,7 @@ def evaluate(
 
     from thrsim.data.pack import is_pack
     from thrsim.learn.cases import load_cases
+    from thrsim.learn.evaluation import case_scores
     from thrsim.learn.evaluation import evaluate as run_evaluation
     from thrsim.learn.model_dir import load_model, shipped_model_for
 
@@ -49,12 +53,22 @@ def evaluate(
     splits = None if split == "all" or (data.is_file() and not is_pack(data)) else (split,)
     mesh, cases = load_cases(data, splits=splits, one_mesh=False)
     loaded = load_model(shipped_model_for(cases) if model is None else model, expect_mesh=mesh)
+    on_case = None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})")
+    if per_case:
+        rows = case_scores(loaded, cases, on_case)
+        if as_json:
+            print_json(
+                {"cases": rows, "model": {"path": str(loaded.path)}, "data": {"source": str(data), "split": split if splits else "all"}}
+            )
+        else:
+            print_case_scores(rows)
+        return
     report = run_evaluation(
         loaded,
         cases,
         start_stride=start_stride,
         one_step_stride=one_step_stride,
-        on_case=None if as_json else lambda i, n, c: err_console.print(f"{c} ({i}/{n})"),
+        on_case=on_case,
     )
     report["model"] = {"path": str(loaded.path), "arch": loaded.card.get("arch"), "data_digest": loaded.card["data"]["digest"]}
     report["data"] = {"source": str(data), "split": split if splits else "all"}
@@ -62,6 +76,35 @@ def evaluate(
         print_json(report)
         return
     print_comparison(report)
+
+
+def print_case_scores(rows: list[dict]) -> None:
+    """One row per case and mode: F1 %, volume error %, surface mm, diameter, depth and reamer end against the solver's (mm)."""
+    table = Table(title="each case from its first frame to its last, against the solver")
+    for column in ("case", "split", "model", "F1 %", "volume %", "surface mm", "diameter mm", "depth mm", "reamer end mm"):
+        table.add_column(column)
+    names = {"autonomous": "GN autonomous", "tool_forced": "GN tool-forced", "mlp": "MLP", "geometric": "geometric"}
+
+    def cell(value, scale: float = 1.0, digits: int = 2) -> str:
+        return "–" if value is None else f"{scale * value:+.{digits}f}"
+
+    for row in rows:
+        for mode, name in names.items():
+            if mode not in row:
+                continue
+            s = row[mode]
+            table.add_row(
+                row["case_id"],
+                row["split"] or "–",
+                name,
+                _pct(s["f1"]),
+                cell(s["removed_volume_error"], 100.0, 1),
+                "–" if s["surface_distance_mean_mm"] is None else f"{s['surface_distance_mean_mm']:.3f}",
+                cell(s["cavity_diameter_error_mm"]),
+                cell(s["cavity_depth_error_mm"]),
+                cell(s["reamer_end_error_mm"]),
+            )
+    Console(width=max(console.width, 150)).print(table)
 
 
 def print_comparison(report: dict) -> None:

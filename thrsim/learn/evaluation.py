@@ -191,6 +191,44 @@ def physics_checks(model: LoadedModel, cases: list[CaseArrays], frames: int = 30
     }
 
 
+def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> list[dict]:
+    """Each case rolled out from its first frame to its last in every mode: F1 of the removed elements,
+    the removed volume's relative error, the mean surface distance, the cavity's diameter and depth and
+    the reamer's end along the axis against the solver's (mm; predicted − solver's)."""
+    threshold = model.threshold
+    graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
+    rows = []
+    for index, case in enumerate(cases):
+        graph, last = graphs[case.case_id], case.frames - 1
+        truth = case.alpha < threshold
+        initial, final_true = truth[0], truth[last]
+        row: dict = {"case_id": case.case_id, "split": case.split, "frames": case.frames}
+        for mode, (step, feed) in _steppers(model, case, graph).items():
+            masks, centres = rollout(step, case, 0, last, threshold, feed)
+            final_pred = masks[-1]
+            counts = Counts()
+            counts.add(final_pred & ~initial, final_true & ~initial)
+            true_volume = float((final_true & ~initial) @ graph.volumes)
+            pred_volume = float((final_pred & ~initial) @ graph.volumes)
+            surfaces = graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true)
+            diameters = [sphere_diameter_mm(surface) for surface in surfaces]
+            depths = [cavity_depth_mm(graph, removed, case.positions[0], case.axis) for removed in (final_pred, final_true)]
+            (diameter_pred, diameter_true), (depth_pred, depth_true) = diameters, depths
+            surface_mm = surface_distance_mm(*surfaces)[0]
+            row[mode] = {
+                "f1": counts.as_dict()["f1"],
+                "removed_volume_error": (pred_volume - true_volume) / true_volume if true_volume > 0 else None,
+                "surface_distance_mean_mm": surface_mm if np.isfinite(surface_mm) else None,
+                "cavity_diameter_error_mm": None if diameter_pred is None or diameter_true is None else diameter_pred - diameter_true,
+                "cavity_depth_error_mm": None if depth_true is None else (depth_pred or 0.0) - depth_true,
+                "reamer_end_error_mm": float((centres[-1] - case.positions[last]) @ case.axis) * 1e3,
+            }
+        rows.append(row)
+        if on_case is not None:
+            on_case(index + 1, len(cases), case.case_id)
+    return rows
+
+
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:
     """Scores per mode, γ and horizon, plus volume and surface errors at each full window's longest horizon."""
     if model.settings.features.damage:

@@ -236,7 +236,7 @@ def test_threads_sharing_a_graph_get_the_subgraphs_and_regions_each_would_alone(
 
 
 def test_cavity_depth_error_is_the_whole_cavity_s_so_a_window_that_cuts_nothing_new_errs_by_what_the_solver_cut():
-    from thrsim.learn.evaluation import cavity_depth_error_mm
+    from thrsim.learn.evaluation import cavity_errors
 
     axis = np.array([0.0, 0.0, -1.0])
     depth = -GRAPH.centroids[:, 2]  # along the axis from a start at z = 0
@@ -244,6 +244,10 @@ def test_cavity_depth_error_is_the_whole_cavity_s_so_a_window_that_cuts_nothing_
     before = depth < np.quantile(depth, 0.2)  # the cavity when the window starts
     solver = depth < np.quantile(depth, 0.4)
     expected = (depth[solver].max() - depth[before].max()) * 1e3
-    assert cavity_depth_error_mm(GRAPH, before, solver, start, axis) == pytest.approx(expected, abs=1e-9)
-    assert expected > 0 and cavity_depth_error_mm(GRAPH, solver, solver, start, axis) == 0.0
-    assert cavity_depth_error_mm(GRAPH, solver, np.zeros_like(solver), start, axis) is None  # the solver cut nothing
+
+    def depth_error(predicted, true):
+        return cavity_errors(GRAPH, predicted, true, before, start, axis)["cavity_depth_error_mm"]
+
+    assert depth_error(before, solver) == pytest.approx(-expected, abs=1e-9)  # the window cut nothing new: short by what the solver cut
+    assert expected > 0 and depth_error(solver, solver) == 0.0
+    assert depth_error(solver, np.zeros_like(solver)) is None  # the solver cut nothing

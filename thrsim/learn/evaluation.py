@@ -88,12 +88,28 @@ def cavity_depth_mm(graph: StaticGraph, removed: np.ndarray, start: np.ndarray, 
     return float(((graph.centroids[removed] - start) @ axis).max()) * 1e3
 
 
-def cavity_depth_error_mm(graph: StaticGraph, predicted: np.ndarray, true: np.ndarray, start: np.ndarray, axis: np.ndarray) -> float | None:
-    """|predicted − true| depth of the whole cavity (every removed element, those removed before the
-    window included: a window that cuts nothing new leaves the cavity as deep as it was); None when the
-    solver's cavity is empty, the solver's depth when the prediction's is."""
-    depths = [cavity_depth_mm(graph, removed, start, axis) for removed in (predicted, true)]
-    return None if depths[1] is None else abs((depths[0] or 0.0) - depths[1])
+def cavity_errors(
+    graph: StaticGraph, predicted: np.ndarray, true: np.ndarray, initial: np.ndarray, start: np.ndarray, axis: np.ndarray
+) -> dict:
+    """The predicted cavity (``predicted`` removed elements) against the solver's (``true``), signed
+    predicted − solver's: removed volume since ``initial`` (relative; None when the solver removed
+    nothing), mean and largest reamed-surface distance (mm; NaN where a surface is empty), the fitted
+    diameter and the depth along ``axis`` from ``start`` of the whole cavity (mm; None where unknown;
+    a prediction that removed nothing counts as depth 0); also the predicted volume (mm³)."""
+    true_volume = float((true & ~initial) @ graph.volumes)
+    pred_volume = float((predicted & ~initial) @ graph.volumes)
+    surfaces = graph.reamed_surface(~predicted), graph.reamed_surface(~true)
+    surface_mean_mm, surface_max_mm = surface_distance_mm(*surfaces)
+    diameter_pred, diameter_true = (sphere_diameter_mm(surface) for surface in surfaces)
+    depth_pred, depth_true = (cavity_depth_mm(graph, removed, start, axis) for removed in (predicted, true))
+    return {
+        "removed_volume_mm3": pred_volume * 1e9,
+        "removed_volume_error": (pred_volume - true_volume) / true_volume if true_volume > 0 else None,
+        "surface_distance_mean_mm": surface_mean_mm,
+        "surface_distance_max_mm": surface_max_mm,
+        "cavity_diameter_error_mm": None if diameter_pred is None or diameter_true is None else diameter_pred - diameter_true,
+        "cavity_depth_error_mm": None if depth_true is None else (depth_pred or 0.0) - depth_true,
+    }
 
 
 def group_key(model: LoadedModel, case: CaseArrays) -> str:
@@ -208,19 +224,14 @@ def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> li
             final_pred = masks[-1]
             counts = Counts()
             counts.add(final_pred & ~initial, final_true & ~initial)
-            true_volume = float((final_true & ~initial) @ graph.volumes)
-            pred_volume = float((final_pred & ~initial) @ graph.volumes)
-            surfaces = graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true)
-            diameters = [sphere_diameter_mm(surface) for surface in surfaces]
-            depths = [cavity_depth_mm(graph, removed, case.positions[0], case.axis) for removed in (final_pred, final_true)]
-            (diameter_pred, diameter_true), (depth_pred, depth_true) = diameters, depths
-            surface_mm = surface_distance_mm(*surfaces)[0]
+            cavity = cavity_errors(graph, final_pred, final_true, initial, case.positions[0], case.axis)
+            surface_mm = cavity["surface_distance_mean_mm"]
             row[mode] = {
                 "f1": counts.as_dict()["f1"],
-                "removed_volume_error": (pred_volume - true_volume) / true_volume if true_volume > 0 else None,
+                "removed_volume_error": cavity["removed_volume_error"],
                 "surface_distance_mean_mm": surface_mm if np.isfinite(surface_mm) else None,
-                "cavity_diameter_error_mm": None if diameter_pred is None or diameter_true is None else diameter_pred - diameter_true,
-                "cavity_depth_error_mm": None if depth_true is None else (depth_pred or 0.0) - depth_true,
+                "cavity_diameter_error_mm": cavity["cavity_diameter_error_mm"],
+                "cavity_depth_error_mm": cavity["cavity_depth_error_mm"],
                 "reamer_end_error_mm": float((centres[-1] - case.positions[last]) @ case.axis) * 1e3,
             }
         rows.append(row)
@@ -248,7 +259,7 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     for index, case in enumerate(cases):
         graph = graphs[case.case_id]
-        steppers, volumes = _steppers(model, case, graph), graph.volumes
+        steppers = _steppers(model, case, graph)
         g = group_key(model, case)
         compared = reaction_errors(model, case, graph)
         if compared is not None:
@@ -269,25 +280,21 @@ def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30
                 for index_layer, layer in enumerate(graph.mesh.material_names):
                     in_layer = graph.mesh.element_material == index_layer
                     by_layer[mode][layer].add(final_pred & ~initial & in_layer, final_true & ~initial & in_layer)
-                true_volume = float((final_true & ~initial) @ volumes)
-                pred_volume = float((final_pred & ~initial) @ volumes)
-                if true_volume > 0:
-                    errors[mode][g]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                cavity = cavity_errors(graph, final_pred, final_true, initial, case.positions[start], case.axis)
+                volume_error = cavity["removed_volume_error"]
+                if volume_error is not None:
+                    errors[mode][g]["volume_error"].append(volume_error)
                     if mode == "autonomous":
-                        by_force[f"{case.force_n:g}"]["volume_error"].append((pred_volume - true_volume) / true_volume)
+                        by_force[f"{case.force_n:g}"]["volume_error"].append(volume_error)
                 if mode == "autonomous":
-                    by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(pred_volume * 1e9)
-                surfaces = graph.reamed_surface(~final_pred), graph.reamed_surface(~final_true)
-                mean_mm, max_mm = surface_distance_mm(*surfaces)
-                errors[mode][g]["surface_mean_mm"].append(mean_mm)
-                errors[mode][g]["surface_max_mm"].append(max_mm)
-                diameters = [sphere_diameter_mm(surface) for surface in surfaces]
-                if diameters[0] is not None and diameters[1] is not None:
-                    errors[mode][g]["diameter_error_mm"].append(abs(diameters[0] - diameters[1]))
-                depth_error = cavity_depth_error_mm(graph, final_pred, final_true, case.positions[start], case.axis)
-                if depth_error is not None:
-                    errors[mode][g]["depth_error_mm"].append(depth_error)
-                    by_control[mode][_control(case)]["depth_error_mm"].append(depth_error)
+                    by_force[f"{case.force_n:g}"]["removed_volume_mm3"].append(cavity["removed_volume_mm3"])
+                errors[mode][g]["surface_mean_mm"].append(cavity["surface_distance_mean_mm"])
+                errors[mode][g]["surface_max_mm"].append(cavity["surface_distance_max_mm"])
+                if cavity["cavity_diameter_error_mm"] is not None:
+                    errors[mode][g]["diameter_error_mm"].append(abs(cavity["cavity_diameter_error_mm"]))
+                if cavity["cavity_depth_error_mm"] is not None:
+                    errors[mode][g]["depth_error_mm"].append(abs(cavity["cavity_depth_error_mm"]))
+                    by_control[mode][_control(case)]["depth_error_mm"].append(abs(cavity["cavity_depth_error_mm"]))
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     report = _report(counts, errors, cases)

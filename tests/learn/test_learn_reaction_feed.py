@@ -175,12 +175,40 @@ def test_the_feed_loss_weighs_a_reaction_error_by_the_feed_it_would_cause():
     )
     force, _ = law_errors(law, recorded, torch.tensor([230.0, 0.5]))
     assert force.tolist() == pytest.approx([0.0, -10.0 / 230.0, -10.0 / 230.0], abs=1e-5)  # the reaction's loss: a tie
-    errors = balanced_feed_errors(law, recorded).tolist()
+    errors = balanced_feed_errors(law, recorded, 1e-4).tolist()
     assert abs(errors[0]) < 1e-3
     assert errors[1] == pytest.approx(math.log1p(4.0) - math.log1p(3.0), rel=0.05)
     assert errors[2] > 5 * errors[1]  # the feed's loss: the soft law would plunge
     stalled = torch.tensor([[230.0, 0.5, 0.0, 230.0, 2000.0]])
-    assert float(balanced_feed_errors(torch.tensor([[240.0, 1e4, 0.5, 0.0]]), stalled)[0]) == 0.0  # holds the push: no feed
+    assert float(balanced_feed_errors(torch.tensor([[240.0, 1e4, 0.5, 0.0]]), stalled, 1e-4)[0]) == 0.0  # holds the push: no feed
+
+
+def test_a_wider_feed_loss_scale_fits_a_noisy_seated_feed_without_bias():
+    import torch
+
+    from thrsim.learn.learned_simulator import balanced_feed_errors
+
+    # a seated reamer's feed over six frames scatters (0.02–0.7 mm/s, mean 0.34): the one feed a law can
+    # balance at that fits them best on log(1 + v/v₀) is their mean only where v₀ is well above them
+    feeds_m_s = torch.tensor([0.02e-3, 0.3e-3, 0.7e-3])
+    recorded = torch.stack(
+        [torch.full((3,), 229.4), torch.full((3,), 0.5), feeds_m_s, torch.full((3,), 230.0), torch.full((3,), 2000.0)], 1
+    )
+    candidates_m_s = torch.linspace(0.05e-3, 0.6e-3, 1101)
+
+    def best_feed(scale_m_s: float) -> float:
+        slope = 1e5
+        losses = [
+            balanced_feed_errors(torch.tensor([[230.0 - (slope + 2000.0) * float(v), slope, 0.5, 0.0]] * 3), recorded, scale_m_s)
+            .square()
+            .mean()
+            for v in candidates_m_s
+        ]
+        return float(candidates_m_s[int(torch.stack(losses).argmin())])
+
+    mean_m_s = float(feeds_m_s.mean())
+    assert best_feed(1e-4) < 0.75 * mean_m_s  # 0.1 mm/s: 0.24 mm/s, the geometric-like mean
+    assert 0.88 * mean_m_s < best_feed(1e-3) <= mean_m_s  # 1 mm/s: 0.31 mm/s
 
 
 def test_a_slow_frame_is_a_stall_only_if_it_cut_nothing(case):

@@ -60,20 +60,16 @@ _FEED_UNIT_M_S, _NODES_UNIT = 1e-3, 1000.0
 #: push, which says only that the law's reaction at no feed is at least as large (the push did not
 #: overcome it); a slow feed that cuts is not (:func:`thrsim.learn.training.next_reaction`)
 STALL_FEED_M_S = 2e-4
-#: the feed (m/s) the law's feed error is measured against on a log scale, log(1 + v/v₀): a seated
-#: reamer's 0.3 mm/s and an approach's 50 mm/s both count by their ratio to the record
-FEED_LOSS_SCALE_M_S = 1e-4
 
 
-def balanced_feed_errors(law: torch.Tensor, recorded: torch.Tensor) -> torch.Tensor:
+def balanced_feed_errors(law: torch.Tensor, recorded: torch.Tensor, scale_m_s: float) -> torch.Tensor:
     """The error of the feed at which the recorded push meets each law and the hold's damping
     (:func:`thrsim.learn.reaction_feed.feed_m_s`) against the recorded feed, on the scale
-    log(1 + v / :data:`FEED_LOSS_SCALE_M_S`); ``recorded`` (n, 5) is (reaction, torque, feed, push, damping).
+    log(1 + v / ``scale_m_s``) (``train.feed_loss_scale_mm_s``); ``recorded`` (n, 5) is (reaction, torque, feed, push, damping).
     A seated reamer's reaction meets the push within a newton or two, so a law fitted on its reaction
     alone can balance at a feed many times the solver's: this error is what the rollout's feed sees."""
     balanced = torch.clamp(recorded[:, 3] - law[:, 0], min=0.0) / (law[:, 1] + recorded[:, 4])
-    scale = FEED_LOSS_SCALE_M_S
-    return torch.log1p(balanced / scale) - torch.log1p(torch.clamp(recorded[:, 2], min=0.0) / scale)
+    return torch.log1p(balanced / scale_m_s) - torch.log1p(torch.clamp(recorded[:, 2], min=0.0) / scale_m_s)
 
 
 def law_errors(law: torch.Tensor, recorded: torch.Tensor, scale: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -123,6 +119,7 @@ class LearnedSimulator(nn.Module):
         self.damage = settings.features.damage
         self.reaction_head = settings.arch.reaction_head
         self.feed_loss_weight = settings.train.feed_loss_weight
+        self.feed_loss_scale_m_s = settings.train.feed_loss_scale_mm_s * 1e-3
         self.reaction_column = 1 + int(self.removal_head) + int(self.damage)
         outputs = self.reaction_column + 4 * int(self.reaction_head)
         if self.reaction_head:
@@ -217,7 +214,10 @@ class LearnedSimulator(nn.Module):
         force, torque = law_errors(law[known], batch.reaction[known], self.reaction_scale)
         loss = (force.square().mean() + torque.square().mean()) * 0.5
         if self.feed_loss_weight > 0.0:
-            loss = loss + self.feed_loss_weight * balanced_feed_errors(law[known], batch.reaction[known]).square().mean()
+            loss = (
+                loss
+                + self.feed_loss_weight * balanced_feed_errors(law[known], batch.reaction[known], self.feed_loss_scale_m_s).square().mean()
+            )
         return loss
 
     def overshoot_loss(self, batch: GraphBatch) -> torch.Tensor:

@@ -147,6 +147,13 @@ class TrainSettings(_Frozen):
         description="weight, beside the reaction's, of the error of the feed at which the recorded push meets the law "
         "(log scale; 0: the law learns the reaction alone)",
     )
+    feed_loss_scale_mm_s: float = Field(
+        0.1,
+        gt=0,
+        le=100,
+        description="v₀ of the feed error's scale log(1 + v/v₀): feeds well below it count linearly (an unbiased fit of a "
+        "noisy seated feed), well above by their ratio",
+    )
     overshoot_loss_weight: float = Field(
         0.0,
         ge=0,

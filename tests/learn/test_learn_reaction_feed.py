@@ -317,6 +317,7 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     assert errors["pushed_cases"] == len(cases)
     for name in ("felt_force_error", "felt_torque_error", "felt_force_step_mean_error", "felt_torque_step_mean_error"):
         assert 0.0 <= errors[name] < 10.0
+    assert 0.0 <= errors["balanced_feed_share"] < 100.0 and 0.0 <= errors["seated_balanced_feed_share"] < 100.0
 
 
 def test_the_reaction_report_weighs_frames_and_steps_apart():
@@ -328,12 +329,14 @@ def test_the_reaction_report_weighs_frames_and_steps_apart():
         "law": np.array([20.0, 200.0, 2.0, 4.0]),
         "felt": np.array([20.0, 200.0, 1.0, 4.0]),
         "felt_step": np.array([0.0, 200.0, -1.0, 4.0]),
+        "feed": np.array([0.6e-3, 0.8e-3, 0.1e-3, 0.2e-3]),  # the law balances the push at 3/4 of the solver's feed, half seated
     }
     set_feed = {"law": np.array([60.0, 200.0, 0.0, 4.0])}
     row = reaction_report({"48": [pushed, set_feed]})["48"]
     assert row["force_error"] == pytest.approx(0.2) and row["torque_error"] == pytest.approx(0.25) and row["pushed_cases"] == 1
     assert row["felt_force_error"] == pytest.approx(0.1) and row["felt_force_step_mean_error"] == 0.0
     assert row["felt_torque_error"] == pytest.approx(0.25) and row["felt_torque_step_mean_error"] == pytest.approx(0.25)
+    assert row["balanced_feed_share"] == pytest.approx(0.75) and row["seated_balanced_feed_share"] == pytest.approx(0.5)
     assert "felt_force_error" not in reaction_report({"48": [set_feed]})["48"]
 
 

@@ -179,5 +179,7 @@ def print_comparison(report: dict) -> None:
                 f"; felt under the push ({errors['pushed_cases']} pushed cases): reaction {_pct(errors['felt_force_error'])} %,"
                 f" torque {_pct(errors['felt_torque_error'])} % per frame, {_pct(errors['felt_force_step_mean_error'])} % and"
                 f" {_pct(errors['felt_torque_step_mean_error'])} % of the step's mean"
+                f"; the feed the push balances at the solver's states {_pct(errors['balanced_feed_share'])} % of the solver's"
+                f" ({_pct(errors['seated_balanced_feed_share'])} % over each case's second half)"
             )
-        console.print(line + " (Σ|error| / Σ|solver's|)")
+        console.print(line + " (errors Σ|error| / Σ|solver's|)")

@@ -21,7 +21,7 @@ from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.metrics import Counts, sphere_diameter_mm, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
-from thrsim.learn.reaction_feed import ReactionFeed, felt_at_push
+from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s, felt_at_push
 from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
 from thrsim.learn.training import next_reaction
 
@@ -123,14 +123,16 @@ def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) ->
     """Sums over a tool-forced pass through ``case`` against the solver's reaction R and torque T of
     each frame (None: nothing to compare): ``law`` Σ|R̂ − R|, Σ|R|, Σ|T̂ − T|, Σ|T| with the law read
     at the next recorded feed; for a pushed case also ``felt``, the same with what the simulator
-    reports under the case's push (:func:`~thrsim.learn.reaction_feed.felt_at_push`), and ``felt_step``
-    Σ(R̂ − R), Σ|R|, Σ(T̂ − T), Σ|T|: the error of the mean over the step."""
+    reports under the case's push (:func:`~thrsim.learn.reaction_feed.felt_at_push`), ``felt_step``
+    Σ(R̂ − R), Σ|R|, Σ(T̂ − T), Σ|T|: the error of the mean over the step, and ``feed`` Σv̂, Σv over
+    the whole case and over its second half (a whole socket's reamer seated there): the feed at which
+    the push meets the law (:func:`~thrsim.learn.reaction_feed.feed_m_s`) and the solver's."""
     if not model.settings.arch.reaction_head or case.reaction_n is None or case.motor_torque_n_m is None:
         return None
     step = LearnedStep(model.gn, graph, model.settings.features, case.teeth_radius_m, case.element_cutting_energy_j_m3)
     state = BoneState.start(case.alpha[0], None if case.damage is None else case.damage[0])
     pushed, push, damping = case.set_feed_mm_s is None, case.recorded_push_n(), case.hold.axial_damping_n_s_m
-    sums = {"law": np.zeros(4), **({"felt": np.zeros(4), "felt_step": np.zeros(4)} if pushed else {})}
+    sums = {"law": np.zeros(4), **({"felt": np.zeros(4), "felt_step": np.zeros(4), "feed": np.zeros(4)} if pushed else {})}
     for frame in range(1, case.frames - 1):
         moved = float((case.positions[frame] - case.positions[frame - 1]) @ case.axis)
         state = step(state, case.positions[frame], case.axis, push, moved, case.omega_rad_s)
@@ -141,13 +143,18 @@ def reaction_errors(model: LoadedModel, case: CaseArrays, graph: StaticGraph) ->
             felt, felt_torque = felt_at_push(law, push, damping)
             sums["felt"] += [abs(felt - reaction), abs(reaction), abs(felt_torque - torque), abs(torque)]
             sums["felt_step"] += [felt - reaction, abs(reaction), felt_torque - torque, abs(torque)]
+            balanced = feed_m_s(law, push, damping)
+            seated = frame >= case.frames // 2
+            sums["feed"] += [balanced, feed, balanced if seated else 0.0, feed if seated else 0.0]
     return sums
 
 
 def reaction_report(per_case: dict[str, list[dict[str, np.ndarray]]]) -> dict:
     """Per row: the law's error at the recorded feeds (Σ|error| / Σ|solver's|, every case); over the
     pushed cases, the error of what the simulator reports under the push, per frame and of the mean
-    over each case (averaged over cases)."""
+    over each case (averaged over cases), and the feed the law balances at the solver's states as a
+    share of the solver's, over the cases and over their second halves (``balanced_feed_share``,
+    ``seated_balanced_feed_share``: below 1, an autonomous reamer lags)."""
 
     def ratio(total: np.ndarray, k: int) -> float | None:
         return float(abs(total[k]) / total[k + 1]) if total[k + 1] > 0 else None
@@ -166,6 +173,9 @@ def reaction_report(per_case: dict[str, list[dict[str, np.ndarray]]]) -> dict:
                 "felt_force_step_mean_error": _summary([f for f, _ in steps if f is not None]),
                 "felt_torque_step_mean_error": _summary([t for _, t in steps if t is not None]),
             }
+            feeds = np.sum([r["feed"] for r in felt], axis=0)
+            row["balanced_feed_share"] = float(feeds[0] / feeds[1]) if feeds[1] > 0 else None
+            row["seated_balanced_feed_share"] = float(feeds[2] / feeds[3]) if feeds[3] > 0 else None
         report[g] = row
     return report
 

@@ -493,6 +493,9 @@ class SocketSweepConfig(_Frozen):
     prepared_whole_sockets: tuple[tuple[float, float, float, float, float, float, str], ...] = (
         (44.0, 46.0, 48.0, 0.0, 0.0, 230.0, "train"), (50.0, 52.0, 54.0, 15.0, 90.0, 230.0, "train"),
         (44.0, 46.0, 48.0, 15.0, 180.0, 270.0, "train"), (46.0, 48.0, 50.0, 15.0, 30.0, 230.0, "test"),
+        (48.0, 50.0, 52.0, 0.0, 0.0, 230.0, "train"), (50.0, 52.0, 54.0, 0.0, 0.0, 230.0, "train"),
+        (48.0, 50.0, 52.0, 15.0, 180.0, 270.0, "train"), (48.0, 50.0, 52.0, 15.0, 90.0, 230.0, "train"),
+        (50.0, 52.0, 54.0, 15.0, 270.0, 200.0, "train"),
     )  # fmt: skip
     #: the element sizes (mm) every whole socket is meshed at: the trainer's 1.5 mm, then the finer 1.0 mm
     whole_socket_element_sizes_mm: tuple[float, ...] = (1.5, 1.0)

@@ -1,6 +1,7 @@
 """The 0.5 dataset ships as learning packs: 51 socket windows at set feeds and 24 pushed, each with
 its own mesh and its reaction; beside them, the pushed whole sockets solved so far; the plan
-solved again by solver 0.5.4, as far as it has gone; and its long whole sockets, packed apart."""
+solved again by solver 0.5.4, as far as it has gone; its long whole sockets and the prepared cavities
+solved since, each packed apart."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
 WHOLE = PACK.parent / "socket-whole-0.5.1"
 PACK_054 = PACK.parent / "socket-0.5.4"
 LONG_054 = PACK.parent / "socket-long-0.5.4"
+PREPARED_054 = PACK.parent / "socket-prepared-0.5.4"
 
 
 def test_the_socket_pack_holds_the_plan_s_windows_with_what_the_socket_model_learns():
@@ -84,3 +86,22 @@ def test_the_long_pack_holds_the_plan_s_long_whole_sockets_held_seated_for_secon
         assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.set_feed_mm_s is None
     assert {case.split for case in cases} == {"train", "test"}
     assert all(f.stat().st_size <= 15.5e6 for f in LONG_054.glob("part-*.h5"))
+
+
+def test_the_prepared_pack_holds_the_plan_s_later_prepared_cavities_and_joins_the_0_5_4_pack(tmp_path):
+    plan = {case.case_id: case for case in plan_socket_sweep(SocketSweepConfig()).cases}
+    _, cases = load_cases(PREPARED_054, one_mesh=False)
+    _, packed = load_cases(PACK_054, one_mesh=False)
+    assert len(cases) == 5 and not {case.case_id for case in cases} & {case.case_id for case in packed}
+    for case in cases:
+        assert case.case_id.startswith("whole_") and "_p" in case.case_id and case.split == plan[case.case_id].split == "train"
+        assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.set_feed_mm_s is None
+    # most breach the medial wall (their case ends there); one seats and runs the plan's frames
+    assert sum(case.end_reason == "medial_wall_breached" for case in cases) == 4
+    assert all(f.stat().st_size <= 15.5e6 for f in PREPARED_054.glob("part-*.h5"))
+    # the same dataset: its file beside the 0.5.4 pack's reads as one pack of both
+    for file in sorted(PACK_054.glob("part-*.h5")):
+        (tmp_path / file.name).symlink_to(file)
+    (tmp_path / "part-005.h5").symlink_to(PREPARED_054 / "part-000.h5")
+    _, joined = load_cases(tmp_path, one_mesh=False)
+    assert {case.case_id for case in joined} == {case.case_id for case in cases + packed}

@@ -95,6 +95,10 @@ def _worker_init(threads: int) -> None:
             pass
 
 
+#: the longest a closing local pool waits for its manager thread to end (s; it ends once its workers have)
+MANAGER_JOIN_S = 10.0
+
+
 class LocalExecutor:
     """A process pool on this machine: ``concurrent.futures.ProcessPoolExecutor`` with the ``spawn``
     start method. Each worker limits its numerical threads to ``threads`` (default cores ÷ workers) and, on Linux, asks
@@ -132,7 +136,16 @@ class LocalExecutor:
         self._pool = self._new_pool()
 
     def close(self, cancel: bool = False) -> None:
+        manager = self._manager_thread()
         self._pool.shutdown(wait=not cancel, cancel_futures=cancel)
+        if manager is not None:
+            manager.join(MANAGER_JOIN_S)
+
+    def _manager_thread(self) -> Any:
+        """The pool's manager thread, which a shutdown without waiting leaves running: joined before
+        the interpreter exits, where Python 3.11's exit hook can write to its wake-up pipe while it
+        closes it ("Bad file descriptor" printed after a clean error)."""
+        return getattr(self._pool, "_executor_manager_thread", None)
 
     def stop(self, grace_s: float = 1.0) -> None:
         """Cancel the queued tasks and end the running ones now: their workers are terminated.
@@ -141,6 +154,7 @@ class LocalExecutor:
         public way to end them, so its worker processes are terminated (killed after ``grace_s``).
         The pool is broken afterwards: :meth:`restart` makes a new one.
         """
+        manager = self._manager_thread()
         processes = list((getattr(self._pool, "_processes", None) or {}).values())
         self._pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
@@ -151,6 +165,8 @@ class LocalExecutor:
             if process.is_alive():
                 process.kill()
                 process.join(1.0)
+        if manager is not None:
+            manager.join(MANAGER_JOIN_S)
 
 
 class DaskExecutor:

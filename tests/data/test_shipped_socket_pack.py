@@ -92,12 +92,12 @@ def test_the_prepared_pack_holds_the_plan_s_later_prepared_cavities_and_joins_th
     plan = {case.case_id: case for case in plan_socket_sweep(SocketSweepConfig()).cases}
     _, cases = load_cases(PREPARED_054, one_mesh=False)
     _, packed = load_cases(PACK_054, one_mesh=False)
-    assert len(cases) == 5 and not {case.case_id for case in cases} & {case.case_id for case in packed}
+    assert len(cases) == 9 and not {case.case_id for case in cases} & {case.case_id for case in packed}
     for case in cases:
         assert case.case_id.startswith("whole_") and "_p" in case.case_id and case.split == plan[case.case_id].split == "train"
         assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.set_feed_mm_s is None
-    # most breach the medial wall (their case ends there); one seats and runs the plan's frames
-    assert sum(case.end_reason == "medial_wall_breached" for case in cases) == 4
+    # most breach the medial wall (their case ends there); three seat and run the plan's frames
+    assert sum(case.end_reason == "medial_wall_breached" for case in cases) == 6
     assert all(f.stat().st_size <= 15.5e6 for f in PREPARED_054.glob("part-*.h5"))
     # the same dataset: its file beside the 0.5.4 pack's reads as one pack of both
     for file in sorted(PACK_054.glob("part-*.h5")):

@@ -10,6 +10,7 @@ from pathlib import Path
 from thrsim.config import LabelConfig, SocketSweepConfig
 from thrsim.data.sweep import plan_socket_sweep
 from thrsim.learn.cases import load_cases
+from thrsim.learn.metrics import plate_left_mm3
 
 PACK = Path(__file__).resolve().parents[2] / "datasets" / "socket-0.5.0"
 WHOLE = PACK.parent / "socket-whole-0.5.1"
@@ -98,6 +99,15 @@ def test_the_prepared_pack_holds_the_plan_s_later_prepared_cavities_and_joins_th
         assert case.reaction_n is not None and case.motor_torque_n_m is not None and case.set_feed_mm_s is None
     # most breach the medial wall (their case ends there); three seat and run the plan's frames
     assert sum(case.end_reason == "medial_wall_breached" for case in cases) == 6
+    # the one that holds: its seated reamer wears the plate ahead of the teeth (474 → 95 mm³ from frame 13 to 45)
+    (holds,) = [case for case in cases if case.case_id == "whole_s48_p50_r52_g15t90_F230_h1.5"]
+    mesh, alive = holds.mesh, holds.alpha >= 0.3
+    cortical = mesh.element_material == mesh.material_names.index("cortical")
+    plate = [
+        plate_left_mm3(mesh.centroids, abs(mesh.volumes), cortical, alive[k], holds.positions[k], holds.axis, holds.teeth_radius_m)
+        for k in (13, 45)
+    ]
+    assert plate[0] > 300 and plate[1] < 0.3 * plate[0]
     assert all(f.stat().st_size <= 15.5e6 for f in PREPARED_054.glob("part-*.h5"))
     # the same dataset: its file beside the 0.5.4 pack's reads as one pack of both
     for file in sorted(PACK_054.glob("part-*.h5")):

@@ -159,8 +159,12 @@ def test_evaluate_per_case_scores_each_case_from_its_first_frame_as_the_windows_
         for mode, source in (("autonomous", windows), ("tool_forced", windows["tool_forced"]), ("geometric", windows["geometric"])):
             assert row[mode]["f1"] == pytest.approx(source[gamma]["end"]["f1"]), (row["case_id"], mode)
         assert row["tool_forced"]["reamer_end_error_mm"] == 0.0 and row["geometric"]["reamer_end_error_mm"] == 0.0
+        model_plate, solver_plate = row["tool_forced"]["plate_left_mm3"], row["tool_forced"]["solver_plate_left_mm3"]
+        assert len(model_plate) == len(solver_plate) == row["frames"]  # frame 0 (the shared start) to the last
+        assert model_plate[0] == solver_plate[0] and min(model_plate + solver_plate) >= 0
     table = run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--per-case")
     assert table.returncode == 0 and "reamer end mm" in table.stdout and "GN tool-forced" in table.stdout
+    assert "plate left mm³ (solver)" in table.stdout
 
 
 def test_evaluate_refuses_a_model_of_another_mesh(tiny_model, real_case):

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from thrsim.data.synthetic import block_mesh
 from thrsim.learn.graph import StaticGraph, attached_nodes, mesh_digest
-from thrsim.learn.metrics import sphere_diameter_mm, surface_distance_mm
+from thrsim.learn.metrics import plate_left_mm3, sphere_diameter_mm, surface_distance_mm
 
 MESH = block_mesh(n=4)
 GRAPH = StaticGraph(MESH)
@@ -175,6 +175,22 @@ def test_a_cavity_s_diameter_is_the_sphere_fitted_to_its_surface():
     assert abs(sphere_diameter_mm(noisy) - 48.0) < 0.1
     plane = np.stack(np.meshgrid(np.arange(10), np.arange(10), [0.0]), axis=-1).reshape(-1, 3) * 1e-3
     assert sphere_diameter_mm(plane) is None and sphere_diameter_mm(noisy[:9]) is None
+
+
+def test_the_plate_left_is_the_live_cortical_bone_just_ahead_of_the_teeth():
+    radius, axis, centre = 0.024, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 0.01])
+    polar = np.radians([0.0, 30.0, 30.0, 60.0, 180.0, 0.0, 0.0, 10.0])  # from the axis
+    beyond = np.array([0.5, 1.0, 1.4, 1.0, 1.0, 1.7, -0.3, 0.7]) * 1e-3  # past the teeth's sphere
+    centroids = centre + (radius + beyond)[:, None] * np.column_stack([np.sin(polar), np.zeros(8), np.cos(polar)])
+    volumes = np.arange(1.0, 9.0) * 1e-9  # 1 … 8 mm³
+    cortical = np.array([True] * 7 + [False])
+    alive = np.ones(8, dtype=bool)
+    # in the plate: the first three (within 45° of the axis, 0–1.5 mm beyond); not 60°, behind, 1.7 mm,
+    # inside the teeth or cancellous
+    assert plate_left_mm3(centroids, volumes, cortical, alive, centre, axis, radius) == pytest.approx(1 + 2 + 3)
+    alive[1] = False
+    assert plate_left_mm3(centroids, volumes, cortical, alive, centre, axis, radius) == pytest.approx(1 + 3)
+    assert plate_left_mm3(centroids, volumes, cortical, alive, centre, -axis, radius) == pytest.approx(5)  # the one behind
 
 
 def test_the_socket_s_articular_face_is_where_the_cutting_front_starts():

@@ -79,9 +79,22 @@ def evaluate(
 
 
 def print_case_scores(rows: list[dict]) -> None:
-    """One row per case and mode: F1 %, volume error %, surface mm, diameter, depth and reamer end against the solver's (mm)."""
+    """One row per case and mode: F1 %, volume error %, surface mm, diameter, depth and reamer end against the solver's (mm);
+    tool-forced, the plate left ahead of the teeth at the last frame beside the solver's (mm³)."""
     table = Table(title="each case from its first frame to its last, against the solver")
-    for column in ("case", "split", "model", "F1 %", "volume %", "surface mm", "diameter mm", "depth mm", "reamer end mm"):
+    columns = (
+        "case",
+        "split",
+        "model",
+        "F1 %",
+        "volume %",
+        "surface mm",
+        "diameter mm",
+        "depth mm",
+        "reamer end mm",
+        "plate left mm³ (solver)",
+    )
+    for column in columns:
         table.add_column(column)
     names = {"autonomous": "GN autonomous", "tool_forced": "GN tool-forced", "mlp": "MLP", "geometric": "geometric"}
 
@@ -103,6 +116,7 @@ def print_case_scores(rows: list[dict]) -> None:
                 cell(s["cavity_diameter_error_mm"]),
                 cell(s["cavity_depth_error_mm"]),
                 cell(s["reamer_end_error_mm"]),
+                f"{s['plate_left_mm3'][-1]:.0f} ({s['solver_plate_left_mm3'][-1]:.0f})" if "plate_left_mm3" in s else "",
             )
     Console(width=max(console.width, 150)).print(table)
 

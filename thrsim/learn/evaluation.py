@@ -17,9 +17,10 @@ from collections import defaultdict
 
 import numpy as np
 
+from thrsim.geometry.mesh import CORTICAL
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.metrics import Counts, sphere_diameter_mm, surface_distance_mm
+from thrsim.learn.metrics import Counts, plate_left_mm3, sphere_diameter_mm, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
 from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s, felt_at_push
 from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
@@ -220,7 +221,8 @@ def physics_checks(model: LoadedModel, cases: list[CaseArrays], frames: int = 30
 def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> list[dict]:
     """Each case rolled out from its first frame to its last in every mode: F1 of the removed elements,
     the removed volume's relative error, the mean surface distance, the cavity's diameter and depth and
-    the reamer's end along the axis against the solver's (mm; predicted − solver's)."""
+    the reamer's end along the axis against the solver's (mm; predicted − solver's); tool-forced also
+    the plate left ahead of the teeth at every frame, the model's and the solver's (mm³)."""
     threshold = model.threshold
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
     rows = []
@@ -244,10 +246,26 @@ def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> li
                 "cavity_depth_error_mm": cavity["cavity_depth_error_mm"],
                 "reamer_end_error_mm": float((centres[-1] - case.positions[last]) @ case.axis) * 1e3,
             }
+            if mode == "tool_forced":
+                row[mode]["plate_left_mm3"] = _plate_left(graph, case, [~initial, *(~m for m in masks)])
+                row[mode]["solver_plate_left_mm3"] = _plate_left(graph, case, list(~truth))
         rows.append(row)
         if on_case is not None:
             on_case(index + 1, len(cases), case.case_id)
     return rows
+
+
+def _plate_left(graph: StaticGraph, case: CaseArrays, alive: list[np.ndarray]) -> list[float]:
+    """The cortical plate left ahead of the teeth (mm³) at each frame's recorded reamer centre."""
+    mesh = case.mesh
+    if mesh is None or CORTICAL not in mesh.material_names:
+        plate = np.ones(graph.n_nodes, dtype=bool)  # a mesh without tags is all cortical
+    else:
+        plate = mesh.element_material == mesh.material_names.index(CORTICAL)
+    return [
+        plate_left_mm3(graph.centroids, graph.volumes, plate, alive_k, case.positions[k], case.axis, case.teeth_radius_m)
+        for k, alive_k in enumerate(alive)
+    ]
 
 
 def evaluate(model: LoadedModel, cases: list[CaseArrays], start_stride: int = 30, on_case=None, one_step_stride: int = 1) -> dict:

@@ -1,4 +1,5 @@
-"""Scores of removed-element predictions [7.3.5, eqs. 51–53], reamed-surface distances and the cavity's diameter."""
+"""Scores of removed-element predictions [7.3.5, eqs. 51–53], reamed-surface distances, the cavity's diameter
+and the plate left ahead of the teeth."""
 
 from __future__ import annotations
 
@@ -76,3 +77,28 @@ def sphere_diameter_mm(points: np.ndarray) -> float | None:
     centre, k = solution[:3], solution[3]
     radius_sq = k + float(centre @ centre)
     return 2e3 * float(np.sqrt(radius_sq)) if radius_sq > 0 else None
+
+
+#: the plate a seated reamer wears: cortical bone within this depth beyond the teeth's sphere …
+PLATE_DEPTH_M = 1.5e-3
+#: … and within this angle of the reamer's axis
+PLATE_CONE_DEG = 45.0
+
+
+def plate_left_mm3(
+    centroids: np.ndarray,
+    volumes: np.ndarray,
+    plate: np.ndarray,
+    alive: np.ndarray,
+    centre: np.ndarray,
+    axis: np.ndarray,
+    teeth_radius_m: float,
+) -> float:
+    """Volume (mm³) of the ``plate`` elements (cortical) still ``alive`` just ahead of the teeth: centroid
+    0–``PLATE_DEPTH_M`` beyond the teeth's sphere about ``centre``, within ``PLATE_CONE_DEG`` of ``axis``.
+    A seated reamer wears this subchondral plate until it gives way (the benchmarks page)."""
+    offset = centroids - centre
+    distance = np.linalg.norm(offset, axis=1)
+    ahead = offset @ axis >= np.cos(np.radians(PLATE_CONE_DEG)) * distance
+    shell = (distance >= teeth_radius_m) & (distance <= teeth_radius_m + PLATE_DEPTH_M)
+    return float(volumes[plate & alive & ahead & shell].sum()) * 1e9

@@ -101,7 +101,7 @@ def test_the_prepared_pack_holds_the_plan_s_later_prepared_cavities_and_joins_th
     assert sum(case.end_reason == "medial_wall_breached" for case in cases) == 6
     # the one that holds: its seated reamer wears the plate ahead of the teeth (474 → 95 mm³ from frame 13 to 45)
     (holds,) = [case for case in cases if case.case_id == "whole_s48_p50_r52_g15t90_F230_h1.5"]
-    mesh, alive = holds.mesh, holds.alpha >= 0.3
+    mesh, alive = holds.mesh, holds.alpha >= LabelConfig().removed_threshold
     cortical = mesh.element_material == mesh.material_names.index("cortical")
     plate = [
         plate_left_mm3(mesh.centroids, abs(mesh.volumes), cortical, alive[k], holds.positions[k], holds.axis, holds.teeth_radius_m)

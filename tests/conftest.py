@@ -66,3 +66,9 @@ def tiny_model(synthetic_dataset, tmp_path_factory) -> Path:
 def tiny_socket_model(synthetic_dataset, tmp_path_factory) -> Path:
     """A whole-socket model (the socket features and reaction head) trained as :func:`tiny_model` is."""
     return _trained(synthetic_dataset, tmp_path_factory.mktemp("learn-socket-model"), tiny_socket_settings())
+
+
+@pytest.fixture(scope="session")
+def tiny_prior_socket_model(synthetic_dataset, tmp_path_factory) -> Path:
+    """As :func:`tiny_socket_model`, its reaction law weighted by the cutting prior."""
+    return _trained(synthetic_dataset, tmp_path_factory.mktemp("learn-prior-model"), tiny_socket_settings(reaction_prior="cutting"))

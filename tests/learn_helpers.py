@@ -42,11 +42,11 @@ def tiny_settings(epochs: int = 2, **train) -> ModelSettings:
     return ModelSettings(arch=arch, features=preset("production").features, train=TrainSettings(**options))
 
 
-def tiny_socket_settings(epochs: int = 3, **train) -> ModelSettings:
-    """As :func:`tiny_settings`, with the socket preset's features and its reaction head."""
+def tiny_socket_settings(epochs: int = 3, reaction_prior: str = "none", **train) -> ModelSettings:
+    """As :func:`tiny_settings`, with the socket preset's features and its reaction head (and its prior)."""
     tiny = tiny_settings(epochs, **train)
     return ModelSettings(
-        arch=tiny.arch.model_copy(update={"reaction_head": True, "removal_head": True}),
+        arch=tiny.arch.model_copy(update={"reaction_head": True, "removal_head": True, "reaction_prior": reaction_prior}),
         features=preset("socket").features,
         train=tiny.train,
     )

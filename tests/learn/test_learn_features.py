@@ -9,8 +9,8 @@ from hypothesis import strategies as st
 from pydantic import ValidationError
 
 from thrsim.data.synthetic import block_mesh
-from thrsim.learn.features import CORNER_COLUMNS, WIDTHS, ReamerState, frame_arrays, input_widths, node_columns
-from thrsim.learn.graph import StaticGraph
+from thrsim.learn.features import CORNER_COLUMNS, PRIOR_MIN_SIN, WIDTHS, ReamerState, frame_arrays, input_widths, law_weights, node_columns
+from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.settings import FeatureSettings
 
 MESH = block_mesh(n=4)
@@ -130,3 +130,34 @@ def test_the_socket_set_reads_nothing_of_the_bone_frame():
         tables.append(frame_arrays(graph, sub, alpha, reamer, "socket", 0.3, np.ones(MESH.n_tets, dtype=bool), None, True, energy))
     for before, after in zip(*tables, strict=True):
         assert np.allclose(before, after, atol=1e-6)
+
+
+def test_the_cutting_prior_weights_the_per_feed_shares_by_what_cutting_each_element_costs():
+    graph = StaticGraph(block_mesh(n=4))
+    every = Subgraph(np.arange(graph.mesh.n_tets), graph.mesh.n_tets, np.zeros(0, np.int64), np.zeros(0, np.int64))
+    axis = np.array([0.0, 0.0, -1.0])
+    centre = graph.centroids.mean(axis=0)
+    reamer = ReamerState(centre, axis, 230.0, 0.0, 136.0, 24e-3)
+    energy = np.where(np.arange(graph.mesh.n_tets) % 2 == 0, 5e8, 1e8)  # cortical and cancellous in turn
+    plain = law_weights(graph, every, reamer, energy, "none")
+    area = graph.contact_weight
+    assert plain.shape == (graph.mesh.n_tets, 4) and np.allclose(plain, area[:, None])
+    prior = law_weights(graph, every, reamer, energy, "cutting")
+    assert np.allclose(prior[:, [0, 2]], area[:, None])  # the parts at no feed: the contact area alone
+    offset = graph.centroids - centre
+    cos = offset @ axis / np.linalg.norm(offset, axis=1)
+    behind = cos <= 0.0
+    assert behind.any() and not prior[behind][:, [1, 3]].any()  # behind the teeth's equator nothing resists an advance
+    ahead = np.flatnonzero(cos > 0.5)
+    sin = np.maximum(np.sqrt(1.0 - cos[ahead] ** 2), PRIOR_MIN_SIN)
+    per_feed = prior[ahead, 1] / area[ahead]
+    expected = energy[ahead] * cos[ahead] ** 2 / sin
+    assert np.allclose(per_feed / expected, per_feed[0] / expected[0], rtol=1e-4)  # u_c cos²φ / sin φ, one unit for all
+    torque = prior[ahead, 3] / area[ahead]
+    assert np.allclose(torque / (energy[ahead] * cos[ahead]), torque[0] / (energy[ahead[0]] * cos[ahead[0]]), rtol=1e-4)
+    slower = law_weights(graph, every, ReamerState(centre, axis, 230.0, 0.0, 68.0, 24e-3), energy, "cutting")
+    assert np.allclose(slower[:, [1, 3]], 2.0 * prior[:, [1, 3]], rtol=1e-5)  # half the spin cuts half as much a turn
+    with pytest.raises(ValueError, match="cutting energy"):
+        law_weights(graph, every, reamer, None, "cutting")
+    with pytest.raises(ValueError, match="unknown reaction prior"):
+        law_weights(graph, every, reamer, energy, "friction")

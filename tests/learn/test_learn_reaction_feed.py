@@ -31,6 +31,12 @@ def socket_model(tiny_socket_model):
     return load_model(tiny_socket_model)
 
 
+@pytest.fixture(scope="module", params=["none", "cutting"])
+def law_model(request, tiny_socket_model, tiny_prior_socket_model):
+    """A trained socket model with each reaction prior: the physics holds whatever weights the law."""
+    return load_model(tiny_socket_model if request.param == "none" else tiny_prior_socket_model)
+
+
 @pytest.fixture(scope="module")
 def case(synthetic_dataset):
     _, cases = load_cases(synthetic_dataset, splits=("test",))
@@ -56,15 +62,15 @@ def test_the_card_records_the_reamer_sizes_and_the_law_is_non_negative(socket_mo
     assert (step.reaction_law >= 0).all()
 
 
-def test_no_push_no_advance_no_cut(socket_model, case):
-    step, feed = _parts(socket_model, case)
-    masks, centres = rollout(step, case, 3, 6, socket_model.threshold, feed, push_n=0.0)
+def test_no_push_no_advance_no_cut(law_model, case):
+    step, feed = _parts(law_model, case)
+    masks, centres = rollout(step, case, 3, 6, law_model.threshold, feed, push_n=0.0)
     assert np.allclose(centres, case.positions[3])
-    assert _removed(masks, case, socket_model) == 0
+    assert _removed(masks, case, law_model) == 0
 
 
-def test_in_free_air_the_reamer_cuts_nothing_and_stops_at_the_bone(socket_model, case):
-    step, feed = _parts(socket_model, case)
+def test_in_free_air_the_reamer_cuts_nothing_and_stops_at_the_bone(law_model, case):
+    step, feed = _parts(law_model, case)
     away = case.positions[0] - 0.1 * case.axis  # 100 mm clear of the bone
     state = BoneState.start(case.alpha[0])
     new = step(state, away, case.axis, 230.0, 1e-3, case.omega_rad_s)
@@ -72,7 +78,7 @@ def test_in_free_air_the_reamer_cuts_nothing_and_stops_at_the_bone(socket_model,
     assert step.reaction_law is not None and not step.reaction_law.any()
     free = 230.0 / ReamerHoldConfig().axial_damping_n_s_m * case.frame_dt_s  # the push against the hold alone
     assert feed.advance_m(step.reaction_law, state.alpha, away, case.axis, 230.0) == pytest.approx(free)
-    contact = advance_to_support(socket_model.mesh.nodes, away, case.axis, case.teeth_radius_m, 1)
+    contact = advance_to_support(law_model.mesh.nodes, away, case.axis, case.teeth_radius_m, 1)
     assert free < contact < 0.1
     assert feed.advance_m(step.reaction_law, state.alpha, away, case.axis, 1e6) == pytest.approx(contact)  # never past the bone
 
@@ -95,19 +101,19 @@ def test_closing_in_the_reamer_stops_where_the_cutting_front_holds_the_bone(sock
     assert feed.advance_m(step.reaction_law, state.alpha, centre + stop * case.axis, case.axis, 230.0, stop) > 0.0
 
 
-def test_pulled_back_the_reamer_cuts_nothing(socket_model, case):
-    step, _ = _parts(socket_model, case)
+def test_pulled_back_the_reamer_cuts_nothing(law_model, case):
+    step, _ = _parts(law_model, case)
     state = BoneState.start(case.alpha[6])
     back = case.positions[6] - 0.2e-3 * case.axis
     assert np.array_equal(step(state, back, case.axis, 230.0, -0.2e-3, case.omega_rad_s).alpha, state.alpha)
 
 
-def test_more_push_never_removes_less(socket_model, case):
-    step, feed = _parts(socket_model, case)
+def test_more_push_never_removes_less(law_model, case):
+    step, feed = _parts(law_model, case)
     removed, depth = [], []
     for push in (0.0, 50.0, 150.0, 230.0, 310.0, 600.0):
-        masks, centres = rollout(step, case, 2, 8, socket_model.threshold, feed, push_n=push)
-        removed.append(_removed(masks, case, socket_model))
+        masks, centres = rollout(step, case, 2, 8, law_model.threshold, feed, push_n=push)
+        removed.append(_removed(masks, case, law_model))
         depth.append(float((centres[-1] - case.positions[2]) @ case.axis))
     assert removed == sorted(removed) and depth == sorted(depth)
     assert removed[0] == 0 and removed[-1] > 0
@@ -265,6 +271,29 @@ def test_the_feed_loss_adds_to_a_training_step_s_loss_only_when_weighted(synthet
         inputs, alpha_next, damage_next = trainer._batch([trainer._sample(i, None) for i in range(0, len(trainer.samples), 3)])
         losses.append(trainer.gn.loss(inputs, alpha_next, damage_next).item())
     assert all(math.isfinite(loss) for loss in losses) and losses[1] > losses[0]  # same seed, same network: the feed's error added
+
+
+def test_a_law_with_the_cutting_prior_starts_from_the_networks_of_one_without(tiny_socket_model, synthetic_dataset):
+    from pydantic import ValidationError
+
+    from thrsim.learn.settings import ArchSettings
+    from thrsim.learn.training import Trainer
+
+    mesh, cases = load_cases(synthetic_dataset, splits=("train",), one_mesh=False)
+    init = load_model(tiny_socket_model)
+    trainer = Trainer(StaticGraph(mesh), cases, [], tiny_socket_settings(reaction_prior="cutting"), 0.5)
+    trainer._start_from(init)  # the same network: only the law's weights differ
+    index = int(np.flatnonzero(trainer.samples[:, 1] >= 4)[0])
+    prior_inputs, _, _ = trainer._batch([trainer._sample(index, None)])
+    plain = Trainer(StaticGraph(mesh), cases, [], tiny_socket_settings(), 0.5)
+    plain_inputs, _, _ = plain._batch([plain._sample(index, None)])
+    with torch.no_grad():
+        law = trainer.gn.reaction_law(prior_inputs, trainer.gn.outputs(prior_inputs).reaction)
+        before = init.gn.reaction_law(plain_inputs, init.gn.outputs(plain_inputs).reaction)
+    assert torch.allclose(law[:, [0, 2]], before[:, [0, 2]])  # at no feed the same law
+    assert not torch.allclose(law[:, [1, 3]], before[:, [1, 3]])  # per unit of feed, what cutting costs
+    with pytest.raises(ValidationError, match="reaction_head"):
+        ArchSettings(reaction_prior="cutting")
 
 
 def test_the_overshoot_constraint_moves_seated_reamers_deeper_and_asks_the_law_for_the_push(synthetic_dataset):

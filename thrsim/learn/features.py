@@ -59,9 +59,40 @@ WIDTHS = {name: (len(NODE_COLUMNS[name]), *widths) for name, widths in EDGE_GLOB
 CORNER_COLUMNS = len(CORNER_NAMES)
 
 
-def contact_weights(graph: StaticGraph, sub: Subgraph) -> np.ndarray:
-    """Each node's share of a contact area (:attr:`StaticGraph.contact_weight`) on ``sub``."""
-    return graph.contact_weight[sub.nodes]
+#: the cutting prior's floor on sin φ: at the pole the teeth stand still and crush what they cannot cut
+PRIOR_MIN_SIN = 0.2
+#: the cutting prior's units (u_c, the teeth's edge speed ω·R, ω), set so that over a whole socket's
+#: region its per-feed weights average about the contact area alone (a model started from one
+#: without the prior starts near its law)
+_PRIOR_ENERGY_UNIT_J_M3, _PRIOR_EDGE_SPEED_M_S, _PRIOR_OMEGA_RAD_S = 2.5e8, 3.0, 100.0
+
+
+def law_weights(graph: StaticGraph, sub: Subgraph, reamer: ReamerState, cutting_energy_j_m3: np.ndarray | None, prior: str) -> np.ndarray:
+    """(nodes, 4) weights of each node's reaction-law shares on ``sub`` (the law's columns, reaction and
+    torque at no feed and per unit of feed): its share of a contact area (:attr:`StaticGraph.contact_weight`).
+
+    With the cutting prior (``ArchSettings.reaction_prior``) the per-feed columns also carry what the
+    solver's cutting law makes an element cost: a tooth cuts the volume its friction work pays
+    (μ·N·ω·R sin φ per unit time over u_c), so bone at polar angle φ from the axis, which an advance v
+    moves into the teeth at v·cos φ, presses on them with u_c·v·cos φ / (μ·ω·R sin φ) per unit area:
+    an axial reaction per unit feed ∝ u_c cos²φ / (ω·R sin φ), a torque per unit feed ∝ u_c cos φ / ω,
+    and none behind the equator. The network's share is then a dimensionless correction to it."""
+    area = graph.contact_weight[sub.nodes].astype(np.float64)
+    weights = np.repeat(area[:, None], 4, axis=1)
+    if prior == "cutting":
+        if cutting_energy_j_m3 is None:
+            raise ValueError("the cutting prior reads every element's cutting energy")
+        offset = graph.centroids[sub.nodes] - reamer.centre
+        distance = np.maximum(np.linalg.norm(offset, axis=1), 1e-12)
+        cos = np.clip(offset @ reamer.axis / distance, 0.0, 1.0)
+        sin = np.maximum(np.sqrt(1.0 - cos * cos), PRIOR_MIN_SIN)
+        energy = np.asarray(cutting_energy_j_m3, dtype=np.float64)[sub.nodes] / _PRIOR_ENERGY_UNIT_J_M3
+        edge_speed = reamer.omega_rad_s * reamer.teeth_radius_m / _PRIOR_EDGE_SPEED_M_S
+        weights[:, 1] *= energy * cos * cos / (sin * max(edge_speed, 1e-12))
+        weights[:, 3] *= energy * cos / max(reamer.omega_rad_s / _PRIOR_OMEGA_RAD_S, 1e-12)
+    elif prior != "none":
+        raise ValueError(f"unknown reaction prior {prior!r}")
+    return weights.astype(np.float32)
 
 
 def law_contact_mm2(graph: StaticGraph, sub: Subgraph) -> float:
@@ -106,7 +137,7 @@ class GraphBatch:
     #: per subgraph, the next frame's axial reaction (N), motor torque (N·m) and feed (m/s), the case's
     #: push (N) and hold damping (N·s/m); NaN where unknown
     reaction: torch.Tensor | None = None
-    #: per node, its share of a contact area (:func:`contact_weights`), which the reaction head's shares scale by
+    #: per node, the (4,) weights its reaction-law shares scale by (:func:`law_weights`)
     contact_weight: torch.Tensor | None = None
 
 
@@ -346,7 +377,7 @@ def batch(
     ``damage``, for models with damage, D on each part's nodes; ``reaction``, for training a
     reaction head, each part's next-frame (reaction N, torque N·m, feed m/s, push N, hold damping
     N·s/m) (see :func:`thrsim.learn.training.next_reaction`); ``contact_weight``,
-    for a reaction head, each part's :func:`contact_weights`."""
+    for a reaction head, each part's :func:`law_weights`."""
     nodes, edges, globals_, senders, receivers, node_graph, edge_graph, alpha, update = ([] for _ in range(9))
     offset = 0
     for index, (sub, alpha_sub, (n, e, g)) in enumerate(parts):

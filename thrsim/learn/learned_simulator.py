@@ -8,7 +8,9 @@ never crosses the threshold under the teeth); the rollout adds the hazard −log
 and removes the element once the sum reaches ln 2. With damage the network also predicts D(t+1),
 never below D(t). The reaction head (``ArchSettings.reaction_head``) gives each node a
 non-negative share (softplus) of the next frame's axial reaction and motor torque, a part and a
-part per unit of feed: summed, the law R(v) = A + B·v the feed balances the push against
+part per unit of feed, each weighted by the node's contact area and, with the cutting prior, the
+per-feed parts by what cutting it costs (:func:`~thrsim.learn.features.law_weights`): summed, the
+law R(v) = A + B·v the feed balances the push against
 (:mod:`thrsim.learn.reaction_feed`), so more push never advances the reamer less (why: the docs).
 """
 
@@ -118,6 +120,7 @@ class LearnedSimulator(nn.Module):
         self.removal_head = settings.arch.removal_head
         self.damage = settings.features.damage
         self.reaction_head = settings.arch.reaction_head
+        self.reaction_prior = settings.arch.reaction_prior
         self.feed_loss_weight = settings.train.feed_loss_weight
         self.feed_loss_scale_m_s = settings.train.feed_loss_scale_mm_s * 1e-3
         self.reaction_column = 1 + int(self.removal_head) + int(self.damage)
@@ -179,7 +182,7 @@ class LearnedSimulator(nn.Module):
         """(subgraphs, 4) reaction laws (see ``REACTION_LAW``) from the nodes' raw shares."""
         if batch.contact_weight is None:
             raise ValueError("a reaction head needs each node's contact weight")
-        mask = (self.trainable_mask(batch).to(shares.dtype) * batch.contact_weight)[:, None]
+        mask = self.trainable_mask(batch).to(shares.dtype)[:, None] * batch.contact_weight
         positive = nn.functional.softplus(shares) * mask / _NODES_UNIT
         sums = positive.new_zeros((batch.globals_.shape[0], 4)).index_add_(0, batch.node_graph, positive)
         force, torque = self.reaction_scale[0], self.reaction_scale[1]

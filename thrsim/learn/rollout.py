@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays, law_contact_mm2, law_weights, select_subgraph
 from thrsim.learn.graph import StaticGraph, Subgraph
 from thrsim.learn.learned_simulator import REMOVAL_HAZARD, LearnedSimulator
 from thrsim.learn.reaction_feed import ReactionFeed
@@ -111,7 +111,9 @@ class LearnedStep:
             self.features.corners,
             self.cutting_energy_j_m3,
         )
-        weights = [contact_weights(graph, sub)] if self.model.reaction_head else None
+        weights = (
+            [law_weights(graph, sub, reamer, self.cutting_energy_j_m3, self.model.reaction_prior)] if self.model.reaction_head else None
+        )
         return sub, batch([(sub, alpha_sub, arrays)], None if damage_sub is None else [damage_sub], None, weights)
 
     def __call__(

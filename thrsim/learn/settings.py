@@ -31,6 +31,9 @@ class ArchSettings(_Frozen):
     ``reaction_head``: four more outputs, each node's non-negative share of the bone's axial reaction
     and of the motor torque over the next frame, as a part that holds at any feed and a part per
     unit of feed; their sums make the reaction law the push is balanced against (the feed).
+    ``reaction_prior``: what weights each node's per-feed shares besides its contact area: "none", or
+    "cutting", the reaction and torque per unit feed the solver's cutting law gives the element at its
+    place on the teeth (:func:`thrsim.learn.features.law_weights`), which the share then corrects.
     """
 
     node_encoder: tuple[int, ...] = (32, 32)
@@ -48,7 +51,14 @@ class ArchSettings(_Frozen):
     residual_logit: bool = True
     removal_head: bool = False
     reaction_head: bool = False
+    reaction_prior: Literal["none", "cutting"] = "none"
     mlp_baseline: tuple[int, ...] = (32, 32)
+
+    @model_validator(mode="after")
+    def _prior_weights_a_law(self) -> ArchSettings:
+        if self.reaction_prior != "none" and not self.reaction_head:
+            raise ValueError("a reaction prior weights the reaction head's shares: it needs reaction_head")
+        return self
 
 
 class FeatureSettings(_Frozen):

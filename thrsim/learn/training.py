@@ -30,7 +30,7 @@ from thrsim.atomic import atomic_path
 from thrsim.errors import ThrsimInputError
 from thrsim.learn.advance import LOWEST_CV, case_samples, fit_advance
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
-from thrsim.learn.features import GraphBatch, ReamerState, batch, contact_weights, frame_arrays, law_contact_mm2, select_subgraph
+from thrsim.learn.features import GraphBatch, ReamerState, batch, frame_arrays, law_contact_mm2, law_weights, select_subgraph
 from thrsim.learn.graph import StaticGraph
 from thrsim.learn.learned_simulator import STALL_FEED_M_S, LearnedSimulator
 from thrsim.learn.metrics import Counts
@@ -106,11 +106,13 @@ class Trainer:
             self._start_from(init)
 
     def _start_from(self, init: LoadedModel) -> None:
-        """Warm start: both networks and their normalisers from a trained model of the same architecture."""
-        if init.settings.arch != self.settings.arch or init.settings.features.network_inputs() != self.settings.features.network_inputs():
+        """Warm start: both networks and their normalisers from a trained model of the same architecture
+        (its reaction prior may differ: the network is the same, the law's weights are not)."""
+        same_network = init.settings.arch.model_copy(update={"reaction_prior": self.settings.arch.reaction_prior}) == self.settings.arch
+        if not same_network or init.settings.features.network_inputs() != self.settings.features.network_inputs():
             raise ThrsimInputError(
                 f"{init.path}: its architecture or input features differ from this run's; a warm start needs the same network "
-                "(only the region a step updates may differ)"
+                "(only the region a step updates and the reaction law's prior may differ)"
             )
         if init.graph.digest != self.graph.digest:
             raise ThrsimInputError(f"{init.path}: belongs to another mesh than the data")
@@ -169,16 +171,25 @@ class Trainer:
         noisy = np.clip(values + rng.normal(0.0, sigma, len(values)).astype(np.float32), low, 1.0)
         return np.where(active, noisy, values).astype(np.float32)
 
+    @staticmethod
+    def _reamer(case: CaseArrays, t: int, centre: np.ndarray) -> ReamerState:
+        """The reamer at frame pair t → t + 1: its head at ``centre`` after the recorded advance."""
+        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
+        return ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
+
+    def _law_weights(self, case: CaseArrays, t: int, graph, sub, centre: np.ndarray) -> np.ndarray:
+        """The weights of the reaction-law shares on ``sub`` (:func:`~thrsim.learn.features.law_weights`)."""
+        reamer = self._reamer(case, t, centre)
+        return law_weights(graph, sub, reamer, case.element_cutting_energy_j_m3, self.settings.arch.reaction_prior)
+
     def _features(self, case: CaseArrays, t: int, graph, sub, alpha_in, centre, active_t, damage_in) -> tuple:
         """The network's inputs on ``sub`` at frame pair t → t + 1, the reamer's head at ``centre`` after the recorded advance."""
-        advance = float((case.positions[t + 1] - case.positions[t]) @ case.axis)
-        reamer = ReamerState(centre, case.axis, case.force_n, advance, case.omega_rad_s, case.teeth_radius_m)
         features = self.settings.features
         return frame_arrays(
             graph,
             sub,
             alpha_in,
-            reamer,
+            self._reamer(case, t, centre),
             features.feature_set,
             self.threshold,
             active_t,
@@ -226,7 +237,7 @@ class Trainer:
             (*next_reaction(case, int(t) + 1, self.threshold), self.pushes[case.case_id], case.hold.axial_damping_n_s_m)
             if case.case_id in self.reaction_case_ids
             else (math.nan,) * 5,
-            contact_weights(graph, sub),
+            self._law_weights(case, int(t), graph, sub, centre),
         )
 
     def _overshoot_sample(self, index: int, rng: np.random.Generator):
@@ -251,7 +262,8 @@ class Trainer:
         alpha_in = alpha_t[sub.nodes].astype(np.float32)
         damage_in = case.damage[t][sub.nodes].astype(np.float32) if self.settings.features.damage and case.damage is not None else None
         arrays = self._features(case, int(t), graph, sub, alpha_in, centre, active_t, damage_in)
-        return (sub, alpha_in, arrays), damage_in, (push, 0.0, 0.0, push, case.hold.axial_damping_n_s_m), contact_weights(graph, sub)
+        weights = self._law_weights(case, int(t), graph, sub, centre)
+        return (sub, alpha_in, arrays), damage_in, (push, 0.0, 0.0, push, case.hold.axial_damping_n_s_m), weights
 
     def _overshoot_batch(self, chosen: np.ndarray, rng: np.random.Generator) -> GraphBatch | None:
         """The overshoot constraint's inputs for the drawn frame pairs of seated law cases (None: none drawn)."""

@@ -7,11 +7,9 @@ probability p that an active element goes by t + 1 (α alone learns removal's ex
 never crosses the threshold under the teeth); the rollout adds the hazard −log(1 − p) per frame
 and removes the element once the sum reaches ln 2. With damage the network also predicts D(t+1),
 never below D(t). The reaction head (``ArchSettings.reaction_head``) gives each node a
-non-negative share (softplus) of the next frame's axial reaction and motor torque, a part and a
-part per unit of feed, each weighted by the node's contact area and, with the cutting prior, the
-per-feed parts by what cutting it costs (:func:`~thrsim.learn.features.law_weights`): summed, the
-law R(v) = A + B·v the feed balances the push against
-(:mod:`thrsim.learn.reaction_feed`), so more push never advances the reamer less (why: the docs).
+non-negative share (softplus) of the next frame's axial reaction and torque, at no feed and per
+unit of feed, weighted by :func:`~thrsim.learn.features.law_weights`: summed, the law R(v) = A + B·v
+the feed balances the push against (:mod:`thrsim.learn.reaction_feed`): more push, never less feed.
 """
 
 from __future__ import annotations

@@ -32,9 +32,30 @@ def _ream(model, socket, force_n: float, frames: int = 24):
 
 def test_the_card_records_what_the_model_learned(model):
     assert reads_any_mesh(model.settings) and model.settings.arch.reaction_head
+    assert model.settings.arch.reaction_prior == "cutting"
     assert model.trained_reamer_mm == (44.0, 46.0, 48.0, 52.0, 54.0)  # 50 mm held out
     assert model.trained_force_n is not None and model.trained_inclination_deg == (0.0, 30.0)
     assert model.card["data"]["source"] == "datasets/socket-0.5.4" and len(model.card["data"]["reaction_cases"]) == 16
+
+
+@pytest.mark.parametrize(("stage", "settings_file"), [("base", "socket-settings.json"), ("fine-tune", "socket-finetune-settings.json")])
+def test_the_card_is_what_the_shipped_settings_files_train(model, stage, settings_file):
+    """The documented two-stage recipe: 30 epochs from scratch, then a fine-tune from those weights;
+    a card field newer than the training reads as its default, and the time budget did not stop it."""
+    from thrsim.config import read_settings_file
+    from thrsim.learn.settings import ModelSettings, preset
+
+    expected = preset("socket").model_dump()
+    for section, values in read_settings_file(str(SHIPPED_SOCKET_MODEL.parent / settings_file)).items():
+        expected[section].update(values)
+    expected = ModelSettings.model_validate(expected).model_dump()
+    card_settings = model.card["settings"] if stage == "fine-tune" else model.card["training"]["init_from"]["settings"]
+    recorded = ModelSettings.model_validate(card_settings).model_dump()
+    for settings in (expected, recorded):
+        settings["train"].pop("max_minutes")
+    assert recorded == expected
+    if stage == "fine-tune":  # the card's history is its last training's
+        assert len(model.card["training"]["history"]) == model.card["training"]["epochs"] == expected["train"]["epochs"]
 
 
 def test_no_push_no_cut_and_more_push_never_less(model, socket):

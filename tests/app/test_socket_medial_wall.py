@@ -77,10 +77,11 @@ def test_the_bone_left_before_the_medial_wall_is_to_its_remaining_elements(sessi
         assert state["medial_wall_remaining_mm"] == state["bone_left_mm"]
     left = [state["bone_left_mm"] for state in states]
     assert left[0] > 2 * BREAK_WARNING_MM and np.all(np.diff(left) <= 1e-9)  # the reamer only goes in
-    # the frame the simulator ends as a breach says 0 left; the wall's own nodes were still beyond the teeth
+    # the frame the simulator ends as a breach says 0 left (or a frame before, once the teeth reach a wall
+    # element's inner nodes); the wall's own nodes were still beyond the teeth
     last = states[-1]
     assert [e["kind"] for e in last["events"]].count("medial_wall_breached") == 1 and last["bone_left_mm"] == 0.0
-    assert left[-2] > 0.0 and last["face_nodes_mm"] > 0.0
+    assert last["face_nodes_mm"] > 0.0
     assert not any(e["kind"] == "medial_wall_breached" for state in states[:-1] for e in state["events"])
 
 

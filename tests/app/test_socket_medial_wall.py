@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from app_helpers import SocketSession, own_bone_left
 
-from thrsim.app.reaming import BREAK_WARNING_MM, socket_in_patch
+from thrsim.app.reaming import BREAK_CAUTION_MM, BREAK_WARNING_MM, socket_in_patch
 from thrsim.geometry.mesh import MEDIAL_WALL
 from thrsim.report import build_report
 from thrsim.report.reaming import criteria
@@ -82,6 +82,9 @@ def test_the_bone_left_before_the_medial_wall_is_to_its_remaining_elements(sessi
     last = states[-1]
     assert [e["kind"] for e in last["events"]].count("medial_wall_breached") == 1 and last["bone_left_mm"] == 0.0
     assert last["face_nodes_mm"] > 0.0
+    # the element rule never gives more bone than the wall's own nodes, and the amber caution showed with bone still left
+    assert all(state["bone_left_mm"] <= state["face_nodes_mm"] + 1e-9 for state in states)
+    assert any(0.0 < state["bone_left_mm"] < BREAK_CAUTION_MM for state in states[:-1])
     assert not any(e["kind"] == "medial_wall_breached" for state in states[:-1] for e in state["events"])
 
 

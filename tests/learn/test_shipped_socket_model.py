@@ -42,13 +42,9 @@ def test_the_card_records_what_the_model_learned(model):
 def test_the_card_is_what_the_shipped_settings_files_train(model, stage, settings_file):
     """The documented two-stage recipe: 30 epochs from scratch, then a fine-tune from those weights;
     a card field newer than the training reads as its default, and the time budget did not stop it."""
-    from thrsim.config import read_settings_file
-    from thrsim.learn.settings import ModelSettings, preset
+    from thrsim.learn.settings import ModelSettings, preset_with_file
 
-    expected = preset("socket").model_dump()
-    for section, values in read_settings_file(str(SHIPPED_SOCKET_MODEL.parent / settings_file)).items():
-        expected[section].update(values)
-    expected = ModelSettings.model_validate(expected).model_dump()
+    expected = ModelSettings.model_validate(preset_with_file("socket", str(SHIPPED_SOCKET_MODEL.parent / settings_file))).model_dump()
     card_settings = model.card["settings"] if stage == "fine-tune" else model.card["training"]["init_from"]["settings"]
     recorded = ModelSettings.model_validate(card_settings).model_dump()
     for settings in (expected, recorded):

@@ -49,17 +49,10 @@ def train(
     as_json: bool = typer.Option(False, "--json", help="print the model card as one JSON object on stdout"),
 ) -> None:
     """Train the learned simulator on a dataset's training split; write weights, regressor, mesh and card."""
-    from thrsim.learn.settings import ModelSettings, preset
+    from thrsim.learn.settings import ModelSettings, preset_with_file
 
     check_threads(threads)
-    settings = preset(arch).model_dump()
-    if settings_file is not None:
-        from thrsim.config import read_settings_file
-
-        for section, values in read_settings_file(str(settings_file)).items():
-            if section not in settings or not isinstance(values, dict):
-                raise ThrsimInputError(f"{settings_file}: unknown settings section {section!r} (arch, features, train)")
-            settings[section].update(values)
+    settings = preset_with_file(arch, None if settings_file is None else str(settings_file))
     for key, value in (("epochs", epochs), ("max_samples_per_epoch", samples_per_epoch), ("max_minutes", max_minutes), ("seed", seed)):
         if value is not None:
             settings["train"][key] = value

@@ -232,3 +232,19 @@ def preset(name: str) -> ModelSettings:
     from thrsim.errors import ThrsimInputError
 
     raise ThrsimInputError(f"unknown architecture {name!r}: choose production, socket or thesis")
+
+
+def preset_with_file(name: str, settings_file: str | None) -> dict:
+    """The preset ``name``'s settings as a dict, each section updated by ``settings_file``'s (partial,
+    nested JSON; what ``thrsim train --arch --settings`` trains); ThrsimInputError on an unknown section."""
+    settings = preset(name).model_dump()
+    if settings_file is None:
+        return settings
+    from thrsim.config import read_settings_file
+    from thrsim.errors import ThrsimInputError
+
+    for section, values in read_settings_file(settings_file).items():
+        if section not in settings or not isinstance(values, dict):
+            raise ThrsimInputError(f"{settings_file}: unknown settings section {section!r} (arch, features, train)")
+        settings[section].update(values)
+    return settings

@@ -254,12 +254,11 @@ def _cutting_front(neighbours, inner_tet, active, centroids, centre, reach_squar
     ids = np.empty(len(active), dtype=np.int64)
     count = 0
     for element in range(len(active)):
-        if not _exposed(neighbours, inner_tet, active, element):
-            continue
         dx = centroids[element, 0] - centre[0]
         dy = centroids[element, 1] - centre[1]
         dz = centroids[element, 2] - centre[2]
-        if dx * dx + dy * dy + dz * dz < reach_squared:
+        # the distance first: it rules out most of the mesh at the cost of reading one centroid
+        if dx * dx + dy * dy + dz * dz < reach_squared and _exposed(neighbours, inner_tet, active, element):
             mark[element] = True
             ids[count] = element
             count += 1

@@ -323,7 +323,7 @@ def test_the_overshoot_constraint_moves_seated_reamers_deeper_and_asks_the_law_f
 
 
 def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_model, synthetic_dataset):
-    from thrsim.learn.evaluation import evaluate
+    from thrsim.learn.evaluation import bone_key, evaluate
 
     _, cases = load_cases(synthetic_dataset, splits=("test",), one_mesh=False)
     report = evaluate(socket_model, cases, start_stride=6, one_step_stride=6)
@@ -347,6 +347,10 @@ def test_evaluate_scores_a_socket_model_by_reamer_size_with_its_reaction(socket_
     for name in ("felt_force_error", "felt_torque_error", "felt_force_step_mean_error", "felt_torque_step_mean_error"):
         assert 0.0 <= errors[name] < 10.0
     assert 0.0 <= errors["balanced_feed_share"] < 100.0 and 0.0 <= errors["seated_balanced_feed_share"] < 100.0
+    # the same cases by bone: one row per bone the cases ream, every case in one of them
+    by_bone = report["reaction_by_bone"]
+    assert set(by_bone) == {bone_key(case) for case in cases}
+    assert sum(row["pushed_cases"] for row in by_bone.values()) == len(cases)
 
 
 def test_the_reaction_report_weighs_frames_and_steps_apart():

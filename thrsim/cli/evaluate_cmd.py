@@ -185,9 +185,11 @@ def print_comparison(report: dict) -> None:
         console.print(f"physics checks over {checks['frames']} frames (cases that hold): {held}; mean removed mm³ by push share: {volumes}")
     elif checks:
         console.print(f"physics checks: not run ({checks['why']})")
-    for size, errors in report.get("reaction", {}).items():
+    reaction_rows = [(f"reamer {size} mm", errors) for size, errors in report.get("reaction", {}).items()]
+    reaction_rows += [(bone, errors) for bone, errors in report.get("reaction_by_bone", {}).items()]
+    for name, errors in reaction_rows:
         force, torque = errors["force_error"], errors["torque_error"]
-        line = f"reamer {size} mm: the law at the solver's feeds: reaction error {_pct(force)} %, motor torque {_pct(torque)} %"
+        line = f"{name}: the law at the solver's feeds: reaction error {_pct(force)} %, motor torque {_pct(torque)} %"
         if errors["pushed_cases"]:
             line += (
                 f"; felt under the push ({errors['pushed_cases']} pushed cases): reaction {_pct(errors['felt_force_error'])} %,"

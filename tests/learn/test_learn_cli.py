@@ -164,7 +164,7 @@ def test_evaluate_per_case_scores_each_case_from_its_first_frame_as_the_windows_
         assert model_plate[0] == solver_plate[0] and min(model_plate + solver_plate) >= 0
     table = run_thrsim("evaluate", "--data", str(synthetic_dataset), "--model", str(tiny_model), "--per-case")
     assert table.returncode == 0 and "reamer end mm" in table.stdout and "GN tool-forced" in table.stdout
-    assert "plate left mm³ (solver)" in table.stdout
+    assert "plate left mm³ (solver)" in table.stdout and "sphere depth mm" in table.stdout
 
 
 def test_evaluate_refuses_a_model_of_another_mesh(tiny_model, real_case):

@@ -267,3 +267,27 @@ def test_cavity_depth_error_is_the_whole_cavity_s_so_a_window_that_cuts_nothing_
     assert depth_error(before, solver) == pytest.approx(-expected, abs=1e-9)  # the window cut nothing new: short by what the solver cut
     assert expected > 0 and depth_error(solver, solver) == 0.0
     assert depth_error(solver, np.zeros_like(solver)) is None  # the solver cut nothing
+
+
+def test_the_fitted_sphere_s_depth_follows_the_reamed_wall_where_elements_crushed_ahead_move_the_deepest():
+    from thrsim.config import SocketConfig
+    from thrsim.geometry.socket import generate_socket
+    from thrsim.learn.evaluation import cavity_errors
+
+    config = SocketConfig(element_size_mm=2.0, coarse_element_size_mm=4.0)
+    graph = StaticGraph(generate_socket(config))
+    axis, start, nothing = np.array([0.0, 0.0, -1.0]), np.zeros(3), np.zeros(graph.n_nodes, dtype=bool)
+    distance = np.linalg.norm(graph.centroids, axis=1)
+    radius_m = config.socket_diameter_mm / 2e3
+    shallow, deep = (distance < radius_m + extra_m for extra_m in (1e-3, 2e-3))
+    errors = cavity_errors(graph, shallow, deep, nothing, start, axis)
+    # a reamer 1 mm larger reams 1 mm deeper: both depths see it, to within an element (centroids decide what is removed)
+    for depth in ("cavity_depth_error_mm", "sphere_depth_error_mm"):
+        assert errors[depth] == pytest.approx(-1.0, abs=config.element_size_mm / 2)
+    ahead = np.flatnonzero(
+        ~deep & (graph.neighbours >= 0).all(axis=1) & (distance < radius_m + 4e-3) & (graph.centroids @ axis > 0.5 * distance)
+    )
+    crushed = deep.copy()
+    crushed[np.random.default_rng(0).choice(ahead, 30, replace=False)] = True  # deleted up to 2 mm ahead of the wall, as damage deletes
+    errors = cavity_errors(graph, crushed, deep, nothing, start, axis)
+    assert errors["cavity_depth_error_mm"] > 1.0 and abs(errors["sphere_depth_error_mm"]) < 0.3

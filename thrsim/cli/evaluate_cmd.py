@@ -79,7 +79,8 @@ def evaluate(
 
 
 def print_case_scores(rows: list[dict]) -> None:
-    """One row per case and mode: F1 %, volume error %, surface mm, diameter, depth and reamer end against the solver's (mm);
+    """One row per case and mode: F1 %, volume error %, surface mm, diameter, depth (the deepest removed element's and
+    the fitted sphere's) and reamer end against the solver's (mm);
     tool-forced, the plate left ahead of the teeth at the last frame beside the solver's (mm³)."""
     table = Table(title="each case from its first frame to its last, against the solver")
     columns = (
@@ -91,6 +92,7 @@ def print_case_scores(rows: list[dict]) -> None:
         "surface mm",
         "diameter mm",
         "depth mm",
+        "sphere depth mm",
         "reamer end mm",
         "plate left mm³ (solver)",
     )
@@ -115,10 +117,11 @@ def print_case_scores(rows: list[dict]) -> None:
                 "–" if s["surface_distance_mean_mm"] is None else f"{s['surface_distance_mean_mm']:.3f}",
                 cell(s["cavity_diameter_error_mm"]),
                 cell(s["cavity_depth_error_mm"]),
+                cell(s["sphere_depth_error_mm"]),
                 cell(s["reamer_end_error_mm"]),
                 f"{s['plate_left_mm3'][-1]:.0f} ({s['solver_plate_left_mm3'][-1]:.0f})" if "plate_left_mm3" in s else "",
             )
-    Console(width=max(console.width, 150)).print(table)
+    Console(width=max(console.width, 175)).print(table)
 
 
 def print_comparison(report: dict) -> None:

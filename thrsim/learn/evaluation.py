@@ -20,7 +20,7 @@ import numpy as np
 from thrsim.geometry.mesh import CORTICAL
 from thrsim.learn.cases import CaseArrays, case_graphs, require_damage
 from thrsim.learn.graph import StaticGraph
-from thrsim.learn.metrics import Counts, plate_left_mm3, sphere_diameter_mm, surface_distance_mm
+from thrsim.learn.metrics import Counts, fit_sphere, plate_left_mm3, surface_distance_mm
 from thrsim.learn.model_dir import LoadedModel, reads_any_mesh
 from thrsim.learn.reaction_feed import ReactionFeed, feed_m_s, felt_at_push
 from thrsim.learn.rollout import BoneState, GeometricStep, LearnedStep, rollout
@@ -89,27 +89,40 @@ def cavity_depth_mm(graph: StaticGraph, removed: np.ndarray, start: np.ndarray, 
     return float(((graph.centroids[removed] - start) @ axis).max()) * 1e3
 
 
+def sphere_depth_mm(sphere: tuple[np.ndarray, float] | None, start: np.ndarray, axis: np.ndarray) -> float | None:
+    """How deep along the axis, from the reamer centre at the window's start, the sphere fitted to a
+    cavity's reamed surface reaches (its deepest point, mm; None where no sphere fits): the depth a
+    scan of the reamed socket gives, which elements deleted a few mm ahead of the teeth barely move."""
+    if sphere is None:
+        return None
+    centre, radius = sphere
+    return float((centre - start) @ axis + radius) * 1e3
+
+
 def cavity_errors(
     graph: StaticGraph, predicted: np.ndarray, true: np.ndarray, initial: np.ndarray, start: np.ndarray, axis: np.ndarray
 ) -> dict:
     """The predicted cavity (``predicted`` removed elements) against the solver's (``true``), signed
     predicted − solver's: removed volume since ``initial`` (relative; None when the solver removed
-    nothing), mean and largest reamed-surface distance (mm; NaN where a surface is empty), the fitted
-    diameter and the depth along ``axis`` from ``start`` of the whole cavity (mm; None where unknown;
-    a prediction that removed nothing counts as depth 0); also the predicted volume (mm³)."""
+    nothing), mean and largest reamed-surface distance (mm; NaN where a surface is empty), the
+    diameter and the deepest point along ``axis`` from ``start`` of the sphere fitted to the whole
+    cavity's reamed surface and the depth of its deepest removed element (mm; None where unknown;
+    a prediction that removed nothing or fits no sphere counts as depth 0); also the predicted volume (mm³)."""
     true_volume = float((true & ~initial) @ graph.volumes)
     pred_volume = float((predicted & ~initial) @ graph.volumes)
     surfaces = graph.reamed_surface(~predicted), graph.reamed_surface(~true)
     surface_mean_mm, surface_max_mm = surface_distance_mm(*surfaces)
-    diameter_pred, diameter_true = (sphere_diameter_mm(surface) for surface in surfaces)
+    sphere_pred, sphere_true = (fit_sphere(surface) for surface in surfaces)
+    sphere_depth_pred, sphere_depth_true = (sphere_depth_mm(sphere, start, axis) for sphere in (sphere_pred, sphere_true))
     depth_pred, depth_true = (cavity_depth_mm(graph, removed, start, axis) for removed in (predicted, true))
     return {
         "removed_volume_mm3": pred_volume * 1e9,
         "removed_volume_error": (pred_volume - true_volume) / true_volume if true_volume > 0 else None,
         "surface_distance_mean_mm": surface_mean_mm,
         "surface_distance_max_mm": surface_max_mm,
-        "cavity_diameter_error_mm": None if diameter_pred is None or diameter_true is None else diameter_pred - diameter_true,
+        "cavity_diameter_error_mm": None if sphere_pred is None or sphere_true is None else 2e3 * (sphere_pred[1] - sphere_true[1]),
         "cavity_depth_error_mm": None if depth_true is None else (depth_pred or 0.0) - depth_true,
+        "sphere_depth_error_mm": None if sphere_depth_true is None else (sphere_depth_pred or 0.0) - sphere_depth_true,
     }
 
 
@@ -233,8 +246,8 @@ def physics_checks(model: LoadedModel, cases: list[CaseArrays], frames: int = 30
 
 def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> list[dict]:
     """Each case rolled out from its first frame to its last in every mode: F1 of the removed elements,
-    the removed volume's relative error, the mean surface distance, the cavity's diameter and depth and
-    the reamer's end along the axis against the solver's (mm; predicted − solver's); tool-forced also
+    the removed volume's relative error, the mean surface distance, the cavity's diameter, depth and
+    fitted sphere's depth and the reamer's end along the axis against the solver's (mm; predicted − solver's); tool-forced also
     the plate left ahead of the teeth at every frame, the model's and the solver's (mm³)."""
     threshold = model.threshold
     graphs = case_graphs(model.graph, cases, any_mesh=reads_any_mesh(model.settings))
@@ -257,6 +270,7 @@ def case_scores(model: LoadedModel, cases: list[CaseArrays], on_case=None) -> li
                 "surface_distance_mean_mm": surface_mm if np.isfinite(surface_mm) else None,
                 "cavity_diameter_error_mm": cavity["cavity_diameter_error_mm"],
                 "cavity_depth_error_mm": cavity["cavity_depth_error_mm"],
+                "sphere_depth_error_mm": cavity["sphere_depth_error_mm"],
                 "reamer_end_error_mm": float((centres[-1] - case.positions[last]) @ case.axis) * 1e3,
             }
             if mode == "tool_forced":

@@ -1,5 +1,5 @@
-"""Scores of removed-element predictions [7.3.5, eqs. 51–53], reamed-surface distances, the cavity's diameter
-and the plate left ahead of the teeth."""
+"""Scores of removed-element predictions [7.3.5, eqs. 51–53], reamed-surface distances, the cavity's fitted
+sphere and the plate left ahead of the teeth."""
 
 from __future__ import annotations
 
@@ -61,10 +61,10 @@ def surface_distance_mm(predicted_points: np.ndarray, true_points: np.ndarray) -
     return float(both.mean() * 1e3), float(both.max() * 1e3)
 
 
-def sphere_diameter_mm(points: np.ndarray) -> float | None:
-    """Diameter (mm) of the sphere fitted to surface points (m) by linear least squares,
+def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """Centre (m) and radius (m) of the sphere fitted to surface points (m) by linear least squares,
     |x|² = 2 c·x + k, r² = k + |c|²; None for fewer than 10 points or points that fix no sphere
-    (all on a plane or a line). A reamed cavity's diameter, as a scan of a reamed socket is measured."""
+    (all on a plane or a line). A reamed cavity's sphere, as a scan of a reamed socket is measured."""
     points = np.asarray(points, dtype=np.float64)
     if len(points) < 10:
         return None
@@ -76,7 +76,13 @@ def sphere_diameter_mm(points: np.ndarray) -> float | None:
         return None
     centre, k = solution[:3], solution[3]
     radius_sq = k + float(centre @ centre)
-    return 2e3 * float(np.sqrt(radius_sq)) if radius_sq > 0 else None
+    return (origin + centre, float(np.sqrt(radius_sq))) if radius_sq > 0 else None
+
+
+def sphere_diameter_mm(points: np.ndarray) -> float | None:
+    """Diameter (mm) of the sphere fitted to surface points (m) (:func:`fit_sphere`)."""
+    fit = fit_sphere(points)
+    return None if fit is None else 2e3 * fit[1]
 
 
 #: the plate a seated reamer wears: cortical bone within this depth beyond the teeth's sphere …

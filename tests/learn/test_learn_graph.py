@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from thrsim.data.synthetic import block_mesh
 from thrsim.learn.graph import StaticGraph, attached_nodes, mesh_digest
-from thrsim.learn.metrics import plate_left_mm3, sphere_diameter_mm, surface_distance_mm
+from thrsim.learn.metrics import fit_sphere, plate_left_mm3, surface_distance_mm
 
 MESH = block_mesh(n=4)
 GRAPH = StaticGraph(MESH)
@@ -172,9 +172,10 @@ def test_a_cavity_s_diameter_is_the_sphere_fitted_to_its_surface():
     directions /= np.linalg.norm(directions, axis=1)[:, None]
     cap = directions[directions[:, 2] < -0.6]  # a reamed cap, not the whole sphere
     noisy = 0.024 * cap + rng.normal(scale=0.02e-3, size=cap.shape) + [0.01, -0.02, 0.03]
-    assert abs(sphere_diameter_mm(noisy) - 48.0) < 0.1
+    centre, radius = fit_sphere(noisy)
+    assert abs(2e3 * radius - 48.0) < 0.1 and np.linalg.norm(centre - [0.01, -0.02, 0.03]) < 0.05e-3
     plane = np.stack(np.meshgrid(np.arange(10), np.arange(10), [0.0]), axis=-1).reshape(-1, 3) * 1e-3
-    assert sphere_diameter_mm(plane) is None and sphere_diameter_mm(noisy[:9]) is None
+    assert fit_sphere(plane) is None and fit_sphere(noisy[:9]) is None
 
 
 def test_the_plate_left_is_the_live_cortical_bone_just_ahead_of_the_teeth():

@@ -79,12 +79,6 @@ def fit_sphere(points: np.ndarray) -> tuple[np.ndarray, float] | None:
     return (origin + centre, float(np.sqrt(radius_sq))) if radius_sq > 0 else None
 
 
-def sphere_diameter_mm(points: np.ndarray) -> float | None:
-    """Diameter (mm) of the sphere fitted to surface points (m) (:func:`fit_sphere`)."""
-    fit = fit_sphere(points)
-    return None if fit is None else 2e3 * fit[1]
-
-
 #: the plate a seated reamer wears: cortical bone within this depth beyond the teeth's sphere …
 PLATE_DEPTH_M = 1.5e-3
 #: … and within this angle of the reamer's axis

@@ -69,7 +69,7 @@ class _Tracker:
 
 _PROBE = "[performance.now(), trainer.stats.frames, trainer.stats.states, trainer.stats.boneFrames, trainer.stats.boneBytes, trainer.stats.last.reaming.frame]"
 _SCALE_CHANGES = "trainer.view.renderScale.changes"
-_SETTLE_S = 3.0  # reaming this long with no change of the render scale: settled
+_SETTLE_S = 3.0  # reaming this long with no change of the render scale: settled (a shorter window settles over its own length)
 _WARMUP_MAX_S = 30.0
 
 
@@ -257,7 +257,7 @@ def time_reaming_page(
             # its render scale has settled, then count (its later tries of a finer scale stay in)
             warmup_s, scale_changes = 0.0, page.evaluate(_SCALE_CHANGES)
             while warmup_s < _WARMUP_MAX_S:
-                warmup_s += _ream(page, _SETTLE_S)[0][0] / 1000
+                warmup_s += _ream(page, min(_SETTLE_S, seconds))[0][0] / 1000
                 scale_changes, before = page.evaluate(_SCALE_CHANGES), scale_changes
                 if scale_changes == before:
                     break

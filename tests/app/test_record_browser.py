@@ -15,6 +15,7 @@ import pytest
 from app_helpers import ServedTrainer, keys
 
 from thrsim.app.drawing_bench import CHROMIUM
+from thrsim.config import TrackingVolumeConfig
 from thrsim.report import build_assessment
 from thrsim.session import read_session
 from thrsim.session.questionnaire import read_questionnaire
@@ -65,17 +66,28 @@ def name_trainee(page, trainee: str) -> None:
 def place_on_landmarks(page, miss_mm: float, drag_from_mm: float = 0.0) -> list[float]:
     """Put the probe's tip ``miss_mm`` beside each landmark's glowing point (across the view): a drag
     from ``drag_from_mm`` beyond that, or a click; held still there until it is taken. The errors
-    the page showed, as the server measured them (mm)."""
+    the page showed, as the server measured them (mm).
+
+    The drag moves in steps to just outside the landmark's reach, then onto the point: a loaded
+    machine can stall a drag for longer than the dwell, and a stall inside the reach short of the
+    point would (rightly) acquire the landmark there. It is held on the point until the landmark is
+    taken: the page sends where the pointer rests, not only where it is released."""
     errors = []
+    outside_reach_mm = TrackingVolumeConfig().landmark_tolerance_mm + 1.0
     for _ in range(LANDMARKS):
         landmark = page.evaluate("trainer.stats.last.registration.current")
         x, y = page.evaluate(f"trainer.screenOf('{landmark}')")
         pixels = page.evaluate("trainer.millimetrePixels()")
         page.mouse.move(x + (miss_mm + drag_from_mm) * pixels, y)
         page.mouse.down()
-        page.mouse.move(x + miss_mm * pixels, y, steps=5)
-        page.mouse.up()
+        if drag_from_mm > outside_reach_mm:
+            page.mouse.move(x + (miss_mm + outside_reach_mm) * pixels, y, steps=5)
+        page.mouse.move(x + miss_mm * pixels, y)
+        if not drag_from_mm:
+            page.mouse.up()
         page.wait_for_function(f"trainer.stats.last.registration.acquired.includes('{landmark}')", timeout=15_000)
+        if drag_from_mm:
+            page.mouse.up()
         toast = page.locator(".toast", has_text=f"acquired {landmark.replace('_', ' ')}").last.inner_text()
         errors.append(float(toast.split(": ")[1].split(" mm")[0]))
     return errors

@@ -157,7 +157,8 @@ $("steer-ant").addEventListener("input", (e) => { steer.anteversion_deg = Number
 // (Shift: 5 mm) across the view; Space brings the probe to the bone near the next landmark. Held
 // still for ½ s within 5 mm of it, the landmark is acquired: the report scores how close.
 let probeTip = null; // where this page put the tip (scene frame, metres)
-let lastPlaced = 0;
+const PLACE_INTERVAL_MS = 30; // a drag sends at most ~30 positions a second
+let lastPlaced = 0, trailingPlace = null;
 const plainName = (name) => name.replaceAll("_", " ");
 const registering = () => state && !state.registration.done && state.tools.Probe?.source !== "tracker";
 const currentTarget = () => (state?.registration.current ? view.sceneInfo.landmarks[state.registration.current] : null);
@@ -185,10 +186,17 @@ function millimetrePixels() {
   return Math.hypot(x1 - x0, y1 - y0);
 }
 
+// A drag's positions go at most every PLACE_INTERVAL_MS, the latest never dropped: one that comes
+// sooner goes when the interval ends, so the server holds the tip where the hand rests, not where it passed.
 function placeProbe(tip, force = false) {
   probeTip = tip;
   const now = performance.now();
-  if (!force && now - lastPlaced < 30) return; // a drag sends at most ~30 positions a second
+  if (!force && now - lastPlaced < PLACE_INTERVAL_MS) {
+    trailingPlace ??= setTimeout(() => { trailingPlace = null; if (probeTip) placeProbe(probeTip, true); }, PLACE_INTERVAL_MS - (now - lastPlaced));
+    return;
+  }
+  clearTimeout(trailingPlace);
+  trailingPlace = null;
   lastPlaced = now;
   send({ type: "probe", action: "place", tip_mm: tip.map((x) => x * 1000) });
 }
@@ -237,7 +245,7 @@ canvas.addEventListener("pointerup", endDrag);
 canvas.addEventListener("pointercancel", endDrag);
 
 $("touch").addEventListener("click", () => approach());
-const lift = () => { probeTip = null; send({ type: "probe", action: "lift" }); };
+const lift = () => { probeTip = null; clearTimeout(trailingPlace); trailingPlace = null; send({ type: "probe", action: "lift" }); };
 $("lift").addEventListener("click", lift);
 $("retake").addEventListener("click", () => send({ type: "registration", action: "retake" }));
 $("restart").addEventListener("click", () => send({ type: "registration", action: "restart" }));

@@ -220,6 +220,9 @@ def test_safe_zone_colour_changes_when_the_aim_leaves_the_zone(page):
 
 def test_the_other_hip_keeps_the_pages_aim(page):
     """The server starts the other hip from its default aim (60°, 10°); the page's sliders (40°, 15°) win."""
+    page.locator("#steer-inc").fill("40")
+    page.locator("#steer-ant").fill("15")
+    wait_state(page, "s.angles && Math.abs(s.angles.radiographic[0] - 40) < 0.5 && Math.abs(s.angles.radiographic[1] - 15) < 0.5")
     for side in ("left", "right"):
         page.select_option("#side", side)
         page.wait_for_function(f"trainer.stats.acks.includes('{side} hip')", timeout=10_000)

@@ -245,7 +245,7 @@ canvas.addEventListener("pointerup", endDrag);
 canvas.addEventListener("pointercancel", endDrag);
 
 $("touch").addEventListener("click", () => approach());
-const lift = () => { probeTip = null; clearTimeout(trailingPlace); trailingPlace = null; send({ type: "probe", action: "lift" }); };
+const lift = () => { probeTip = null; send({ type: "probe", action: "lift" }); }; // a trailing place then sends nothing
 $("lift").addEventListener("click", lift);
 $("retake").addEventListener("click", () => send({ type: "registration", action: "retake" }));
 $("restart").addEventListener("click", () => send({ type: "registration", action: "restart" }));

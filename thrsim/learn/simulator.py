@@ -196,16 +196,21 @@ class ReamingSimulator:
         """Two frames in the bone before the process's first session of this kind (then :meth:`reset`):
         Numba loads its cached kernels of the cutting front, features and attachment here, not in a
         trainee's first frame in contact (that tick took 40-90 ms more; compiling them, on a fresh
-        install, seconds), and the chips' kernel, which only a frame that removes bone calls. Once per
-        process: the loaded kernels serve every later simulator, and a server's next session starts
-        without stepping."""
-        self.model.graph.chips(np.ones(self.n_elements, dtype=bool))
+        install, seconds), the chips' kernel, which only a frame that removes bone calls, and the
+        pushed feed's front entry, which a reamer in free air calls. The frames cut with the size a
+        step takes when none is asked, placed for that size (placed for another, a smaller reamer on
+        the whole socket never reached the bone and warmed nothing). Once per process: the loaded
+        kernels serve every later simulator, and a server's next session starts without stepping."""
+        intact = np.ones(self.n_elements, dtype=bool)
+        self.model.graph.chips(intact)
         axis = np.array([0.0, 0.0, -1.0])
-        touching = start_position(self.model.mesh.nodes, axis, self.model.teeth_radius_m)
+        size_mm = self.cutting_size_mm(None)
+        touching = start_position(self.model.mesh.nodes, axis, size_mm * 0.5e-3)
+        self.model.graph.front_entry_m(intact, touching, axis, size_mm * 0.5e-3)
         for depth_mm in (0.5, 1.0, 2.0, 4.0):  # a coarse mesh's front lies deeper than a fine one's
-            self.step(axis, PUSH_FORCE_N, reamer_position=touching + depth_mm * 1e-3 * axis)
+            self.step(axis, PUSH_FORCE_N, reamer_position=touching + depth_mm * 1e-3 * axis, reamer_mm=size_mm)
             if self._step.last.region:
-                self.step(axis, PUSH_FORCE_N, reamer_position=touching + (depth_mm + 0.1) * 1e-3 * axis)
+                self.step(axis, PUSH_FORCE_N, reamer_position=touching + (depth_mm + 0.1) * 1e-3 * axis, reamer_mm=size_mm)
                 return
 
     @property

@@ -203,6 +203,9 @@ def test_render_scale_can_be_pinned(page, served):
 
 
 def test_safe_zone_colour_changes_when_the_aim_leaves_the_zone(page):
+    page.locator("#steer-inc").fill("60")  # the default aim, whatever an earlier test left
+    page.locator("#steer-ant").fill("10")
+    wait_state(page, "s.angles && Math.abs(s.angles.radiographic[0] - 60) < 0.5 && Math.abs(s.angles.radiographic[1] - 10) < 0.5")
     for _ in range(4):
         keys(page, "Shift+ArrowDown")  # 60° → 40° inclination
     for _ in range(5):

@@ -81,8 +81,9 @@ def _right_controller(page) -> str:
     return "trainer.xr.controllers.find((c) => c.source?.handedness === 'right')"
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def navigation(browser, served):
+    """A page of its own per test (its own session): each test enters the headset as it needs."""
     page = _headset_page(browser, served, "/")
     yield page
     page.close()

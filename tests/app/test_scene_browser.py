@@ -56,6 +56,14 @@ def reaming(browser):
     page.close()
 
 
+@pytest.fixture
+def unreamed(browser):
+    """A reaming page of its own (its own session): a plan is set before reaming, and other tests ream."""
+    page = _open(browser, "/reaming")
+    yield page
+    page.close()
+
+
 @pytest.fixture(scope="module")
 def navigation(browser):
     page = _open(browser, "/")
@@ -182,8 +190,8 @@ def test_camera_reset_and_the_surgeons_view_change_the_view(reaming, navigation,
     assert page.problems == []
 
 
-def test_the_bone_is_coloured_by_depth_against_the_plan_with_a_legend_in_mm(browser):
-    reaming = _open(browser, "/reaming")  # its own session: a plan is set before reaming, and other tests ream
+def test_the_bone_is_coloured_by_depth_against_the_plan_with_a_legend_in_mm(unreamed):
+    reaming = unreamed
     legend = reaming.inner_text("#cavity-legend")
     assert "Depth against the plan (mm)" in legend and all(tick in legend for tick in ("−2", "−1", "0", "+1", "+2"))
     # the plan: the trainee's, outlined at its size, and the depth measured from its centre; a 44 mm
@@ -220,7 +228,6 @@ def test_the_bone_is_coloured_by_depth_against_the_plan_with_a_legend_in_mm(brow
     reaming.wait_for_timeout(400)
     assert changed_fraction(before[inset], picture(reaming)[inset]) < 0.02
     assert reaming.problems == []
-    reaming.close()
 
 
 def test_the_bone_left_is_shown_and_warned_of_and_the_patch_has_no_medial_wall(reaming):
